@@ -1,0 +1,34 @@
+"""Where recon keeps built artefacts (body-model export, retargeted mocap)."""
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+REPO_ROOT = Path(__file__).resolve().parent.parent
+
+
+def cache_dir() -> Path:
+    """$RECON_CACHE_DIR, else ~/.cache/recon. Created on first use."""
+    d = Path(os.environ.get("RECON_CACHE_DIR", Path.home() / ".cache" / "recon"))
+    d.mkdir(parents=True, exist_ok=True)
+    return d
+
+
+def shared_dir() -> Path:
+    """$RECON_SHARED_DIR, else ../shared beside the repository (mocap data, papers)."""
+    return Path(os.environ.get("RECON_SHARED_DIR", REPO_ROOT.parent / "shared"))
+
+
+def atomic_write(path: Path, write) -> None:
+    """Call ``write(tmp_path)`` then rename onto ``path``: readers never see a partial file."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=path.suffix)
+    os.close(fd)
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)

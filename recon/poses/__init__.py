@@ -1,0 +1,1 @@
+"""Poses: mocap readers, retargeting to the canonical skeleton, cached pose set and samplers."""

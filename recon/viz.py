@@ -1,0 +1,70 @@
+"""Offscreen rendering of body meshes with pyrender (demo pictures, overlays).
+
+Needs the ``render`` extra and EGL or OSMesa (scripts/setup.sh installs both). The
+platform is taken from $PYOPENGL_PLATFORM, default "egl", falling back to "osmesa".
+"""
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+
+def _pyrender():
+    os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
+    os.environ.setdefault("PYGLET_HEADLESS", "1")
+    if not hasattr(np, "infty"):
+        np.infty = np.inf  # pyrender 0.1.45 still uses the numpy<2 alias
+    import pyrender
+
+    return pyrender
+
+
+def look_at(eye: np.ndarray, target: np.ndarray, up=(0.0, 1.0, 0.0)) -> np.ndarray:
+    """Camera-to-world pose for an OpenGL camera (looks down its -Z)."""
+    z = eye - target
+    z = z / np.linalg.norm(z)
+    x = np.cross(up, z)
+    x = x / np.linalg.norm(x)
+    y = np.cross(z, x)
+    pose = np.eye(4)
+    pose[:3, 0], pose[:3, 1], pose[:3, 2], pose[:3, 3] = x, y, z, eye
+    return pose
+
+
+def render_meshes(meshes: list[tuple[np.ndarray, np.ndarray, tuple]], size=(512, 512), yaw_deg: float = 0.0,
+                  distance: float | None = None) -> np.ndarray:
+    """Render [(vertices, faces, rgba)] seen from the front (body frame), rotated by ``yaw_deg``.
+
+    Returns an (H, W, 3) uint8 image on a white background.
+    """
+    pyrender = _pyrender()
+    import trimesh
+
+    allv = np.concatenate([m[0] for m in meshes])
+    center = 0.5 * (allv.min(0) + allv.max(0))
+    extent = float(np.max(allv.max(0) - allv.min(0)))
+    scene = pyrender.Scene(bg_color=[1.0, 1.0, 1.0, 1.0], ambient_light=[0.35, 0.35, 0.35])
+    for v, f, rgba in meshes:
+        tm = trimesh.Trimesh(v, f, process=False)
+        mat = pyrender.MetallicRoughnessMaterial(baseColorFactor=list(rgba), metallicFactor=0.0, roughnessFactor=0.8)
+        scene.add(pyrender.Mesh.from_trimesh(tm, material=mat, smooth=True))
+    yaw = np.radians(yaw_deg)
+    dist = distance or 1.6 * extent + 0.5
+    eye = center + dist * np.array([np.sin(yaw), 0.15, np.cos(yaw)])
+    cam_pose = look_at(eye, center)
+    scene.add(pyrender.PerspectiveCamera(yfov=np.radians(40.0)), pose=cam_pose)
+    scene.add(pyrender.DirectionalLight(intensity=3.0), pose=cam_pose)
+    scene.add(pyrender.DirectionalLight(intensity=1.5), pose=look_at(center + np.array([1.0, 2.0, 1.0]), center))
+    try:
+        renderer = pyrender.OffscreenRenderer(*size)
+    except Exception as e:  # noqa: BLE001 - report which GL platform failed
+        raise RuntimeError(
+            f"offscreen OpenGL ({os.environ.get('PYOPENGL_PLATFORM')}) unavailable: {e}. "
+            "Run scripts/setup.sh (installs libegl1/libosmesa6) or set PYOPENGL_PLATFORM=osmesa."
+        ) from e
+    try:
+        color, _ = renderer.render(scene)
+    finally:
+        renderer.delete()
+    return np.ascontiguousarray(color[..., :3])

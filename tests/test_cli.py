@@ -1,0 +1,36 @@
+"""The command line: model facts, pose statistics and the demo (needs offscreen GL)."""
+import json
+
+import trimesh
+
+from recon.cli import main
+
+
+def test_body_info(capsys):
+    assert main(["body", "info"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["joints"][0] == "pelvis" and len(info["landmarks"]) == 18
+    assert 1.4 < info["height_m"] < 2.1
+
+
+def test_poses_stats(capsys, mocap):
+    assert main(["poses", "stats"]) == 0
+    stats = json.loads(capsys.readouterr().out)
+    assert stats["train"]["frames"] > stats["test"]["frames"] > 0
+
+
+def test_demo_writes_png_obj_glb(tmp_path, body, mocap):
+    assert main(["demo", "--out", str(tmp_path)]) == 0
+    import cv2
+
+    img = cv2.imread(str(tmp_path / "bodies.png"))
+    assert img is not None and img.shape[0] > 100
+    assert (img < 250).mean() > 0.02  # something was drawn on the white background
+    mesh = trimesh.load(tmp_path / "body0.glb", force="mesh")
+    assert len(mesh.vertices) > 1000
+    assert not list(tmp_path.glob(".*"))  # no temp files left behind
+
+
+def test_bad_model_is_a_clean_error(capsys):
+    assert main(["body", "info", "--model", "nope.fbx"]) == 2
+    assert "unknown body model" in capsys.readouterr().err
