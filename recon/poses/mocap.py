@@ -19,7 +19,7 @@ from scipy.spatial.transform import Rotation
 from recon import paths
 from recon.poses.asfamc import read_asf_amc
 from recon.poses.bvh import read_bvh
-from recon.poses.retarget import Retargeter
+from recon.poses.retarget import PRIMARY_CHILD, Retargeter
 
 log = logging.getLogger(__name__)
 
@@ -100,7 +100,7 @@ def build(body=None, mocap_root: Path | None = None, out: Path | None = None, li
             log.warning("skipping %s: %s", row["path"], e)
             continue
         rot, tr = resample(res.rotmats, res.transl, motion.fps)
-        primary = [e for k, e in res.errors_deg.items() if k.split("->")[1] in _PRIMARY_NAMES(k)]
+        primary = [e for k, e in res.errors_deg.items() if PRIMARY_CHILD.get(k.split("->")[0]) == k.split("->")[1]]
         subject = row["cmu_subject"] or Path(row["path"]).parts[0]
         clips.append({
             "name": Path(row["path"]).stem, "path": row["path"], "source": row["source"],
@@ -116,12 +116,6 @@ def build(body=None, mocap_root: Path | None = None, out: Path | None = None, li
                   clip=np.concatenate(clip_ids), clips=np.array(json.dumps(clips)), fps=np.array(FPS))
     paths.atomic_write(out, lambda tmp: np.savez_compressed(open(tmp, "wb"), **arrays))
     return out
-
-
-def _PRIMARY_NAMES(bone: str) -> tuple[str, ...]:
-    from recon.poses.retarget import PRIMARY_CHILD
-
-    return (PRIMARY_CHILD.get(bone.split("->")[0], ""),)
 
 
 @dataclass
