@@ -55,6 +55,74 @@ def cmd_poses(args) -> int:
     return 0
 
 
+def cmd_smplr(args) -> int:
+    import subprocess
+
+    from recon.smplr import train as smplr_train
+
+    cfg = smplr_train.TrainConfig()
+    if args.action == "train":
+        stages = args.stages or ["dae3d", "dae2d", "psi", "omega", "finetune"]
+        if args.jobs > 1 and args.stages is None:
+            # The DAE chain and the Psi/Omega chain are independent: one process (1 thread) each.
+            from recon.body import default_body
+            from recon.smplr.data import load_or_generate
+
+            load_or_generate(default_body(), "train", cfg.train_size, cfg.seed, cfg.pose_noise_deg)
+            load_or_generate(default_body(), "val", cfg.val_size, cfg.seed + 100, 0.0)
+            procs = [subprocess.Popen([sys.executable, "-m", "recon.cli", "smplr", "train", "--stages", *chain])
+                     for chain in (["dae3d", "dae2d"], ["psi", "omega", "finetune"])]
+            if any(p.wait() != 0 for p in procs):
+                raise RuntimeError("a training process failed")
+            stages = []
+        from recon.body import default_body
+
+        print(smplr_train.run(stages, cfg) if stages else smplr_train.export(cfg, default_body(), _weights()))
+        return 0
+    from recon.smplr.evaluate import evaluate_and_report
+
+    print(evaluate_and_report(n=args.n, out_dir=Path(args.out)))
+    return 0
+
+
+def _weights():
+    from recon.smplr.model import WEIGHTS
+
+    return WEIGHTS
+
+
+def cmd_synth(args) -> int:
+    from recon.synth import dataset
+
+    if args.bench:
+        out = dataset.build_benchmark(args.bench, workers=args.workers, n=args.n)
+    else:
+        if not args.out:
+            raise ValueError("give --bench NAME or --out DIR (with --split, --seed, --n)")
+        out = dataset.generate(Path(args.out), args.split, args.seed, args.n or 1000, workers=args.workers,
+                               store_vertices=not args.no_vertices)
+    ds = dataset.SynthDataset(out)
+    if args.verify:
+        bad = ds.verify()
+        if bad:
+            raise RuntimeError(f"shards {bad} differ from the manifest")
+        print("all shards match the manifest")
+        if args.bench and dataset.reference_hashes_path(args.bench).exists():
+            diff = dataset.compare_with_reference(args.bench)
+            if diff:
+                raise RuntimeError(f"shards {diff} differ from the committed reference hashes")
+            print(f"bit-identical to the reference ({dataset.reference_hashes_path(args.bench)})")
+    print(f"{out}: {len(ds)} samples")
+    return 0
+
+
+def cmd_eval(args) -> int:
+    from recon.bench.runner import evaluate
+
+    print(evaluate(args.bench, args.method, n=args.n, out_dir=Path(args.out)))
+    return 0
+
+
 def cmd_demo(args) -> int:
     from recon.demo import body_demo
 
@@ -78,6 +146,29 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--force", action="store_true")
     p.add_argument("--limit", type=int, default=None, help="only the first N clips (quick checks)")
     p.set_defaults(func=cmd_poses)
+    s = sub.add_parser("smplr", help="train SMPLR (DAE, Omega, Psi) on generated 3D data, or evaluate it")
+    s.add_argument("action", choices=["train", "eval"])
+    s.add_argument("--stages", nargs="+", choices=["dae3d", "dae2d", "psi", "omega", "finetune"], default=None)
+    s.add_argument("--jobs", type=int, default=2, help="train the two independent chains in parallel")
+    s.add_argument("--n", type=int, default=2000, help="eval: number of held-out test samples")
+    s.add_argument("--out", default="eval/results", help="eval: where the JSON and Markdown tables go")
+    s.set_defaults(func=cmd_smplr)
+    y = sub.add_parser("synth", help="render synthetic samples (SURREAL-like) or build a fixed benchmark")
+    y.add_argument("--bench", choices=["synth-val", "synth-test"], default=None)
+    y.add_argument("--out", default=None)
+    y.add_argument("--split", default="train", choices=["train", "val", "test"])
+    y.add_argument("--seed", type=int, default=0)
+    y.add_argument("--n", type=int, default=None)
+    y.add_argument("--workers", type=int, default=2)
+    y.add_argument("--no-vertices", action="store_true", help="do not store vertices (smaller shards)")
+    y.add_argument("--verify", action="store_true", help="re-hash shards against the manifest")
+    y.set_defaults(func=cmd_synth)
+    e = sub.add_parser("eval", help="run methods on a synthetic benchmark; write JSON + Markdown")
+    e.add_argument("--bench", default="synth-test")
+    e.add_argument("--method", nargs="+", default=["mean", "mediapipe"])
+    e.add_argument("--n", type=int, default=None, help="only the first N images")
+    e.add_argument("--out", default="eval/results")
+    e.set_defaults(func=cmd_eval)
     d = sub.add_parser("demo", help="render bodies in held-out mocap poses; write PNG, OBJ and GLB")
     d.add_argument("--out", default="out/demo")
     d.add_argument("--seed", type=int, default=0)

@@ -32,3 +32,14 @@ def atomic_write(path: Path, write) -> None:
     finally:
         if os.path.exists(tmp):
             os.unlink(tmp)
+
+
+def write_image(path: Path, rgb) -> None:
+    """Atomically write an (H, W, 3) RGB uint8 image; the format follows the suffix."""
+    import cv2
+
+    def write(tmp):
+        if not cv2.imwrite(tmp, rgb[..., ::-1]):
+            raise OSError(f"cannot write image {path}")
+
+    atomic_write(path, write)

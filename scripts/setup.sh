@@ -23,6 +23,13 @@ command -v "$PY" >/dev/null || PY=python3
 # pyrender pins PyOpenGL 3.1.0, which lacks working OSMesa/EGL on numpy 2: override after it.
 .venv/bin/pip install -q --disable-pip-version-check --no-deps PyOpenGL==3.1.10
 
+# MediaPipe Pose (benchmark baseline, optional extra): its numpy<2/protobuf pins conflict,
+# so install it without dependencies plus what it needs at run time (see TECH_NOTES).
+if ! .venv/bin/python -c "import mediapipe" 2>/dev/null; then
+  .venv/bin/pip install -q --disable-pip-version-check --no-deps mediapipe==0.10.21
+  .venv/bin/pip install -q --disable-pip-version-check absl-py attrs flatbuffers "protobuf<5" matplotlib sounddevice
+fi
+
 export OMP_NUM_THREADS=1
 .venv/bin/recon body build-cache
 .venv/bin/recon poses build

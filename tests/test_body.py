@@ -111,3 +111,11 @@ def test_float64_module(body):
     out = b64(torch.zeros(1, 24, 3, dtype=torch.float64))
     assert out.vertices.dtype == torch.float64
     assert torch.allclose(out.vertices.float(), body().vertices, atol=1e-5)
+
+
+def test_points_only_path_matches_full_forward(body):
+    torch.manual_seed(3)
+    pose, shape = 0.4 * torch.randn(4, 24, 3), torch.rand(4, 6)
+    full, fast = body(pose, shape), body(pose, shape, points_only=True)
+    assert fast.vertices.shape == (4, 18, 3)
+    assert torch.allclose(full.points, fast.points, atol=1e-5)

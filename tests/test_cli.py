@@ -26,6 +26,7 @@ def test_demo_writes_png_obj_glb(tmp_path, body, mocap):
     img = cv2.imread(str(tmp_path / "bodies.png"))
     assert img is not None and img.shape[0] > 100
     assert (img < 250).mean() > 0.02  # something was drawn on the white background
+    assert cv2.imread(str(tmp_path / "smplr.png")) is not None
     mesh = trimesh.load(tmp_path / "body0.glb", force="mesh")
     assert len(mesh.vertices) > 1000
     assert not list(tmp_path.glob(".*"))  # no temp files left behind
@@ -34,3 +35,8 @@ def test_demo_writes_png_obj_glb(tmp_path, body, mocap):
 def test_bad_model_is_a_clean_error(capsys):
     assert main(["body", "info", "--model", "nope.fbx"]) == 2
     assert "unknown body model" in capsys.readouterr().err
+
+
+def test_eval_rejects_unknown_benchmark(capsys):
+    assert main(["eval", "--bench", "nope", "--method", "mean"]) == 2
+    assert "unknown benchmark" in capsys.readouterr().err

@@ -128,12 +128,16 @@ class AnnyBody(BodyModel):
         empty = shape.new_zeros(b, 0)
         return self.anny._get_phenotype_blendshape_coefficients(shape, empty, empty)
 
-    def rest_geometry(self, shape: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def rest_geometry(self, shape: torch.Tensor, vertex_ids: torch.Tensor | None = None
+                      ) -> tuple[torch.Tensor, torch.Tensor]:
         if ((shape < -0.5) | (shape > 1.5)).any():
             raise ValueError("anny phenotypes must lie in [0, 1] (got values far outside)")
         c = self._coeffs(shape)
         a = self.anny
-        verts = a.template_vertices + torch.einsum("bn,nvk->bvk", c, a.blendshapes)
+        tv, bs = a.template_vertices, a.blendshapes
+        if vertex_ids is not None:
+            tv, bs = tv[vertex_ids], bs[:, vertex_ids]
+        verts = tv + torch.einsum("bn,nvk->bvk", c, bs)
         heads = a.template_bone_heads[self.bone_ids] + torch.einsum(
             "bn,njk->bjk", c, a.bone_heads_blendshapes[:, self.bone_ids]
         )

@@ -31,8 +31,9 @@ class BodyModel(nn.Module):
     """A skinned parametric body: ``forward(pose, shape, transl) -> BodyOutput``.
 
     Subclasses register buffers ``faces`` (F, 3) long and ``weights`` (V, 24) and implement
-    ``rest_geometry(shape) -> (rest_vertices (B,V,3), rest_joints (B,24,3))``; they may
-    override ``pose_offsets`` for pose-corrective blend shapes. See recon.body.skeleton for
+    ``rest_geometry(shape, vertex_ids=None) -> (rest_vertices (B,V',3), rest_joints (B,24,3))``
+    (V' = all vertices or the given subset); they may override ``pose_offsets(rotmats,
+    vertex_ids)`` for pose-corrective blend shapes. See recon.body.skeleton for
     frames, units and joint order.
     """
 
@@ -47,10 +48,11 @@ class BodyModel(nn.Module):
     mean_shape: torch.Tensor
 
     # --- to be provided by backends -------------------------------------------------
-    def rest_geometry(self, shape: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def rest_geometry(self, shape: torch.Tensor, vertex_ids: torch.Tensor | None = None
+                      ) -> tuple[torch.Tensor, torch.Tensor]:
         raise NotImplementedError
 
-    def pose_offsets(self, rotmats: torch.Tensor) -> torch.Tensor | None:
+    def pose_offsets(self, rotmats: torch.Tensor, vertex_ids: torch.Tensor | None = None) -> torch.Tensor | None:
         return None
 
     # --- shared ---------------------------------------------------------------------
@@ -105,6 +107,7 @@ class BodyModel(nn.Module):
         pose: torch.Tensor | None = None,
         shape: torch.Tensor | None = None,
         transl: torch.Tensor | None = None,
+        points_only: bool = False,
     ) -> BodyOutput:
         """Pose and shape the body.
 
@@ -112,7 +115,8 @@ class BodyModel(nn.Module):
             pose: (B, 24, 3) axis-angle or (B, 24, 3, 3) local rotations; None = rest pose.
             shape: (B, S) shape parameters (see ``shape_names``); None = mean shape.
             transl: (B, 3) position of the pelvis joint; None = origin.
-        A batch of 1 in pose or shape broadcasts against the other.
+        A batch of 1 in pose or shape broadcasts against the other. ``points_only`` skins
+        only the landmark vertices (``vertices`` then holds those 18): the cheap path for J+.
         """
         dtype = self.mean_shape.dtype
         rot = None if pose is None else lbs.as_rotmats(pose, skeleton.NUM_JOINTS).to(dtype)
@@ -124,8 +128,9 @@ class BodyModel(nn.Module):
         rot = self.identity_pose(b) if rot is None else rot.expand(b, -1, -1, -1)
         shp = self._check_shape(shp, b).expand(b, -1)
 
-        rest_v, rest_j = self.rest_geometry(shp)
-        offsets = self.pose_offsets(rot)
+        ids = self.landmark_indices if points_only else None
+        rest_v, rest_j = self.rest_geometry(shp, ids)
+        offsets = self.pose_offsets(rot, ids)
         posed_rest_v = rest_v if offsets is None else rest_v + offsets
         g_rot, joints, transforms = lbs.forward_kinematics(rot, rest_j, self.parents)
 
@@ -139,11 +144,12 @@ class BodyModel(nn.Module):
                 raise ValueError("transl contains NaN or infinite values")
             shift = shift + transl.reshape(-1, 1, 3).to(dtype)
         transforms = torch.cat([transforms[..., :3], transforms[..., 3:] + shift.unsqueeze(-1)], dim=-1)
-        vertices = lbs.skin(posed_rest_v, self.weights, transforms)
+        weights = self.weights if ids is None else self.weights[ids]
+        vertices = lbs.skin(posed_rest_v, weights, transforms)
         return BodyOutput(
             vertices=vertices,
             joints=joints + shift,
-            landmarks=vertices[:, self.landmark_indices],
+            landmarks=vertices if points_only else vertices[:, self.landmark_indices],
             transforms=transforms,
             global_rotmats=g_rot,
             rest_vertices=rest_v,

@@ -101,12 +101,14 @@ class SMPLFileBody(BodyModel):
         self.register_buffer("mean_shape", torch.zeros(shapedirs.shape[-1]), persistent=False)
         self._finish_init()
 
-    def rest_geometry(self, shape: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def rest_geometry(self, shape: torch.Tensor, vertex_ids: torch.Tensor | None = None
+                      ) -> tuple[torch.Tensor, torch.Tensor]:
         verts = self.v_template + torch.einsum("bs,vks->bvk", shape, self.shapedirs)
         joints = torch.einsum("jv,bvk->bjk", self.J_regressor, verts)
-        return verts, joints
+        return (verts if vertex_ids is None else verts[:, vertex_ids]), joints
 
-    def pose_offsets(self, rotmats: torch.Tensor) -> torch.Tensor:
+    def pose_offsets(self, rotmats: torch.Tensor, vertex_ids: torch.Tensor | None = None) -> torch.Tensor:
         eye = torch.eye(3, dtype=rotmats.dtype, device=rotmats.device)
         feat = (rotmats[:, 1:] - eye).reshape(rotmats.shape[0], -1)
-        return (feat @ self.posedirs).view(rotmats.shape[0], -1, 3)
+        offsets = (feat @ self.posedirs).view(rotmats.shape[0], -1, 3)
+        return offsets if vertex_ids is None else offsets[:, vertex_ids]

@@ -1,0 +1,145 @@
+"""Methods evaluated on the synthetic benchmarks. Each gets the RGB image and the camera
+intrinsics K (as in the thesis protocol) and returns a ``Prediction`` in the camera frame."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from recon.body import skeleton
+from recon.synth.scene import BODY_TO_CAMERA_FRONT
+
+# SMPLR takes J+ in a viewer frame with +Y up and +Z towards the viewer (OpenGL camera axes);
+# OpenCV camera axes (y down, z forward) differ by a half turn about X.
+OPENCV_TO_VIEW = np.array([1.0, -1.0, -1.0])
+
+
+@dataclass
+class Prediction:
+    joints: np.ndarray  # (24, 3) camera frame (only root-relative errors use it when placed=False)
+    landmarks: np.ndarray | None = None  # (18, 3)
+    vertices: np.ndarray | None = None  # (V, 3) camera frame, placed in the image
+    mask: np.ndarray | None = None  # (H, W) bool person mask, when the method gives one
+
+
+class MeanBaseline:
+    """Training-set mean pose (chordal mean per joint) and the body model's mean shape, upright
+    and facing the camera, at the image centre, at the distance where a mean-height body fills
+    72.5% of the image height (the generator's average)."""
+
+    name = "mean"
+    description = "mean pose + mean shape, facing the camera"
+
+    def __init__(self, body):
+        import roma
+
+        from recon.poses.mocap import MocapPoses
+
+        self.body = body
+        rv = torch.tensor(MocapPoses.load().split("train").rotvec[::10])
+        mean = roma.special_procrustes(roma.rotvec_to_rotmat(rv).sum(0))
+        mean[0] = torch.tensor(BODY_TO_CAMERA_FRONT, dtype=torch.float32)  # body -> camera
+        with torch.no_grad():
+            self.out = body(mean[None])
+        v = self.out.vertices[0].numpy()
+        self.height = float(v[:, 1].max() - v[:, 1].min())
+
+    def __call__(self, rgb: np.ndarray, k: np.ndarray) -> Prediction:
+        size = rgb.shape[0]
+        t = np.array([0.0, 0.0, k[0, 0] * self.height / (0.725 * size)])
+        o = self.out
+        return Prediction(o.joints[0].numpy() + t, o.landmarks[0].numpy() + t, o.vertices[0].numpy() + t)
+
+
+# MediaPipe Pose (33 landmarks) -> our joints; spine/collar joints are interpolated.
+MP = {"nose": 0, "l_ear": 7, "r_ear": 8, "l_sh": 11, "r_sh": 12, "l_el": 13, "r_el": 14, "l_wr": 15, "r_wr": 16,
+      "l_pinky": 17, "r_pinky": 18, "l_index": 19, "r_index": 20, "l_hip": 23, "r_hip": 24, "l_knee": 25,
+      "r_knee": 26, "l_ankle": 27, "r_ankle": 28, "l_heel": 29, "r_heel": 30, "l_foot": 31, "r_foot": 32}
+
+
+def mediapipe_to_joints(w: np.ndarray) -> np.ndarray:
+    """(33, 3) MediaPipe world landmarks -> (24, 3) in our joint order."""
+    g = lambda n: w[MP[n]]  # noqa: E731
+    hip, sh = 0.5 * (g("l_hip") + g("r_hip")), 0.5 * (g("l_sh") + g("r_sh"))
+    j = {
+        "pelvis": hip, "left_hip": g("l_hip"), "right_hip": g("r_hip"),
+        "spine1": hip + 0.2 * (sh - hip), "spine2": hip + 0.45 * (sh - hip), "spine3": hip + 0.7 * (sh - hip),
+        "left_knee": g("l_knee"), "right_knee": g("r_knee"), "left_ankle": g("l_ankle"), "right_ankle": g("r_ankle"),
+        "left_foot": g("l_foot"), "right_foot": g("r_foot"), "neck": sh + 0.15 * (sh - hip),
+        "left_collar": sh + 0.3 * (g("l_sh") - sh), "right_collar": sh + 0.3 * (g("r_sh") - sh),
+        "head": 0.5 * (g("l_ear") + g("r_ear")), "left_shoulder": g("l_sh"), "right_shoulder": g("r_sh"),
+        "left_elbow": g("l_el"), "right_elbow": g("r_el"), "left_wrist": g("l_wr"), "right_wrist": g("r_wr"),
+        "left_hand": 0.5 * (g("l_pinky") + g("l_index")), "right_hand": 0.5 * (g("r_pinky") + g("r_index")),
+    }
+    return np.stack([j[n] for n in skeleton.JOINT_NAMES])
+
+
+class MediaPipeBaseline:
+    """MediaPipe Pose (0.10.21, model_complexity=1): 3D world landmarks (metres, hip-centred,
+    image-aligned axes = our camera axes) mapped to our joints; its segmentation mask for IoU.
+    Optional extra: installed by scripts/setup.sh."""
+
+    name = "mediapipe"
+    description = "MediaPipe Pose 3D world landmarks mapped to our joints"
+
+    def __init__(self, body=None):
+        try:
+            import mediapipe as mp
+        except ImportError as e:
+            raise RuntimeError("mediapipe is not installed (scripts/setup.sh installs it)") from e
+        self.pose = mp.solutions.pose.Pose(static_image_mode=True, model_complexity=1, enable_segmentation=True)
+
+    def __call__(self, rgb: np.ndarray, k: np.ndarray) -> Prediction | None:
+        r = self.pose.process(np.ascontiguousarray(rgb))
+        if r.pose_world_landmarks is None:
+            return None
+        w = np.array([[p.x, p.y, p.z] for p in r.pose_world_landmarks.landmark])
+        mask = None if r.segmentation_mask is None else r.segmentation_mask > 0.5
+        return Prediction(mediapipe_to_joints(w), mask=mask)
+
+
+class SMPLROracle2D:
+    """Upper bound for the lifting stage: the ground-truth 2D J+ of the image, back-projected
+    to unit depth, lifted by the DAE-2D + SMPLR, placed by least-squares translation."""
+
+    name = "smplr-gt2d"
+    description = "oracle: GT 2D J+ -> DAE-2D -> SMPLR (not an image method)"
+
+    def __init__(self, body):
+        from recon.smplr import SMPLR
+
+        self.model = SMPLR.load(body)
+        self.needs_gt = True
+
+    def __call__(self, rgb, k, points2d=None) -> Prediction:
+        xy = (points2d - k[:2, 2]) / k[0, 0]  # normalised image coordinates = X / Z
+        # Metric scale for the DAE-2D: depth ~ template bone length / 2D bone length, with a
+        # typical foreshortening of 0.85 (median over the 41 J+ links).
+        d2 = np.linalg.norm(xy[1:] - xy[list(skeleton.KINTREE_PLUS[1:])], axis=1)
+        depth = 0.85 * np.median(self.model.template.numpy() / np.maximum(d2, 1e-6))
+        x = np.concatenate([xy * depth, np.zeros((len(xy), 1))], 1) * OPENCV_TO_VIEW
+        with torch.no_grad():
+            out = self.model(torch.tensor(x[None], dtype=torch.float32), mode="2d")
+        v = out.body.vertices[0].numpy() * OPENCV_TO_VIEW
+        j, lm = out.body.joints[0].numpy() * OPENCV_TO_VIEW, out.body.landmarks[0].numpy() * OPENCV_TO_VIEW
+        pts = np.concatenate([j, lm]) - j[:1]
+        t = place(pts, points2d, k)
+        return Prediction(j - j[:1] + t, lm - j[:1] + t, v - j[:1] + t)
+
+
+def place(points: np.ndarray, uv: np.ndarray, k: np.ndarray) -> np.ndarray:
+    """Translation t minimising the linearised reprojection error of points + t onto uv."""
+    f, c = k[0, 0], k[:2, 2]
+    a, b = [], []
+    for d in range(2):
+        du = uv[:, d] - c[d]
+        row = np.zeros((len(uv), 3))
+        row[:, d], row[:, 2] = f, -du
+        a.append(row)
+        b.append(du * points[:, 2] - f * points[:, d])
+    t, *_ = np.linalg.lstsq(np.concatenate(a), np.concatenate(b), rcond=None)
+    return t
+
+
+METHODS = {"mean": MeanBaseline, "mediapipe": MediaPipeBaseline, "smplr-gt2d": SMPLROracle2D}

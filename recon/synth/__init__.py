@@ -1,0 +1,2 @@
+"""Synthetic benchmark generation: a moderngl rasteriser (RGB, part labels, depth), the
+SURREAL-like scene sampler and sharded, resumable, reproducible storage with fixed benchmarks."""

@@ -1,0 +1,207 @@
+"""Sharded, resumable, parallel storage of synthetic samples, and the fixed benchmarks.
+
+A dataset folder holds ``shard-00000.npz`` ... (``shard_size`` samples each, written atomically,
+images as PNG bytes) and ``manifest.json`` (config, seed, split, per-shard SHA-256). A shard
+that exists is never recomputed, so an interrupted run resumes where it stopped. Sample i
+depends only on (split, seed, i): results are bit-identical for any number of workers.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from dataclasses import asdict
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from recon import paths
+from recon.synth.scene import SynthConfig
+
+# Fixed benchmark splits: poses of held-out mocap subjects (recon.poses.mocap.SPLIT_SUBJECTS).
+BENCHMARKS = {
+    "synth-val": {"split": "val", "seed": 1001, "n": 2000},
+    "synth-test": {"split": "test", "seed": 2002, "n": 2000},
+}
+IMAGE_KEYS = ("rgb", "mask", "silhouette", "parts", "depth")
+ARRAY_KEYS = ("K", "R", "t", "points3d", "points2d", "pose", "shape", "vertices")
+
+
+def bench_dir(name: str) -> Path:
+    if name not in BENCHMARKS:
+        raise KeyError(f"unknown benchmark {name!r}; known: {', '.join(BENCHMARKS)}")
+    return paths.cache_dir() / "synth" / name
+
+
+def _encode(key: str, a: np.ndarray) -> bytes:
+    if key == "rgb":
+        a = a[..., ::-1]
+    elif key == "depth":  # millimetres, uint16
+        a = np.clip(np.nan_to_num(a.astype(np.float32)) * 1000.0, 0, 65535).astype(np.uint16)
+    elif a.dtype == bool:
+        a = a.astype(np.uint8) * 255
+    ok, buf = cv2.imencode(".png", a, [cv2.IMWRITE_PNG_COMPRESSION, 1])
+    if not ok:
+        raise RuntimeError(f"PNG encoding of {key} failed")
+    return buf.tobytes()
+
+
+def _decode(key: str, b: np.ndarray) -> np.ndarray:
+    a = cv2.imdecode(b, cv2.IMREAD_UNCHANGED)
+    if key == "rgb":
+        return a[..., ::-1]
+    if key == "depth":
+        return a.astype(np.float32) / 1000.0
+    if key in ("mask", "silhouette"):
+        return a > 0
+    return a
+
+
+def _pack(samples: list[dict], store_vertices: bool) -> dict[str, np.ndarray]:
+    out: dict[str, np.ndarray] = {}
+    for key in IMAGE_KEYS:
+        blobs = [np.frombuffer(_encode(key, s[key]), np.uint8) for s in samples]
+        out[key + "_png"] = np.concatenate(blobs)
+        out[key + "_offsets"] = np.cumsum([0] + [len(b) for b in blobs]).astype(np.int64)
+    for key in ARRAY_KEYS:
+        if key == "vertices" and not store_vertices:
+            continue
+        out[key] = np.stack([s[key] for s in samples])
+    return out
+
+
+_WORKER = {}
+
+
+def _init_worker(split: str, seed: int, cfg: dict) -> None:
+    import torch
+
+    torch.set_num_threads(1)
+    from recon.body import default_body
+    from recon.synth.scene import SceneSampler
+
+    _WORKER["scene"] = SceneSampler(default_body(), split, seed, SynthConfig(**cfg))
+
+
+def _write_shard(args) -> tuple[int, str]:
+    shard, start, stop, out_dir, store_vertices = args
+    scene = _WORKER["scene"]
+    arrays = _pack([scene.sample(i) for i in range(start, stop)], store_vertices)
+    path = Path(out_dir) / f"shard-{shard:05d}.npz"
+    paths.atomic_write(path, lambda tmp: np.savez(open(tmp, "wb"), **arrays))
+    return shard, _sha256(path)
+
+
+def _sha256(path: Path) -> str:
+    with np.load(path) as z:  # hash the arrays, not the zip container (timestamps)
+        h = hashlib.sha256()
+        for k in sorted(z.files):
+            h.update(k.encode())
+            h.update(np.ascontiguousarray(z[k]).tobytes())
+    return h.hexdigest()
+
+
+def generate(out_dir: Path, split: str, seed: int, n: int, shard_size: int = 250, workers: int = 2,
+             cfg: SynthConfig | None = None, store_vertices: bool = True, progress: bool = True) -> Path:
+    """Generate (or finish generating) ``n`` samples into ``out_dir``."""
+    import multiprocessing as mp
+
+    from tqdm import tqdm
+
+    cfg = cfg or SynthConfig()
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    meta = {"split": split, "seed": seed, "n": n, "shard_size": shard_size, "config": asdict(cfg),
+            "store_vertices": store_vertices}
+    meta = json.loads(json.dumps(meta))  # tuples -> lists, as stored
+    man_path = out_dir / "manifest.json"
+    manifest = json.loads(man_path.read_text()) if man_path.exists() else {**meta, "shards": {}}
+    if any(manifest.get(k) != v for k, v in meta.items() if k != "n"):
+        raise ValueError(f"{out_dir} holds a dataset made with other settings; use another folder")
+    manifest["n"] = n
+    todo = []
+    for shard, start in enumerate(range(0, n, shard_size)):
+        if not (out_dir / f"shard-{shard:05d}.npz").exists():
+            todo.append((shard, start, min(start + shard_size, n), str(out_dir), store_vertices))
+    bar = tqdm(total=len(todo), desc=f"synth {split}", unit="shard", disable=not progress)
+
+    def record(res):
+        shard, digest = res
+        manifest["shards"][str(shard)] = digest
+        paths.atomic_write(man_path, lambda tmp: Path(tmp).write_text(json.dumps(manifest, indent=1)))
+        bar.update(1)
+
+    if todo and workers > 1:
+        ctx = mp.get_context("spawn")  # fresh GL contexts per worker
+        with ctx.Pool(workers, initializer=_init_worker, initargs=(split, seed, asdict(cfg))) as pool:
+            for res in pool.imap_unordered(_write_shard, todo):
+                record(res)
+    elif todo:
+        _init_worker(split, seed, asdict(cfg))
+        for t in todo:
+            record(_write_shard(t))
+    bar.close()
+    return out_dir
+
+
+def reference_hashes_path(name: str) -> Path:
+    """Committed per-shard hashes of a benchmark, to check a regeneration is bit-identical."""
+    return paths.REPO_ROOT / "eval" / "benchmarks" / f"{name}.sha256.json"
+
+
+def build_benchmark(name: str, workers: int = 2, n: int | None = None) -> Path:
+    b = BENCHMARKS[name]
+    return generate(bench_dir(name), b["split"], b["seed"], n or b["n"], workers=workers)
+
+
+def compare_with_reference(name: str) -> list[int]:
+    """Shards of the local benchmark whose hash differs from the committed reference."""
+    ref = json.loads(reference_hashes_path(name).read_text())["shards"]
+    local = json.loads((bench_dir(name) / "manifest.json").read_text())["shards"]
+    return sorted(int(k) for k in ref if local.get(k) != ref[k])
+
+
+class SynthDataset:
+    """Random access to a generated folder: ``ds[i]`` -> dict of decoded arrays."""
+
+    def __init__(self, root: str | Path):
+        self.root = Path(root)
+        man = self.root / "manifest.json"
+        if not man.exists():
+            raise FileNotFoundError(f"{self.root} has no manifest.json: generate it with `recon synth`")
+        self.manifest = json.loads(man.read_text())
+        self.shard_size = self.manifest["shard_size"]
+        self.n = min(self.manifest["n"], len(self.manifest["shards"]) * self.shard_size)
+        self._cache: tuple[int, dict] | None = None
+
+    def __len__(self) -> int:
+        return self.n
+
+    def _shard(self, k: int) -> dict:
+        if self._cache is None or self._cache[0] != k:
+            with np.load(self.root / f"shard-{k:05d}.npz") as z:
+                self._cache = (k, {key: z[key] for key in z.files})
+        return self._cache[1]
+
+    def __getitem__(self, i: int) -> dict[str, np.ndarray]:
+        if not 0 <= i < self.n:
+            raise IndexError(i)
+        z = self._shard(i // self.shard_size)
+        j = i % self.shard_size
+        out = {}
+        for key in IMAGE_KEYS:
+            off = z[key + "_offsets"]
+            out[key] = _decode(key, z[key + "_png"][off[j]:off[j + 1]])
+        for key in ARRAY_KEYS:
+            if key in z:
+                out[key] = z[key][j]
+        return out
+
+    def verify(self) -> list[int]:
+        """Shards whose content differs from the manifest's hash."""
+        return [int(k) for k, h in self.manifest["shards"].items()
+                if _sha256(self.root / f"shard-{int(k):05d}.npz") != h]
+
+
+os.environ.setdefault("PYOPENGL_PLATFORM", "egl")

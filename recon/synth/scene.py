@@ -1,0 +1,184 @@
+"""SURREAL-like synthetic samples of the body model.
+
+A sample = a posed, shaped body with clothing-like colours seen by a random pinhole camera over
+a background (skimage's photos without people, or procedural), with random occluders. Every
+random choice of sample ``i`` comes from ``np.random.default_rng([seed, i])`` so a sample is
+reproducible on its own, whatever the worker count.
+
+Camera: OpenCV (x right, y down, z forward). Body frame -> camera: X_cam = R @ X_body + t.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import cv2
+import numpy as np
+import torch
+from scipy.spatial.transform import Rotation
+
+from recon.body import skeleton
+
+BODY_TO_CAMERA_FRONT = np.diag([1.0, -1.0, -1.0])  # camera on +Z looking at the subject's front
+BACKGROUNDS = ("brick", "chelsea", "coffee", "grass", "gravel", "rocket", "cat", "clock", "coins", "colorwheel",
+               "moon", "page", "text", "hubble_deep_field", "immunohistochemistry", "retina", "checkerboard")
+SKIN_TONES = np.array([[0.96, 0.80, 0.69], [0.90, 0.70, 0.56], [0.78, 0.57, 0.42], [0.62, 0.44, 0.30],
+                       [0.45, 0.31, 0.21], [0.33, 0.22, 0.15]])
+J = {n: i for i, n in enumerate(skeleton.JOINT_NAMES)}
+TOP = [J[n] for n in ("spine1", "spine2", "spine3", "left_collar", "right_collar", "left_shoulder", "right_shoulder")]
+SLEEVE = [J[n] for n in ("left_elbow", "right_elbow")]
+BOTTOM = [J[n] for n in ("pelvis", "left_hip", "right_hip")]
+LEG = [J[n] for n in ("left_knee", "right_knee")]
+FEET = [J[n] for n in ("left_ankle", "right_ankle", "left_foot", "right_foot")]
+
+
+@dataclass
+class SynthConfig:
+    size: int = 256
+    focal_range: tuple[float, float] = (300.0, 700.0)  # pixels, for `size`
+    fill_range: tuple[float, float] = (0.55, 0.9)  # body height / image height
+    elevation_sigma_deg: float = 12.0
+    roll_sigma_deg: float = 4.0
+    occluder_prob: float = 0.5
+    pose_noise_deg: float = 8.0
+
+
+@lru_cache(maxsize=None)
+def _background_image(name: str) -> np.ndarray:
+    import skimage.data
+
+    im = getattr(skimage.data, name)()
+    if im.ndim == 2:
+        im = np.repeat(im[..., None], 3, axis=2)
+    return np.ascontiguousarray(im[..., :3].astype(np.uint8))
+
+
+def background(rng: np.random.Generator, size: int) -> np.ndarray:
+    if rng.random() < 0.7:
+        im = _background_image(BACKGROUNDS[rng.integers(len(BACKGROUNDS))]).astype(np.float32)
+        h, w = im.shape[:2]
+        c = int(rng.uniform(0.4, 1.0) * min(h, w))
+        y, x = rng.integers(0, h - c + 1), rng.integers(0, w - c + 1)
+        im = cv2.resize(im[y:y + c, x:x + c], (size, size), interpolation=cv2.INTER_AREA)
+        im = im * rng.uniform(0.6, 1.3, 3)  # colour cast
+        if rng.random() < 0.5:
+            im = im[:, ::-1]
+    else:  # procedural: gradient + blobs + noise
+        g = np.linspace(0, 1, size, dtype=np.float32)
+        a, b = rng.uniform(0, 255, 3), rng.uniform(0, 255, 3)
+        t = g[:, None, None] if rng.random() < 0.5 else g[None, :, None]
+        im = a * (1 - t) + b * t + np.zeros((size, size, 3), np.float32)
+        for _ in range(rng.integers(0, 6)):
+            cv2.circle(im, tuple(int(v) for v in rng.integers(0, size, 2)), int(rng.integers(5, size // 3)),
+                       tuple(float(v) for v in rng.uniform(0, 255, 3)), -1)
+        im += rng.normal(0, rng.uniform(0, 20), im.shape).astype(np.float32)
+    return np.clip(im, 0, 255).astype(np.uint8)
+
+
+def vertex_colours(rng: np.random.Generator, rest_vertices: np.ndarray, parts: np.ndarray) -> np.ndarray:
+    """Skin tone everywhere, then a top (optional sleeves), a bottom (optional legs) and shoes,
+    each plain, striped or noisy, drawn on the rest-pose coordinates."""
+    col = np.tile(SKIN_TONES[rng.integers(len(SKIN_TONES))] * rng.uniform(0.9, 1.1, 3), (len(parts), 1))
+
+    def garment(joints):
+        base = rng.uniform(0.05, 0.95, 3)
+        m = np.isin(parts, joints)
+        kind = rng.integers(3)
+        if kind == 1:  # stripes
+            f, ax = rng.uniform(10, 60), rng.integers(3)
+            mod = 0.5 + 0.5 * np.sign(np.sin(f * rest_vertices[m, ax]))
+            col[m] = base * (0.55 + 0.45 * mod[:, None])
+        elif kind == 2:  # mottled
+            col[m] = base * rng.uniform(0.7, 1.1, (m.sum(), 1))
+        else:
+            col[m] = base
+
+    garment(TOP + (SLEEVE if rng.random() < 0.5 else []))
+    garment(BOTTOM + (LEG if rng.random() < 0.6 else []))
+    garment(FEET)
+    return np.clip(col, 0, 1).astype(np.float32)
+
+
+def camera(rng: np.random.Generator, cfg: SynthConfig, body_height: float):
+    f = rng.uniform(*cfg.focal_range)
+    fill = rng.uniform(*cfg.fill_range)
+    dist = f * body_height / (fill * cfg.size)
+    elev = np.clip(rng.normal(0, cfg.elevation_sigma_deg), -35, 35)
+    roll = np.clip(rng.normal(0, cfg.roll_sigma_deg), -15, 15)
+    r = Rotation.from_euler("zx", [roll, elev], degrees=True).as_matrix() @ BODY_TO_CAMERA_FRONT
+    shift = rng.uniform(-0.08, 0.08, 2) * cfg.size * dist / f  # metres
+    t = np.array([shift[0], shift[1], dist])
+    k = np.array([[f, 0, cfg.size / 2], [0, f, cfg.size / 2], [0, 0, 1.0]])
+    return k, r, t
+
+
+def occlude(rng: np.random.Generator, rgb: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Paint 1-3 random shapes over the person's box; returns the occluder mask."""
+    occ = np.zeros(mask.shape, np.uint8)
+    ys, xs = np.nonzero(mask)
+    if len(xs) == 0:
+        return occ.astype(bool)
+    x0, x1, y0, y1 = xs.min(), xs.max(), ys.min(), ys.max()
+    for _ in range(rng.integers(1, 4)):
+        cx, cy = rng.integers(x0, x1 + 1), rng.integers(y0, y1 + 1)
+        rad = int(rng.uniform(0.05, 0.25) * max(x1 - x0, y1 - y0, 8))
+        colour = tuple(float(v) for v in rng.uniform(0, 255, 3))
+        shape = np.zeros_like(occ)
+        if rng.random() < 0.5:
+            cv2.ellipse(shape, (int(cx), int(cy)), (rad, int(rad * rng.uniform(0.3, 1.5))), float(rng.uniform(0, 180)), 0, 360, 1, -1)
+        else:
+            cv2.rectangle(shape, (int(cx - rad), int(cy - rad // 2)), (int(cx + rad), int(cy + rad // 2)), 1, -1)
+        rgb[shape > 0] = colour
+        occ |= shape
+    return occ.astype(bool)
+
+
+class SceneSampler:
+    """Draws and renders sample ``i`` of a (split, seed) stream.
+
+    Poses and shapes are drawn once per (split, seed) into pools (``pool`` collision-free
+    poses, 4,096 shapes), batch-sampled for speed; sample i picks from them with its own RNG
+    and adds a random yaw, so it stays reproducible on its own."""
+
+    def __init__(self, body, split: str, seed: int, cfg: SynthConfig = SynthConfig(), pool: int = 4096):
+        from recon.poses.sampler import PoseSampler, ShapeSampler
+        from recon.synth.raster import Rasterizer
+
+        self.body, self.split, self.seed, self.cfg = body, split, seed, cfg
+        self.pose_pool = PoseSampler(body, split=split, noise_deg=cfg.pose_noise_deg, seed=seed).sample(pool)
+        self.shape_pool = ShapeSampler(body, seed=seed).sample(4096)
+        self.parts = body.weights.argmax(1).numpy()
+        self.faces = body.faces.numpy()
+        self.raster = Rasterizer(cfg.size, cfg.size)
+
+    def sample(self, i: int) -> dict[str, np.ndarray]:
+        rng = np.random.default_rng([self.seed, i])
+        pose = self.pose_pool[int(rng.integers(len(self.pose_pool)))][None].clone()
+        yaw = Rotation.from_euler("y", rng.uniform(-180, 180), degrees=True)
+        pose[0, 0] = torch.tensor((yaw * Rotation.from_rotvec(pose[0, 0].numpy())).as_rotvec(), dtype=torch.float32)
+        shape = self.shape_pool[int(rng.integers(len(self.shape_pool)))][None]
+        with torch.no_grad():
+            out = self.body(pose, shape)
+        v = out.vertices[0].numpy().astype(np.float64)
+        k, r, t = camera(rng, self.cfg, float(v[:, 1].max() - v[:, 1].min()))
+        cam = lambda p: p @ r.T + t  # noqa: E731
+        colours = vertex_colours(rng, out.rest_vertices[0].numpy(), self.parts)
+        light = rng.normal(0, 1, 3) * [1, 1, 0.3] + [0, 0, 1.0]
+        rgb, labels, depth = self.raster.render(cam(v), self.faces, k, colours, self.parts, light_dir=-light,
+                                                ambient=rng.uniform(0.3, 0.6))
+        sil = labels >= 0
+        img = background(rng, self.cfg.size)
+        img[sil] = rgb[sil]
+        occ = occlude(rng, img, sil) if rng.random() < self.cfg.occluder_prob else np.zeros_like(sil)
+        grain = rng.standard_normal(img.shape, dtype=np.float32) * np.float32(rng.uniform(0, 6))
+        img = np.clip(img.astype(np.float32) * np.float32(rng.uniform(0.8, 1.2)) + grain, 0, 255)
+        pts = cam(out.points[0].numpy().astype(np.float64))
+        uv = pts @ k.T
+        return {
+            "rgb": img.astype(np.uint8), "mask": sil & ~occ, "silhouette": sil,
+            "parts": np.where(sil, labels + 1, 0).astype(np.uint8), "depth": depth.astype(np.float16),
+            "K": k.astype(np.float32), "R": r.astype(np.float32), "t": t.astype(np.float32),
+            "points3d": pts.astype(np.float32), "points2d": (uv[:, :2] / uv[:, 2:]).astype(np.float32),
+            "pose": pose[0].numpy(), "shape": shape[0].numpy(),
+            "vertices": (v - v[:1] * 0 - out.joints[0, :1].numpy()).astype(np.float16),
+        }
