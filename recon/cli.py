@@ -58,37 +58,33 @@ def cmd_poses(args) -> int:
 def cmd_smplr(args) -> int:
     import subprocess
 
+    from recon.body import default_body
     from recon.smplr import train as smplr_train
-
-    cfg = smplr_train.TrainConfig()
-    if args.action == "train":
-        stages = args.stages or ["dae3d", "dae2d", "psi", "omega", "finetune"]
-        if args.jobs > 1 and args.stages is None:
-            # The DAE chain and the Psi/Omega chain are independent: one process (1 thread) each.
-            from recon.body import default_body
-            from recon.smplr.data import load_or_generate
-
-            load_or_generate(default_body(), "train", cfg.train_size, cfg.seed, cfg.pose_noise_deg)
-            load_or_generate(default_body(), "val", cfg.val_size, cfg.seed + 100, 0.0)
-            procs = [subprocess.Popen([sys.executable, "-m", "recon.cli", "smplr", "train", "--stages", *chain])
-                     for chain in (["dae3d", "dae2d"], ["psi", "omega", "finetune"])]
-            if any(p.wait() != 0 for p in procs):
-                raise RuntimeError("a training process failed")
-            stages = []
-        from recon.body import default_body
-
-        print(smplr_train.run(stages, cfg) if stages else smplr_train.export(cfg, default_body(), _weights()))
-        return 0
-    from recon.smplr.evaluate import evaluate_and_report
-
-    print(evaluate_and_report(n=args.n, out_dir=Path(args.out)))
-    return 0
-
-
-def _weights():
     from recon.smplr.model import WEIGHTS
 
-    return WEIGHTS
+    if args.action == "eval":
+        from recon.smplr.evaluate import evaluate_and_report
+
+        print(evaluate_and_report(n=args.n, out_dir=Path(args.out)))
+        return 0
+    cfg = smplr_train.TrainConfig()
+    if args.stages is None and args.jobs > 1:
+        # The DAE chain and the Psi -> Omega -> finetune chain are independent: one process
+        # (1 thread) each, sharing the generated data, then one export of the best networks.
+        from recon.smplr.data import load_or_generate
+
+        load_or_generate(default_body(), "train", cfg.train_size, cfg.seed, cfg.pose_noise_deg)
+        load_or_generate(default_body(), "val", cfg.val_size, cfg.seed + 100, 0.0)
+        procs = [subprocess.Popen([sys.executable, "-m", "recon.cli", "smplr", "train", "--no-export", "--stages", *c])
+                 for c in (["dae3d", "dae2d"], ["psi", "omega", "finetune"])]
+        codes = [p.wait() for p in procs]
+        if any(codes):
+            raise RuntimeError(f"a training process failed (exit codes {codes}); re-run to resume")
+    else:
+        smplr_train.run(args.stages or ["dae3d", "dae2d", "psi", "omega", "finetune"], cfg)
+    if not args.no_export:
+        print(smplr_train.export(cfg, default_body(), WEIGHTS))
+    return 0
 
 
 def cmd_synth(args) -> int:
@@ -150,6 +146,7 @@ def main(argv: list[str] | None = None) -> int:
     s.add_argument("action", choices=["train", "eval"])
     s.add_argument("--stages", nargs="+", choices=["dae3d", "dae2d", "psi", "omega", "finetune"], default=None)
     s.add_argument("--jobs", type=int, default=2, help="train the two independent chains in parallel")
+    s.add_argument("--no-export", action="store_true", help="train only; do not write the weights file")
     s.add_argument("--n", type=int, default=2000, help="eval: number of held-out test samples")
     s.add_argument("--out", default="eval/results", help="eval: where the JSON and Markdown tables go")
     s.set_defaults(func=cmd_smplr)

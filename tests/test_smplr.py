@@ -106,3 +106,18 @@ def test_shipped_weights_reconstruct_held_out_bodies(body, test_batch):
     bad[0, 0, 0] = float("nan")
     with pytest.raises(ValueError, match="NaN"):
         model(bad)
+
+
+@pytest.mark.skipif(not WEIGHTS.exists(), reason="shipped SMPLR weights not present")
+def test_eval_table_runs_and_clean_beats_noisy(tmp_path):
+    import json
+
+    import recon
+    from recon.smplr.evaluate import evaluate_and_report
+
+    assert recon.SMPLR is SMPLR
+    md = evaluate_and_report(n=16, out_dir=tmp_path)
+    rows = json.loads(md.with_suffix(".json").read_text())["rows"]
+    assert len(rows) == 12 and md.read_text().count("\n|") >= 13
+    assert rows["Omega+Psi"]["PVE"] < rows["Gaussian 40 mm, DAE"]["PVE"] < rows["Gaussian 40 mm, no DAE"]["PVE"]
+    assert rows["Psi (true pose)"]["PVE"] < rows["Omega+Psi"]["PVE"]

@@ -161,6 +161,9 @@ def train_stage(name: str, cfg: TrainConfig, body, train, val) -> dict:
 def export(cfg: TrainConfig, body, out: Path) -> Path:
     """Bundle the best networks into one weights file (loaded by SMPLR.load)."""
     w = work_dir()
+    missing = [k for k in ("omega", "psi") if not (w / f"{k}.best.pt").exists()]
+    if missing:
+        raise FileNotFoundError(f"no trained {missing} in {w}: run `recon smplr train` first")
     ck = {"num_shape": body.num_shape_params, "train_config": json.dumps(asdict(cfg)),
           "omega_cfg": {"width": cfg.omega_width, "blocks": cfg.omega_blocks, "global_rot": cfg.omega_global},
           "psi_cfg": {"width": cfg.psi_width}}
@@ -175,9 +178,9 @@ def export(cfg: TrainConfig, body, out: Path) -> Path:
     return out
 
 
-def run(stages: list[str], cfg: TrainConfig | None = None, out: Path | None = None) -> Path:
+def run(stages: list[str], cfg: TrainConfig | None = None) -> list[dict]:
+    """Train the given stages in order (each resumes if interrupted); returns their logs."""
     from recon.body import default_body
-    from recon.smplr.model import WEIGHTS
 
     cfg = cfg or TrainConfig()
     body = default_body()
@@ -187,4 +190,4 @@ def run(stages: list[str], cfg: TrainConfig | None = None, out: Path | None = No
     for s in stages:
         logs.append(train_stage(s, cfg, body, train, val))
         paths.atomic_write(work_dir() / f"{s}.log.json", lambda tmp: Path(tmp).write_text(json.dumps(logs[-1], indent=1)))
-    return export(cfg, body, Path(out or WEIGHTS))
+    return logs
