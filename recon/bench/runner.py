@@ -17,7 +17,6 @@ import torch
 
 from recon import metrics, paths
 from recon.bench.methods import METHODS
-from recon.body import skeleton
 from recon.synth.dataset import BENCHMARKS, SynthDataset, bench_dir
 from recon.synth.raster import Rasterizer, silhouette_iou
 

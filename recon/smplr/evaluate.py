@@ -14,7 +14,6 @@ from pathlib import Path
 import torch
 
 from recon import metrics, paths
-from recon.body import skeleton
 from recon.smplr import noise
 from recon.smplr.data import load_or_generate
 from recon.smplr.model import SMPLR, _procrustes

@@ -136,7 +136,7 @@ class DenoisingAutoencoder(nn.Module):
             skips.append(h)
         h = self.drop_code(h)
         skips.pop()
-        for i, layer in enumerate(self.dec):
+        for layer in self.dec:
             h = layer(h)
             if skips:
                 h = self.act(h + skips.pop())

@@ -111,7 +111,7 @@ def train_stage(name: str, cfg: TrainConfig, body, train, val) -> dict:
     params = [p for n in st.nets.values() for p in n.parameters()]
     opt = torch.optim.Adam(params, lr=cfg.lr if name != "finetune" else cfg.lr * 0.1)
     total = cfg.steps[name]
-    state_path, best_path = work_dir() / f"{name}.state.pt", work_dir() / f"{name}.best.pt"
+    state_path = work_dir() / f"{name}.state.pt"
     step, best, history = 0, float("inf"), []
     if state_path.exists():  # resume
         s = torch.load(state_path, weights_only=True)

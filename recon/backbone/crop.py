@@ -1,0 +1,53 @@
+"""The thesis' metric crop: a 2.5 x 2.5 m square, centred on the mean joint and facing the
+camera, projected into the image, defines the crop; depth is binned over +-1.25 m around the
+centre. Volumetric grid coordinates g = (gx, gy, gz) in [0, 1]^3 then map to camera space:
+    u = u0 + gx * side,  v = v0 + gy * side,  Z = Zc + (gz - 0.5) * extent,
+    X = (u - cx) Z / fx,  Y = (v - cy) Z / fy          (OpenCV camera, metres).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+EXTENT_M = 2.5
+
+
+@dataclass
+class Crop:
+    u0: float
+    v0: float
+    side: float  # pixels
+    zc: float  # metres, depth of the crop centre
+    k: np.ndarray  # (3, 3) intrinsics of the full image
+    extent: float = EXTENT_M
+
+    @classmethod
+    def around(cls, centre: np.ndarray, k: np.ndarray, extent: float = EXTENT_M) -> "Crop":
+        """Crop around a camera-frame centre (e.g. the mean of the joints)."""
+        uc = k[0, 0] * centre[0] / centre[2] + k[0, 2]
+        vc = k[1, 1] * centre[1] / centre[2] + k[1, 2]
+        side = k[0, 0] * extent / centre[2]
+        return cls(uc - side / 2, vc - side / 2, side, float(centre[2]), k, extent)
+
+    def image(self, rgb: np.ndarray, size: int, border=(0, 0, 0)) -> np.ndarray:
+        """Resample the crop to (size, size); outside the image is filled with ``border``."""
+        s = size / self.side
+        m = np.array([[s, 0, -self.u0 * s], [0, s, -self.v0 * s]], dtype=np.float64)
+        return cv2.warpAffine(rgb, m, (size, size), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                              borderValue=border)
+
+    def to_grid(self, points: np.ndarray) -> np.ndarray:
+        """(N, 3) camera-frame points -> (N, 3) grid coordinates in [0, 1] (inside the volume)."""
+        u = self.k[0, 0] * points[:, 0] / points[:, 2] + self.k[0, 2]
+        v = self.k[1, 1] * points[:, 1] / points[:, 2] + self.k[1, 2]
+        return np.stack([(u - self.u0) / self.side, (v - self.v0) / self.side,
+                         (points[:, 2] - self.zc) / self.extent + 0.5], axis=1)
+
+    def from_grid(self, grid: np.ndarray) -> np.ndarray:
+        """Inverse of ``to_grid``."""
+        u = self.u0 + grid[:, 0] * self.side
+        v = self.v0 + grid[:, 1] * self.side
+        z = self.zc + (grid[:, 2] - 0.5) * self.extent
+        return np.stack([(u - self.k[0, 2]) * z / self.k[0, 0], (v - self.k[1, 2]) * z / self.k[1, 1], z], axis=1)
