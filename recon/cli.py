@@ -119,6 +119,17 @@ def cmd_eval(args) -> int:
     return 0
 
 
+def cmd_backbone(args) -> int:
+    from recon.backbone.train import BackboneTrainConfig, train
+    from recon.synth.dataset import BENCHMARKS, bench_dir
+
+    val = bench_dir(args.val) if args.val in BENCHMARKS else Path(args.val)
+    cfg = BackboneTrainConfig(size=args.size, steps=args.steps, batch=args.batch, workers=args.workers)
+    log = train([Path(p) for p in args.train], val, Path(args.out), cfg, device=args.device)
+    print(json.dumps({k: v for k, v in log.items() if k != "history"}))
+    return 0
+
+
 def cmd_demo(args) -> int:
     from recon.demo import body_demo
 
@@ -166,6 +177,17 @@ def main(argv: list[str] | None = None) -> int:
     e.add_argument("--n", type=int, default=None, help="only the first N images")
     e.add_argument("--out", default="eval/results")
     e.set_defaults(func=cmd_eval)
+    k = sub.add_parser("backbone", help="train the volumetric hourglass on `recon synth` folders")
+    k.add_argument("action", choices=["train"])
+    k.add_argument("--train", nargs="+", required=True, help="synth folders with training shards")
+    k.add_argument("--val", default="synth-val", help="benchmark name or folder for validation")
+    k.add_argument("--out", required=True, help="checkpoint folder (resumes if it holds state.pt)")
+    k.add_argument("--size", choices=["cpu", "gpu"], default="cpu")
+    k.add_argument("--steps", type=int, default=20000)
+    k.add_argument("--batch", type=int, default=16)
+    k.add_argument("--workers", type=int, default=2)
+    k.add_argument("--device", default="cpu")
+    k.set_defaults(func=cmd_backbone)
     d = sub.add_parser("demo", help="render bodies in held-out mocap poses; write PNG, OBJ and GLB")
     d.add_argument("--out", default="out/demo")
     d.add_argument("--seed", type=int, default=0)
