@@ -50,9 +50,11 @@ class SelfIntersection:
         radii = 0.9 * tree.query(centers)[0]
         owner = np.array(owner)
         parents = np.array(skeleton.JOINT_PARENTS)
-        adjacent = (owner[:, None] == owner[None]) | (parents[owner][:, None] == owner[None]) | (
-            owner[:, None] == parents[owner][None]) | (parents[owner][:, None] == parents[owner][None]) & (
-            np.isin(parents[owner], [0, 9]))[:, None]
+        same = owner[:, None] == owner[None]
+        parent_child = (parents[owner][:, None] == owner[None]) | (owner[:, None] == parents[owner][None])
+        # siblings around the pelvis (hips, spine1) and spine3 (neck, collars) touch at rest
+        siblings = (parents[owner][:, None] == parents[owner][None]) & np.isin(parents[owner], [0, 9])[:, None]
+        adjacent = same | parent_child | siblings
         d = np.linalg.norm(centers[:, None] - centers[None], axis=-1)
         rest_overlap = radii[:, None] + radii[None] - d > 0
         pairs = np.argwhere(np.triu(~adjacent & ~rest_overlap, 1))
