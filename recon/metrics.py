@@ -25,10 +25,16 @@ def per_point_error(pred: torch.Tensor, gt: torch.Tensor, root: int | None = 0) 
     return (pred - gt).norm(dim=-1)
 
 
-def procrustes_align(pred: torch.Tensor, gt: torch.Tensor) -> torch.Tensor:
-    """Similarity-align ``pred`` onto ``gt`` per sample (rotation, uniform scale, translation)."""
+def similarity_transform(pred: torch.Tensor, gt: torch.Tensor):
+    """Per-sample (scale (B,), rotation (B,3,3), translation (B,3)) best mapping pred onto gt."""
     _check(pred, gt)
     r, t, s = roma.rigid_points_registration(pred, gt, compute_scaling=True)
+    return s, r, t
+
+
+def procrustes_align(pred: torch.Tensor, gt: torch.Tensor) -> torch.Tensor:
+    """Similarity-align ``pred`` onto ``gt`` per sample (rotation, uniform scale, translation)."""
+    s, r, t = similarity_transform(pred, gt)
     return s[:, None, None] * (pred @ r.transpose(-1, -2)) + t[:, None]
 
 
@@ -46,8 +52,10 @@ def group_errors(joint_err: torch.Tensor) -> dict[str, float]:
     return {g: float(joint_err[:, [idx[n] for n in names]].mean()) for g, names in skeleton.JOINT_GROUPS.items()}
 
 
-def bone_length_error(pred: torch.Tensor, gt: torch.Tensor) -> torch.Tensor:
+def bone_length_error(pred: torch.Tensor, gt: torch.Tensor, per_sample: bool = False) -> torch.Tensor:
+    """Mean absolute bone-length difference over the 23 bones: a scalar, or (B,) per sample."""
     par = list(skeleton.JOINT_PARENTS[1:])
     lp = (pred[:, 1:24] - pred[:, par]).norm(dim=-1)
     lg = (gt[:, 1:24] - gt[:, par]).norm(dim=-1)
-    return (lp - lg).abs().mean()
+    err = (lp - lg).abs().mean(dim=1)
+    return err if per_sample else err.mean()

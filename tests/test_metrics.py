@@ -34,3 +34,13 @@ def test_group_errors_and_shape_check():
     assert g["knee"] == pytest.approx(5.0) and g["head"] == 0.0
     with pytest.raises(ValueError, match="must both be"):
         metrics.mpjpe(torch.zeros(1, 3, 3), torch.zeros(1, 4, 3))
+
+
+def test_bone_length_error_per_sample():
+    gt = torch.zeros(2, 24, 3)
+    gt[:, 1:, 1] = torch.arange(1, 24, dtype=torch.float32)  # a vertical chain-like skeleton
+    pred = gt.clone()
+    pred[1] *= 2.0  # second sample: every joint twice as far from the origin
+    per = metrics.bone_length_error(pred, gt, per_sample=True)
+    assert per.shape == (2,) and per[0] == 0 and per[1] > 0
+    assert metrics.bone_length_error(pred, gt) == pytest.approx(float(per.mean()))

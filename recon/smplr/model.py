@@ -93,9 +93,9 @@ class SMPLR(nn.Module):
 
 
 def _procrustes(out: BodyOutput, target: torch.Tensor) -> BodyOutput:
-    import roma
+    from recon.metrics import similarity_transform
 
-    r, t, s = roma.rigid_points_registration(out.points, target, compute_scaling=True)
+    s, r, t = similarity_transform(out.points, target)
     f = lambda p: s[:, None, None] * (p @ r.transpose(-1, -2)) + t[:, None]  # noqa: E731
     sr = s[:, None, None, None] * r[:, None]
     tf = torch.cat([sr @ out.transforms[..., :3], sr @ out.transforms[..., 3:] + t[:, None, :, None]], -1)
