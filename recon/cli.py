@@ -130,6 +130,62 @@ def cmd_backbone(args) -> int:
     return 0
 
 
+def cmd_keypoints(args) -> int:
+    from recon import paths
+    from recon.keypoints import adapter
+    from recon.synth.dataset import BENCHMARKS, bench_dir
+
+    def root(n: str) -> Path:  # benchmark name, folder, or a folder name under <cache>/synth
+        return bench_dir(n) if n in BENCHMARKS else Path(n) if Path(n).exists() else paths.cache_dir() / "synth" / n
+
+    store = lambda n: paths.cache_dir() / "keypoints" / root(n).name  # noqa: E731
+    if args.action == "collect":
+        for n in args.data:
+            adapter.collect(root(n), store(n), truncate=args.truncate)
+            print(store(n))
+        return 0
+    meta = adapter.train([store(n) for n in args.data], store(args.val),
+                         cfg=adapter.AdapterTrainConfig(epochs=args.epochs))
+    print(json.dumps(meta, indent=1))
+    return 0
+
+
+def cmd_run(args) -> int:
+    from recon.run import run
+
+    inputs = args.inputs or [str(p) for p in _examples()]
+    s = run(inputs, Path(args.out), batch_size=args.batch_size, device=args.device, focal_factor=args.focal,
+            overlay=not args.no_overlay, refine_steps=args.refine_steps, outfit=args.outfit)
+    return 130 if s.interrupted else (1 if s.failed and not s.done else 0)
+
+
+def _examples():
+    from recon.demo import EXAMPLES
+
+    return sorted(p for p in EXAMPLES.iterdir() if p.suffix.lower() in (".jpg", ".png"))
+
+
+def cmd_garment(args) -> int:
+    from recon.body import default_body
+    from recon.garment.templates import PRESETS
+
+    outfits = list(PRESETS) if args.outfit == ["all"] else args.outfit
+    if args.action == "train":
+        from recon.garment.train import GarmentTrainConfig, train
+
+        for o in outfits:
+            cfg = GarmentTrainConfig(outfit=o, epochs=args.epochs, poses=args.poses)
+            meta = train(default_body(), cfg)
+            last = meta["curve"][-1]
+            print(json.dumps({"outfit": o, "train_seconds": meta["train_seconds"],
+                              "val_collision_pct": last["val_collision_pct"], "val_edge_mm": last["val_edge_mm"]}))
+        return 0
+    from recon.garment.evaluate import evaluate_and_report
+
+    print(evaluate_and_report(default_body(), outfits, args.n, Path(args.out)))
+    return 0
+
+
 def cmd_demo(args) -> int:
     from recon.demo import body_demo
 
@@ -188,6 +244,31 @@ def main(argv: list[str] | None = None) -> int:
     k.add_argument("--workers", type=int, default=2)
     k.add_argument("--device", default="cpu")
     k.set_defaults(func=cmd_backbone)
+    kp = sub.add_parser("keypoints", help="MediaPipe -> J+ adapter: collect MediaPipe on synth folders, train")
+    kp.add_argument("action", choices=["collect", "train"])
+    kp.add_argument("--data", nargs="+", default=["synth-val"], help="synth folders or benchmark names")
+    kp.add_argument("--val", default="synth-val", help="train: collected folder/benchmark for model selection")
+    kp.add_argument("--epochs", type=int, default=40)
+    kp.add_argument("--truncate", type=float, default=0.0, help="collect: fraction of images cut to half-body")
+    kp.set_defaults(func=cmd_keypoints)
+    r = sub.add_parser("run", help="reconstruct people in images/folders: JSON, OBJ/GLB, overlay and side view")
+    r.add_argument("inputs", nargs="*", help="image files or folders (default: the bundled example photos)")
+    r.add_argument("--out", required=True)
+    r.add_argument("--batch-size", type=int, default=4)
+    r.add_argument("--device", default="cpu")
+    r.add_argument("--focal", type=float, default=1.0, help="focal length in units of the longer image side")
+    r.add_argument("--no-overlay", action="store_true", help="skip overlay.png / side.png rendering")
+    r.add_argument("--outfit", default=None, help="dress the body with a trained PBNS outfit (e.g. tshirt-trousers)")
+    r.add_argument("--refine-steps", type=int, default=30, help="2D keypoint fitting steps after SMPLR (0: off)")
+    r.set_defaults(func=cmd_run)
+    g = sub.add_parser("garment", help="PBNS outfits: train (unsupervised, physics energies) or evaluate")
+    g.add_argument("action", choices=["train", "eval"])
+    g.add_argument("--outfit", nargs="+", default=["tshirt-trousers"], help="preset names or 'all'")
+    g.add_argument("--epochs", type=int, default=6)
+    g.add_argument("--poses", type=int, default=3000)
+    g.add_argument("--n", type=int, default=500, help="eval: held-out test poses")
+    g.add_argument("--out", default="eval/results")
+    g.set_defaults(func=cmd_garment)
     d = sub.add_parser("demo", help="render bodies in held-out mocap poses; write PNG, OBJ and GLB")
     d.add_argument("--out", default="out/demo")
     d.add_argument("--seed", type=int, default=0)
@@ -196,7 +277,7 @@ def main(argv: list[str] | None = None) -> int:
     _threads(args.threads)
     try:
         return args.func(args)
-    except (FileNotFoundError, ValueError, KeyError, RuntimeError) as e:
+    except (FileNotFoundError, PermissionError, ValueError, KeyError, RuntimeError) as e:
         print(f"recon: error: {e}", file=sys.stderr)
         return 2
 

@@ -13,6 +13,8 @@ import torch
 
 from recon import paths
 
+EXAMPLES = Path(__file__).resolve().parent / "data" / "examples"
+
 
 def body_demo(out: Path, seed: int = 0, n: int = 4) -> list[Path]:
     import trimesh

@@ -28,6 +28,9 @@ def atomic_write(path: Path, write) -> None:
     os.close(fd)
     try:
         write(tmp)
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)  # mkstemp creates 0600; final files get the usual mode
         os.replace(tmp, path)
     finally:
         if os.path.exists(tmp):

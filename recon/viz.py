@@ -68,3 +68,32 @@ def render_meshes(meshes: list[tuple[np.ndarray, np.ndarray, tuple]], size=(512,
     finally:
         renderer.delete()
     return np.ascontiguousarray(color[..., :3])
+
+
+def render_overlay(rgb: np.ndarray, meshes: list[tuple[np.ndarray, np.ndarray, tuple]], k: np.ndarray,
+                   alpha: float = 0.75) -> np.ndarray:
+    """Render [(vertices, faces, rgba)] given in the OpenCV camera frame of intrinsics ``k``
+    over the (H, W, 3) uint8 photo; returns the blended image."""
+    pyrender = _pyrender()
+    import trimesh
+
+    h, w = rgb.shape[:2]
+    gl = np.array([1.0, -1.0, -1.0])  # OpenCV camera axes -> OpenGL camera axes
+    scene = pyrender.Scene(bg_color=[0.0, 0.0, 0.0, 0.0], ambient_light=[0.3, 0.3, 0.3])
+    for v, f, rgba in meshes:
+        tm = trimesh.Trimesh(v * gl, f, process=False)
+        mat = pyrender.MetallicRoughnessMaterial(baseColorFactor=list(rgba), metallicFactor=0.0, roughnessFactor=0.7)
+        scene.add(pyrender.Mesh.from_trimesh(tm, material=mat, smooth=True))
+    far = float(max(np.abs(m[0][:, 2]).max() for m in meshes)) * 2.0 + 1.0
+    scene.add(pyrender.IntrinsicsCamera(k[0, 0], k[1, 1], k[0, 2], k[1, 2], znear=0.05, zfar=far))
+    scene.add(pyrender.DirectionalLight(intensity=3.0))
+    try:
+        renderer = pyrender.OffscreenRenderer(w, h)
+    except Exception as e:  # noqa: BLE001 - report which GL platform failed
+        raise RuntimeError(f"offscreen OpenGL ({os.environ.get('PYOPENGL_PLATFORM')}) unavailable: {e}") from e
+    try:
+        color, depth = renderer.render(scene)
+    finally:
+        renderer.delete()
+    a = (depth > 0)[..., None] * alpha  # depth, not colour alpha: OSMesa ignores RGBA
+    return (rgb * (1 - a) + color[..., :3] * a + 0.5).astype(np.uint8)

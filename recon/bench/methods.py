@@ -8,11 +8,9 @@ import numpy as np
 import torch
 
 from recon.body import skeleton
+from recon.pipeline import OPENCV_TO_VIEW, place
 from recon.synth.scene import BODY_TO_CAMERA_FRONT
 
-# SMPLR takes J+ in a viewer frame with +Y up and +Z towards the viewer (OpenGL camera axes);
-# OpenCV camera axes (y down, z forward) differ by a half turn about X.
-OPENCV_TO_VIEW = np.array([1.0, -1.0, -1.0])
 
 
 @dataclass
@@ -128,18 +126,32 @@ class SMPLROracle2D:
         return Prediction(j - j[:1] + t, lm - j[:1] + t, v - j[:1] + t)
 
 
-def place(points: np.ndarray, uv: np.ndarray, k: np.ndarray) -> np.ndarray:
-    """Translation t minimising the linearised reprojection error of points + t onto uv."""
-    f, c = k[0, 0], k[:2, 2]
-    a, b = [], []
-    for d in range(2):
-        du = uv[:, d] - c[d]
-        row = np.zeros((len(uv), 3))
-        row[:, d], row[:, 2] = f, -du
-        a.append(row)
-        b.append(du * points[:, 2] - f * points[:, d])
-    t, *_ = np.linalg.lstsq(np.concatenate(a), np.concatenate(b), rcond=None)
-    return t
+class MediaPipeSMPLR:
+    """The shipped image pipeline (recon.Reconstructor): MediaPipe Pose -> adapter -> J+ ->
+    DAE -> SMPLR -> mesh placed by reprojection. Uses the benchmark's K, like every method."""
+
+    name = "mediapipe-smplr"
+    description = "recon.Reconstructor: MediaPipe -> adapter -> DAE -> SMPLR"
+
+    refine_steps = 0
+
+    def __init__(self, body):
+        from recon.pipeline import Reconstructor
+
+        self.rec = Reconstructor(body, refine_steps=self.refine_steps)
+
+    def __call__(self, rgb: np.ndarray, k: np.ndarray) -> Prediction | None:
+        r = self.rec.batch([rgb], [k])[0]
+        if isinstance(r, Exception):
+            return None
+        return Prediction(r.joints, r.landmarks, r.vertices)  # IoU from our mesh, not MediaPipe's mask
 
 
-METHODS = {"mean": MeanBaseline, "mediapipe": MediaPipeBaseline, "smplr-gt2d": SMPLROracle2D}
+class MediaPipeSMPLRFit(MediaPipeSMPLR):
+    name = "mediapipe-smplr-fit"
+    description = "recon.Reconstructor with the 30-step 2D keypoint fit (`recon run` default)"
+    refine_steps = 30
+
+
+METHODS = {"mean": MeanBaseline, "mediapipe": MediaPipeBaseline, "smplr-gt2d": SMPLROracle2D,
+           "mediapipe-smplr": MediaPipeSMPLR, "mediapipe-smplr-fit": MediaPipeSMPLRFit}

@@ -78,17 +78,21 @@ def evaluate(bench: str, methods: list[str], n: int | None = None, out_dir: Path
         raise KeyError(f"unknown method(s) {unknown}; known: {', '.join(METHODS)}")
     ds = SynthDataset(bench_dir(bench))
     body = default_body()
-    results = [run_method(m, ds, body, n) for m in methods]
+    new = [run_method(m, ds, body, n) for m in methods]
     out_dir.mkdir(parents=True, exist_ok=True)
     stem = out_dir / f"{bench}"
+    # merge with earlier runs: one table for all methods, re-run methods replaced
+    old = json.loads(stem.with_suffix(".json").read_text()) if stem.with_suffix(".json").exists() else []
+    results = [r for r in old if r["method"] not in methods] + new
     paths.atomic_write(stem.with_suffix(".json"), lambda t: Path(t).write_text(json.dumps(results, indent=1)))
     cols = ["MPJPE-P1", "MPJPE-P2 (PA)", "Lm", "PVE", "IoU"]
     fmt = lambda v, c: "-" if v is None else (f"{v:.3f}" if c == "IoU" else f"{v:.1f}")  # noqa: E731
-    lines = [f"Benchmark {bench} ({len(ds)} images; {results[0]['images']} evaluated). Errors in mm.", "",
-             "| method | " + " | ".join(cols) + " | failures | s/img |", "|---|" + "---|" * (len(cols) + 2)]
+    lines = [f"Benchmark {bench} ({len(ds)} images; a method may be run on the first N). Errors in mm; "
+             "failures = images where the method found no person (not scored).", "",
+             "| method | " + " | ".join(cols) + " | images | failures | s/img |", "|---|" + "---|" * (len(cols) + 3)]
     for r in results:
         lines.append(f"| {r['method']} | " + " | ".join(fmt(r[c], c) for c in cols) +
-                     f" | {r['failures']} | {r['seconds_per_image']:.3f} |")
+                     f" | {r['images']} | {r['failures']} | {r['seconds_per_image']:.3f} |")
     lines += ["", "Per joint group (MPJPE-P1, mm):", "", "| method | " + " | ".join(ABBR.values()) + " |",
               "|---|" + "---|" * len(ABBR)]
     for r in results:

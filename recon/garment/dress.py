@@ -1,0 +1,91 @@
+"""Dress a posed body with a trained PBNS outfit.
+
+The outfit was simulated on one body shape. For another shape its rest pose is resized the
+CLOTH3D way (thesis 3.3.2): the rest-body displacement between the two shapes is transferred
+to every cloth vertex from its nearest body vertex and Laplacian-smoothed, so body detail does
+not print through. Pose-space deformations (PBNS) and skinning then follow the new body.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from recon.garment.pbns import PBNS
+from recon.garment.train import WEIGHTS_DIR
+
+
+@dataclass
+class DressedOutfit:
+    vertices: np.ndarray  # (B, N, 3) posed cloth, same frame as the body output
+    faces: np.ndarray  # (F, 3)
+    garment_id: np.ndarray  # (N,)
+    names: list[str]
+
+
+class Dresser:
+    """``Dresser("tshirt-trousers")(body, rotmats, shape, transl) -> DressedOutfit``."""
+
+    def __init__(self, outfit: str = "tshirt-trousers", path: str | Path | None = None):
+        import json
+
+        path = Path(path or WEIGHTS_DIR / f"pbns_{outfit}.pt")
+        if not path.exists():
+            raise FileNotFoundError(f"no trained outfit {path}: run `recon garment train --outfit {outfit}`")
+        self.model, ck = PBNS.load(path)
+        self.shape = ck["shape"]
+        self.garment_id = ck["garment_id"].numpy()
+        self.names = json.loads(ck["meta_json"])["garments"]
+        self._resized: dict[bytes, torch.Tensor] = {}
+
+    def rest_for(self, body, shape: torch.Tensor, smooth: int = 10) -> torch.Tensor:
+        """Outfit rest vertices resized to ``shape`` (1-D tensor)."""
+        key = shape.detach().cpu().numpy().tobytes()
+        if key not in self._resized:
+            from scipy.spatial import cKDTree
+
+            with torch.no_grad():
+                v0, _ = body.rest_geometry(self.shape[None].to(body.mean_shape))
+                v1, _ = body.rest_geometry(shape.reshape(1, -1).to(body.mean_shape))
+            rest = self.model.rest.numpy()
+            _, idx = cKDTree(v0[0].numpy()).query(rest)
+            d = (v1[0] - v0[0]).numpy()[idx]
+            d = _laplacian_smooth(d, self.model.faces.numpy(), smooth)
+            self._resized[key] = torch.from_numpy(rest + d).float()
+        return self._resized[key]
+
+    @torch.no_grad()
+    def __call__(self, body, rotmats: torch.Tensor, shape: torch.Tensor, transl: torch.Tensor | None = None,
+                 up: torch.Tensor | None = None) -> DressedOutfit:
+        """``up``: (3, 3) rotation from the frame of ``rotmats``' root to the gravity-aligned body
+        frame (+Y up); e.g. diag(1, -1, -1) for poses in an upright OpenCV camera frame. The
+        network sees the gravity-aligned pose; the cloth is posed in the input frame."""
+        b = rotmats.shape[0]
+        shape = shape.reshape(b, -1)
+        out = body(rotmats, shape, transl=transl, points_only=True)
+        r = rotmats.clone()
+        if up is not None:
+            r[:, 0] = up.to(r) @ r[:, 0]
+        dt = self.model.deformation(r)
+        verts = []
+        for i in range(b):
+            rest = self.rest_for(body, shape[i])
+            t = torch.einsum("nk,kij->nij", self.model.weights, out.transforms[i])
+            verts.append((t[..., :3] @ (rest + dt[i])[..., None])[..., 0] + t[..., 3])
+        return DressedOutfit(torch.stack(verts).numpy(), self.model.faces.numpy(), self.garment_id, self.names)
+
+
+def _laplacian_smooth(x: np.ndarray, faces: np.ndarray, iterations: int) -> np.ndarray:
+    import scipy.sparse as sp
+
+    from recon.garment.mesh import unique_edges
+
+    e = unique_edges(faces)
+    n = len(x)
+    a = sp.coo_matrix((np.ones(2 * len(e)), (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])), shape=(n, n)).tocsr()
+    deg = np.maximum(np.asarray(a.sum(1)).ravel(), 1)[:, None]
+    for _ in range(iterations):
+        x = 0.5 * x + 0.5 * (a @ x) / deg
+    return x

@@ -1,0 +1,103 @@
+"""Small triangle-mesh helpers the garment code needs and trimesh does not give directly:
+level-set cuts, ordered boundary loops, unique edges and face adjacency as tensors."""
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+
+def cut(vertices: np.ndarray, faces: np.ndarray, field: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Keep the part of a mesh where a per-vertex scalar ``field`` > 0, cutting triangles along
+    its zero level (linear interpolation on edges; cut vertices are shared by the faces on both
+    sides of an edge, so the result stays connected and manifold). Returns (vertices, faces)
+    with unused vertices removed."""
+    v = np.asarray(vertices, np.float64)
+    f = np.asarray(faces, np.int64)
+    s = np.asarray(field, np.float64)
+    s = np.where(np.abs(s) < 1e-9, -1e-9, s)  # no vertex exactly on the level: no degenerate faces
+    inside = s > 0
+    new_v, edge_vertex = [v], {}
+
+    def on_edge(a: int, b: int) -> int:
+        key = (min(a, b), max(a, b))
+        if key not in edge_vertex:
+            t = s[a] / (s[a] - s[b])
+            edge_vertex[key] = len(v) + len(edge_vertex)
+            new_v.append((v[a] + t * (v[b] - v[a]))[None])
+        return edge_vertex[key]
+
+    out = [f[inside[f].all(1)]]
+    for tri in f[inside[f].any(1) & ~inside[f].all(1)]:
+        poly = []  # Sutherland-Hodgman clip of one triangle against s > 0
+        for i in range(3):
+            a, b = tri[i], tri[(i + 1) % 3]
+            if inside[a]:
+                poly.append(a)
+            if inside[a] != inside[b]:
+                poly.append(on_edge(a, b))
+        out.append(np.array([[poly[0], poly[k], poly[k + 1]] for k in range(1, len(poly) - 1)], np.int64))
+    v2 = np.concatenate(new_v)
+    f2 = np.concatenate([o.reshape(-1, 3) for o in out])
+    return compact(v2, f2)
+
+
+def compact(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    used = np.unique(faces)
+    remap = np.full(len(vertices), -1, np.int64)
+    remap[used] = np.arange(len(used))
+    return vertices[used], remap[faces]
+
+
+def largest_component(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    import trimesh
+
+    m = trimesh.Trimesh(vertices, faces, process=False)
+    labels = trimesh.graph.connected_component_labels(m.face_adjacency, node_count=len(faces))
+    keep = labels == np.bincount(labels).argmax()
+    return compact(vertices, faces[keep])
+
+
+def boundary_loops(faces: np.ndarray) -> list[np.ndarray]:
+    """Ordered vertex loops of the open boundary (edges used by one face), oriented as the faces."""
+    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    key = np.sort(e, 1)
+    _, inv, cnt = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    nxt = {int(a): int(b) for a, b in e[cnt[inv.ravel()] == 1]}
+    loops = []
+    while nxt:
+        start = next(iter(nxt))
+        loop, cur = [start], nxt.pop(start)
+        while cur != start:
+            loop.append(cur)
+            cur = nxt.pop(cur)
+        loops.append(np.array(loop))
+    return loops
+
+
+def unique_edges(faces: np.ndarray) -> np.ndarray:
+    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    return np.unique(np.sort(e, 1), axis=0)
+
+
+def face_adjacency(faces: np.ndarray) -> np.ndarray:
+    """(A, 2) pairs of faces sharing an edge."""
+    import trimesh
+
+    return trimesh.Trimesh(np.zeros((int(faces.max()) + 1, 3)), faces, process=False).face_adjacency
+
+
+def face_normals(v: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
+    """(B, V, 3), (F, 3) -> unit face normals (B, F, 3)."""
+    t = v[:, faces]
+    n = torch.cross(t[:, :, 1] - t[:, :, 0], t[:, :, 2] - t[:, :, 0], dim=-1)
+    return n / n.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+
+
+def vertex_normals(v: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
+    """Area-weighted unit vertex normals (B, V, 3)."""
+    t = v[:, faces]
+    n = torch.cross(t[:, :, 1] - t[:, :, 0], t[:, :, 2] - t[:, :, 0], dim=-1)
+    out = torch.zeros_like(v)
+    for k in range(3):
+        out.index_add_(1, faces[:, k], n)
+    return out / out.norm(dim=-1, keepdim=True).clamp_min(1e-12)

@@ -1,0 +1,117 @@
+"""PBNS (thesis ch. 5): pose -> 4x32 MLP -> embedding X -> PSD matrix D -> rest-pose deformation
+-> linear blend skinning with the body (Eq. 5.2):
+
+    V_theta = W(T + f_X(theta) . D, theta, weights)
+
+Blend weights start as those of the nearest rest-body vertex; for skirts/dresses they are
+diffused over the garment and optimised with the network (thesis 5.3.2).
+"""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+
+from recon.garment.templates import Outfit, RestBody
+
+
+@dataclass
+class PBNSConfig:
+    hidden: int = 32
+    layers: int = 4
+    embedding: int = 32  # |X|, rows of D
+    optimise_weights: bool = False  # True for skirts/dresses (set by the outfit preset)
+    weight_diffusion: int = 0  # Laplacian smoothing steps of the initial blend weights
+
+
+def pose_features(rotmats: torch.Tensor) -> torch.Tensor:
+    """(B, 24, 3, 3) local rotations -> (B, 216) network input: R - I of every joint, the root
+    with its heading (yaw about +Y) removed: gravity depends on tilt, not on heading."""
+    r = rotmats.clone()
+    r[:, 0] = remove_yaw(r[:, 0])
+    eye = torch.eye(3, dtype=r.dtype, device=r.device)
+    return (r - eye).flatten(1)
+
+
+def remove_yaw(r: torch.Tensor) -> torch.Tensor:
+    """Left-multiply by the inverse heading so the body's forward axis (+Z) has no X component."""
+    f = r[..., :, 2]  # body +Z in the parent (world) frame
+    yaw = torch.atan2(f[..., 0], f[..., 2])
+    c, s = torch.cos(-yaw), torch.sin(-yaw)
+    z, o = torch.zeros_like(c), torch.ones_like(c)
+    ry = torch.stack([c, z, s, z, o, z, -s, z, c], -1).view(*c.shape, 3, 3)
+    return ry @ r
+
+
+class PBNS(nn.Module):
+    def __init__(self, rest: torch.Tensor, faces: torch.Tensor, weights: torch.Tensor, cfg: PBNSConfig = PBNSConfig()):
+        super().__init__()
+        self.cfg = cfg
+        self.register_buffer("rest", rest.float())  # (N, 3) outfit in rest pose, body frame
+        self.register_buffer("faces", faces.long())
+        dims = [24 * 9] + [cfg.hidden] * (cfg.layers - 1) + [cfg.embedding]
+        mods: list[nn.Module] = []
+        for a, b in zip(dims[:-1], dims[1:]):
+            mods += [nn.Linear(a, b), nn.ReLU()]
+        self.mlp = nn.Sequential(*mods)
+        self.D = nn.Parameter(torch.zeros(cfg.embedding, rest.shape[0] * 3))
+        logits = torch.log(weights.float().clamp_min(1e-6))
+        if cfg.optimise_weights:
+            self.weight_logits = nn.Parameter(logits)
+        else:
+            self.register_buffer("weight_logits", logits)
+
+    @property
+    def weights(self) -> torch.Tensor:
+        return torch.softmax(self.weight_logits, -1)
+
+    def deformation(self, rotmats: torch.Tensor) -> torch.Tensor:
+        """(B, 24, 3, 3) -> rest-pose displacements dT (B, N, 3)."""
+        x = self.mlp(pose_features(rotmats))
+        return (x @ self.D).view(x.shape[0], -1, 3)
+
+    def forward(self, rotmats: torch.Tensor, transforms: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Pose the outfit. transforms: (B, 24, 3, 4) rest -> posed per joint (BodyOutput.transforms).
+        Returns (posed vertices (B, N, 3), dT (B, N, 3))."""
+        dt = self.deformation(rotmats)
+        t = torch.einsum("nk,bkij->bnij", self.weights, transforms)
+        x = self.rest + dt
+        return (t[..., :3] @ x[..., None])[..., 0] + t[..., 3], dt
+
+    # --- persistence ----------------------------------------------------------------------------
+    def save(self, path: Path, extra: dict) -> None:
+        from recon import paths
+
+        state = {"cfg": asdict(self.cfg), "state": self.state_dict()} | extra
+        paths.atomic_write(Path(path), lambda t: torch.save(state, t))
+
+    @classmethod
+    def load(cls, path: Path) -> tuple["PBNS", dict]:
+        ck = torch.load(path, map_location="cpu", weights_only=True)
+        sd = ck["state"]
+        m = cls(sd["rest"], sd["faces"], torch.softmax(sd["weight_logits"], -1), PBNSConfig(**ck["cfg"]))
+        m.load_state_dict(sd)
+        return m.eval(), ck
+
+
+def initial_weights(rb: RestBody, outfit: Outfit, diffusion: int = 0) -> np.ndarray:
+    """Blend weights of the nearest rest-body vertex, optionally diffused over the outfit mesh."""
+    from scipy.spatial import cKDTree
+
+    _, idx = cKDTree(rb.v).query(outfit.vertices)
+    w = rb.weights[idx].astype(np.float64)
+    if diffusion > 0:
+        import scipy.sparse as sp
+
+        from recon.garment.mesh import unique_edges
+
+        e = unique_edges(outfit.faces)
+        n = len(w)
+        a = sp.coo_matrix((np.ones(2 * len(e)), (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])), shape=(n, n)).tocsr()
+        deg = np.asarray(a.sum(1)).ravel()
+        for _ in range(diffusion):
+            w = 0.5 * w + 0.5 * (a @ w) / np.maximum(deg, 1)[:, None]
+    return (w / w.sum(1, keepdims=True)).astype(np.float32)

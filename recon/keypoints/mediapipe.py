@@ -1,0 +1,62 @@
+"""MediaPipe Pose (0.10.21, offline models in the wheel) as a person detector and 2D/3D keypoint
+source. Optional extra: scripts/setup.sh installs it (``--no-deps``, see TECH_NOTES)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+NUM_MP = 33  # MediaPipe Pose landmarks
+
+
+@dataclass
+class MPPose:
+    image_xy: np.ndarray  # (33, 2) pixels
+    visibility: np.ndarray  # (33,) in [0, 1]
+    world: np.ndarray  # (33, 3) metres, hip-centred, camera-aligned axes (OpenCV: y down, z forward)
+    mask: np.ndarray | None  # (H, W) bool person mask
+
+    def box(self, margin: float = 0.15) -> tuple[float, float, float, float]:
+        """(x0, y0, x1, y1) around the visible landmarks, grown by ``margin`` of its size."""
+        p = self.image_xy[self.visibility > 0.3] if (self.visibility > 0.3).sum() >= 4 else self.image_xy
+        lo, hi = p.min(0), p.max(0)
+        g = margin * (hi - lo).max()
+        return float(lo[0] - g), float(lo[1] - g), float(hi[0] + g), float(hi[1] + g)
+
+
+def available() -> bool:
+    try:
+        import mediapipe  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+class MediaPipePose:
+    """One person per image: ``MediaPipePose()(rgb) -> MPPose | None`` (None: nobody found)."""
+
+    def __init__(self, complexity: int = 1, segmentation: bool = True, min_confidence: float = 0.5):
+        try:
+            import mediapipe as mp
+        except ImportError as e:
+            raise RuntimeError("mediapipe is not installed (scripts/setup.sh installs mediapipe==0.10.21)") from e
+        self.pose = mp.solutions.pose.Pose(static_image_mode=True, model_complexity=complexity,
+                                           enable_segmentation=segmentation,
+                                           min_detection_confidence=min_confidence)
+
+    def __call__(self, rgb: np.ndarray) -> MPPose | None:
+        if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
+            raise ValueError(f"expected an (H, W, 3) uint8 RGB image, got {rgb.shape} {rgb.dtype}")
+        h, w = rgb.shape[:2]
+        r = self.pose.process(np.ascontiguousarray(rgb))
+        if r.pose_landmarks is None or r.pose_world_landmarks is None:
+            return None
+        lm = r.pose_landmarks.landmark
+        xy = np.array([[p.x * w, p.y * h] for p in lm], np.float64)
+        vis = np.array([p.visibility for p in lm], np.float64)
+        world = np.array([[p.x, p.y, p.z] for p in r.pose_world_landmarks.landmark], np.float64)
+        mask = None if r.segmentation_mask is None else np.asarray(r.segmentation_mask) > 0.5
+        return MPPose(xy, vis, world, mask)
+
+    def close(self) -> None:
+        self.pose.close()

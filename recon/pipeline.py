@@ -1,0 +1,270 @@
+"""Image -> dressed-able 3D body: ``recon.Reconstructor``.
+
+    rgb --keypoint source--> J+ (3D root-relative + 2D) --DAE--> SMPLR (Omega, Psi) --> body mesh
+        --> placed in the camera by least-squares reprojection of J+ onto the 2D keypoints.
+
+Keypoint sources implement ``__call__(rgb, K) -> Keypoints | None`` (None: no person found).
+Shipped: ``MediaPipeSource`` (MediaPipe Pose + the learned adapter to our J+). The volumetric
+backbone (recon.backbone) plugs in the same way once trained weights exist.
+
+Output frame: OpenCV camera (x right, y down, z forward), metres. Intrinsics: given, or a
+pinhole with focal = ``focal_factor`` x the longer image side, principal point at the centre.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from recon.body import skeleton
+
+# SMPLR takes J+ in a viewer frame with +Y up and +Z towards the viewer (OpenGL camera axes);
+# OpenCV camera axes (y down, z forward) differ by a half turn about X.
+OPENCV_TO_VIEW = np.array([1.0, -1.0, -1.0])
+
+
+class NoPersonFound(RuntimeError):
+    pass
+
+
+@dataclass
+class Keypoints:
+    points3d: np.ndarray  # (42, 3) J+ root-relative, metres, camera axes
+    points2d: np.ndarray  # (42, 2) pixels
+    confidence: float  # [0, 1]
+    box: tuple[float, float, float, float]  # person box x0, y0, x1, y1 (pixels)
+    mask: np.ndarray | None = None  # (H, W) bool person mask
+
+
+def default_intrinsics(h: int, w: int, focal_factor: float = 1.0) -> np.ndarray:
+    f = focal_factor * max(h, w)
+    return np.array([[f, 0.0, w / 2.0], [0.0, f, h / 2.0], [0.0, 0.0, 1.0]])
+
+
+class MediaPipeSource:
+    """MediaPipe Pose landmarks -> our J+ via the learned adapter (recon.keypoints.adapter)."""
+
+    name = "mediapipe"
+
+    def __init__(self, adapter_path=None):
+        from recon.keypoints.adapter import KeypointAdapter
+        from recon.keypoints.mediapipe import MediaPipePose
+
+        self.adapter = KeypointAdapter.load(adapter_path)
+        self.mp = MediaPipePose()
+
+    def __call__(self, rgb: np.ndarray, k: np.ndarray) -> Keypoints | None:
+        r = self.mp(rgb)
+        if r is None:
+            return None
+        p3, uv = self.adapter.predict(r, k)
+        conf = float(np.mean(r.visibility))
+        return Keypoints(p3, uv, conf, r.box(), r.mask)
+
+
+@dataclass
+class Reconstruction:
+    """One person in one image. Positions: OpenCV camera frame, metres; 2D: pixels."""
+
+    image_size: tuple[int, int]  # (H, W)
+    K: np.ndarray  # (3, 3)
+    vertices: np.ndarray  # (V, 3)
+    joints: np.ndarray  # (24, 3)
+    landmarks: np.ndarray  # (18, 3)
+    rotmats: np.ndarray  # (24, 3, 3) local joint rotations; root = body -> camera orientation
+    shape: np.ndarray  # (S,) body-model shape parameters
+    translation: np.ndarray  # (3,) pelvis position
+    keypoints: Keypoints
+    shape_names: tuple[str, ...] = ()
+    timings_ms: dict = field(default_factory=dict)
+
+    def project(self, x: np.ndarray) -> np.ndarray:
+        p = x @ self.K.T
+        return p[:, :2] / p[:, 2:]
+
+    @property
+    def reprojection_error_px(self) -> float:
+        """Mean distance between the model's projected J+ and the detected 2D J+ inside the image."""
+        pts = np.concatenate([self.joints, self.landmarks])
+        inside = _in_image(self.keypoints.points2d, self.image_size) == 1.0
+        err = np.linalg.norm(self.project(pts) - self.keypoints.points2d, axis=1)
+        return float(err[inside].mean()) if inside.any() else float(err.mean())
+
+    def to_json(self) -> dict:
+        import roma
+
+        rv = roma.rotmat_to_rotvec(torch.from_numpy(self.rotmats)).numpy()
+        r = lambda a, d=5: np.round(np.asarray(a, float), d).tolist()  # noqa: E731
+        return {
+            "frame": "OpenCV camera: x right, y down, z forward; metres; 2D in pixels",
+            "image_size": list(self.image_size),
+            "camera": {"K": r(self.K, 3)},
+            "confidence": round(self.keypoints.confidence, 4),
+            "box": r(self.keypoints.box, 1),
+            "reprojection_error_px": round(self.reprojection_error_px, 2),
+            "joint_names": list(skeleton.JOINT_NAMES),
+            "landmark_names": list(skeleton.LANDMARK_NAMES),
+            "joints3d": r(self.joints),
+            "landmarks3d": r(self.landmarks),
+            "joints2d": r(self.project(self.joints), 2),
+            "landmarks2d": r(self.project(self.landmarks), 2),
+            "keypoints2d_detected": r(self.keypoints.points2d, 2),
+            "pose_axis_angle": r(rv),
+            "shape": dict(zip(self.shape_names or [f"s{i}" for i in range(len(self.shape))], r(self.shape, 4))),
+            "translation": r(self.translation),
+            "timings_ms": {k: round(v, 2) for k, v in self.timings_ms.items()},
+        }
+
+
+class Reconstructor:
+    """``Reconstructor()(rgb) -> Reconstruction`` (raises NoPersonFound).
+
+    Args:
+        body: body model (default anny).
+        source: keypoint source (default MediaPipeSource).
+        focal_factor: focal length in units of the longer image side when K is not given.
+        device: torch device for SMPLR and the body model.
+    """
+
+    def __init__(self, body=None, source=None, focal_factor: float = 1.0, device: str = "cpu", smplr_path=None,
+                 refine_steps: int = 0):
+        from recon.body import default_body
+        from recon.smplr import SMPLR
+
+        self.body = body or default_body()
+        self.device = torch.device(device)
+        self.smplr = SMPLR.load(self.body, smplr_path).to(self.device)
+        self.source = source or MediaPipeSource()
+        self.focal_factor = focal_factor
+        self.refine_steps = refine_steps
+
+    @property
+    def faces(self) -> np.ndarray:
+        return self.body.faces.cpu().numpy()
+
+    def __call__(self, rgb: np.ndarray, k: np.ndarray | None = None) -> Reconstruction:
+        out = self.batch([rgb], [k])[0]
+        if isinstance(out, Exception):
+            raise out
+        return out
+
+    def batch(self, images: list[np.ndarray], ks: list[np.ndarray | None] | None = None
+              ) -> list[Reconstruction | Exception]:
+        """Keypoints per image, then one batched SMPLR + body call for all found people.
+        Entries are Reconstructions, or NoPersonFound for images without a person."""
+
+        ks = ks or [None] * len(images)
+        results: list = [None] * len(images)
+        found, kps, kmats, t_kp = [], [], [], []
+        for i, (rgb, k) in enumerate(zip(images, ks)):
+            _check_image(rgb)
+            k = default_intrinsics(*rgb.shape[:2], self.focal_factor) if k is None else np.asarray(k, float)
+            t0 = time.perf_counter()
+            kp = self.source(rgb, k)
+            t_kp.append((time.perf_counter() - t0) * 1000)
+            if kp is None:
+                results[i] = NoPersonFound("no person found")
+                continue
+            found.append(i)
+            kps.append(kp)
+            kmats.append(k)
+        if not found:
+            return results
+        t0 = time.perf_counter()
+        x = torch.tensor(np.stack([kp.points3d for kp in kps]) * OPENCV_TO_VIEW, dtype=torch.float32,
+                         device=self.device)
+        with torch.no_grad():
+            o = self.smplr(x, mode="3d", denoise=True)
+        flip = torch.tensor(np.diag(OPENCV_TO_VIEW), dtype=torch.float32, device=self.device)
+        t_smplr = (time.perf_counter() - t0) * 1000 / len(found)
+        for n, i in enumerate(found):
+            v = o.body.vertices[n].cpu().numpy() * OPENCV_TO_VIEW
+            j = o.body.joints[n].cpu().numpy() * OPENCV_TO_VIEW
+            lm = o.body.landmarks[n].cpu().numpy() * OPENCV_TO_VIEW
+            pts = np.concatenate([j, lm]) - j[:1]
+            t = place(pts, kps[n].points2d, kmats[n], weights=_in_image(kps[n].points2d, images[i].shape))
+            rot = o.rotmats[n].clone()
+            rot[0] = flip @ rot[0]  # root orientation: view frame -> OpenCV camera frame
+            v, j, lm = v - j[:1] + t, j - j[:1] + t, lm - j[:1] + t  # placed in the camera
+            timings = {"keypoints": t_kp[i], "smplr": t_smplr}
+            if self.refine_steps:
+                t1 = time.perf_counter()
+                rot, t, (v, j, lm) = self.refine(rot, o.shape[n], t, kps[n], kmats[n], images[i].shape)
+                timings["refine"] = (time.perf_counter() - t1) * 1000
+            results[i] = Reconstruction(
+                image_size=tuple(images[i].shape[:2]), K=kmats[n], vertices=v, joints=j, landmarks=lm,
+                rotmats=rot.cpu().numpy(), shape=o.shape[n].cpu().numpy(), translation=t, keypoints=kps[n],
+                shape_names=tuple(getattr(self.body, "shape_names", ())), timings_ms=timings)
+        return results
+
+    def refine(self, rot: torch.Tensor, shape: torch.Tensor, t: np.ndarray, kp: Keypoints, k: np.ndarray, image_shape,
+               prior: float = 0.05, depth_prior: float = 1.0):
+        """Fit the body to the detected 2D J+ (inside the image): Adam on root/joint rotation
+        offsets and translation, with priors keeping the pose near SMPLR's and the 3D J+ near
+        the detected ones (depth is what 2D cannot fix). Returns (rotmats, t, camera-frame
+        (vertices, joints, landmarks))."""
+        import roma
+
+        dev = self.device
+        w = torch.tensor(_in_image(kp.points2d, image_shape) == 1.0, dtype=torch.float32, device=dev)
+        uv = torch.tensor(kp.points2d, dtype=torch.float32, device=dev)
+        kk = torch.tensor(k, dtype=torch.float32, device=dev)
+        p3 = torch.tensor(kp.points3d, dtype=torch.float32, device=dev)
+        delta = torch.zeros(24, 3, device=dev, requires_grad=True)
+        tt = torch.tensor(t, dtype=torch.float32, device=dev).requires_grad_(True)
+        opt = torch.optim.Adam([{"params": [delta], "lr": 0.02}, {"params": [tt], "lr": 0.01}])
+        shape = shape[None].to(dev)
+        for _ in range(self.refine_steps):
+            r = rot.to(dev) @ roma.rotvec_to_rotmat(delta)
+            o = self.body(r[None], shape, transl=tt[None], points_only=True)
+            pts = o.points[0]
+            proj = pts @ kk.T
+            proj = proj[:, :2] / proj[:, 2:].clamp_min(1e-3)
+            e2d = (((proj - uv) / kk[0, 0]) ** 2).sum(-1)
+            e3d = ((pts - pts[:1]) - p3).pow(2).sum(-1)
+            loss = (w * e2d).sum() / w.sum().clamp_min(1) + depth_prior * 1e-3 * e3d.mean() + prior * 1e-3 * delta.pow(2).sum()
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+        with torch.no_grad():
+            r = rot.to(dev) @ roma.rotvec_to_rotmat(delta)
+            o = self.body(r[None], shape, transl=tt[None])
+        return (r.cpu(), tt.detach().cpu().numpy().astype(np.float64),
+                tuple(x[0].cpu().numpy().astype(np.float64) for x in (o.vertices, o.joints, o.landmarks)))
+
+    def posed_body(self, rec: Reconstruction):
+        """Re-run the body model from the reconstruction's parameters (camera frame)."""
+        rot = torch.tensor(rec.rotmats, dtype=torch.float32)[None]
+        shape = torch.tensor(rec.shape, dtype=torch.float32)[None]
+        with torch.no_grad():
+            return self.body(rot, shape, transl=torch.tensor(rec.translation, dtype=torch.float32)[None])
+
+
+def place(points: np.ndarray, uv: np.ndarray, k: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
+    """Translation t minimising the (weighted) linearised reprojection error of points + t onto uv."""
+    f, c = k[0, 0], k[:2, 2]
+    w = np.ones(len(uv)) if weights is None else np.asarray(weights, float)
+    a, b = [], []
+    for d in range(2):
+        du = uv[:, d] - c[d]
+        row = np.zeros((len(uv), 3))
+        row[:, d], row[:, 2] = f, -du
+        a.append(row * w[:, None])
+        b.append((du * points[:, 2] - f * points[:, d]) * w)
+    t, *_ = np.linalg.lstsq(np.concatenate(a), np.concatenate(b), rcond=None)
+    return t
+
+
+def _in_image(uv: np.ndarray, shape) -> np.ndarray:
+    """Placement weights: keypoints outside the image (guessed, e.g. legs of a half-body photo)
+    count 10x less than those inside."""
+    h, w = shape[:2]
+    inside = (uv[:, 0] >= 0) & (uv[:, 0] < w) & (uv[:, 1] >= 0) & (uv[:, 1] < h)
+    return np.where(inside, 1.0, 0.1)
+
+
+def _check_image(rgb) -> None:
+    if not isinstance(rgb, np.ndarray) or rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
+        raise ValueError("expected an (H, W, 3) uint8 RGB array (use recon.io.load_image for files)")

@@ -1,0 +1,185 @@
+"""``recon run``: reconstruct every image of files/folders into an output folder.
+
+Per image ``<out>/<key>/``: ``result.json`` (2D/3D joints and landmarks, pose, shape, camera,
+confidence), ``body.obj`` + ``body.glb`` (mesh in the camera frame), ``overlay.png`` (mesh over
+the photo) and ``side.png`` (side view). Every file is written atomically and ``result.json``
+last, so a folder with a result.json is complete: a re-run skips it (resume after Ctrl-C or a
+crash). Images that fail (unreadable, no person, ...) are reported with the reason and the
+batch goes on; ``<out>/summary.json`` lists done / skipped / failed.
+"""
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from recon import paths
+from recon.io import ImageError, list_images, load_image
+
+MAX_SIDE = 1920  # longer side used for detection/rendering; results are in original pixels
+BODY_RGBA = (0.45, 0.62, 0.92, 1.0)
+OUTFIT_RGBA = (0.35, 0.45, 0.8, 1.0)
+
+
+@dataclass
+class RunSummary:
+    done: list[str] = field(default_factory=list)
+    skipped: list[str] = field(default_factory=list)  # finished by an earlier run
+    failed: dict[str, str] = field(default_factory=dict)  # key -> reason
+    interrupted: bool = False
+    seconds: float = 0.0
+
+    def to_json(self) -> dict:
+        return {"done": len(self.done), "skipped": len(self.skipped), "failed": len(self.failed),
+                "interrupted": self.interrupted, "seconds": round(self.seconds, 1),
+                "failures": self.failed, "done_keys": self.done, "skipped_keys": self.skipped}
+
+    def line(self) -> str:
+        s = f"done {len(self.done)}, skipped (already done) {len(self.skipped)}, failed {len(self.failed)}"
+        return s + (" - interrupted: run the same command again to resume" if self.interrupted else "")
+
+
+def check_writable(out: Path) -> None:
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=out, prefix=".write-test-")
+        os.close(fd)
+        os.unlink(tmp)
+    except OSError as e:
+        raise PermissionError(f"output folder {out} is not writable: {e.strerror or e}") from e
+
+
+def run(inputs: list[str | Path], out: str | Path, batch_size: int = 4, device: str = "cpu",
+        focal_factor: float = 1.0, overlay: bool = True, reconstructor=None, progress: bool = True,
+        log=print, refine_steps: int = 30, outfit: str | None = None) -> RunSummary:
+    from tqdm import tqdm
+
+    out = Path(out)
+    check_writable(out)
+    items = list_images(inputs)
+    summary, t0 = RunSummary(), time.time()
+    summary.skipped = [k for _, k in items if (out / k / "result.json").exists()]
+    todo = [(p, k) for p, k in items if k not in set(summary.skipped)]
+    if not items:
+        log(f"no images found in {', '.join(map(str, inputs))}")
+    rec = None
+    dresser = None
+    if outfit:
+        from recon.garment.dress import Dresser
+
+        dresser = Dresser(outfit)  # fails early (clear message) if the outfit is not trained
+    bar = tqdm(total=len(todo), desc="recon run", unit="img", disable=not progress)
+    try:
+        for b in range(0, len(todo), batch_size):
+            chunk = todo[b:b + batch_size]
+            loaded = []
+            for p, key in chunk:
+                try:
+                    loaded.append((p, key, load_image(p)))
+                except ImageError as e:
+                    summary.failed[key] = str(e)
+                    log(f"failed: {e}")
+                    bar.update(1)
+            if not loaded:
+                continue
+            if rec is None:
+                rec = reconstructor or _make_reconstructor(device, focal_factor, refine_steps)
+            small = [_downscale(img) for _, _, img in loaded]
+            ks = [np.diag([s, s, 1.0]) @ _intrinsics(img, focal_factor) for (_, _, img), (_, s) in zip(loaded, small)]
+            results = rec.batch([im for im, _ in small], ks)
+            for (p, key, img), (im, s), k, r in zip(loaded, small, ks, results):
+                if isinstance(r, Exception):
+                    summary.failed[key] = f"{p}: {r}"
+                    log(f"failed: {p}: {r}")
+                else:
+                    try:
+                        _write(out / key, p, img, im, s, k, r, rec, overlay, dresser)
+                        summary.done.append(key)
+                    except OSError as e:
+                        summary.failed[key] = f"{p}: cannot write outputs ({e})"
+                        log(f"failed: {p}: cannot write outputs ({e})")
+                bar.update(1)
+    except KeyboardInterrupt:
+        summary.interrupted = True
+    finally:
+        bar.close()
+        summary.seconds = time.time() - t0
+        try:
+            paths.atomic_write(out / "summary.json",
+                               lambda t: Path(t).write_text(json.dumps(summary.to_json(), indent=1)))
+        except OSError:
+            pass
+    log(summary.line())
+    return summary
+
+
+def _make_reconstructor(device: str, focal_factor: float, refine_steps: int):
+    from recon.pipeline import Reconstructor
+
+    return Reconstructor(device=device, focal_factor=focal_factor, refine_steps=refine_steps)
+
+
+def _intrinsics(img: np.ndarray, focal_factor: float) -> np.ndarray:
+    from recon.pipeline import default_intrinsics
+
+    return default_intrinsics(*img.shape[:2], focal_factor)
+
+
+def _downscale(img: np.ndarray) -> tuple[np.ndarray, float]:
+    import cv2
+
+    s = min(1.0, MAX_SIDE / max(img.shape[:2]))
+    if s == 1.0:
+        return img, 1.0
+    size = (round(img.shape[1] * s), round(img.shape[0] * s))
+    return cv2.resize(img, size, interpolation=cv2.INTER_AREA), s
+
+
+def _write(folder: Path, src: Path, img, small, s: float, k_small, r, rec, overlay: bool, dresser=None) -> None:
+    """Outputs of one image; result.json last (it marks the folder complete)."""
+    import torch
+    import trimesh
+
+    from recon.pipeline import OPENCV_TO_VIEW
+
+    folder.mkdir(parents=True, exist_ok=True)
+    faces = rec.faces
+    mesh = trimesh.Trimesh(r.vertices, faces, process=False)
+    paths.atomic_write(folder / "body.obj", lambda t: mesh.export(t, file_type="obj"))
+    paths.atomic_write(folder / "body.glb", lambda t: mesh.export(t, file_type="glb"))
+    meshes = [(r.vertices, faces, BODY_RGBA)]
+    if dresser is not None:
+        d = dresser(rec.body, torch.tensor(r.rotmats[None], dtype=torch.float32),
+                    torch.tensor(r.shape, dtype=torch.float32), torch.tensor(r.translation[None], dtype=torch.float32),
+                    up=torch.tensor(np.diag(OPENCV_TO_VIEW), dtype=torch.float32))
+        cloth = trimesh.Trimesh(d.vertices[0], d.faces, process=False)
+        paths.atomic_write(folder / "outfit.obj", lambda t: cloth.export(t, file_type="obj"))
+        scene = trimesh.Scene({"body": mesh, "outfit": cloth})
+        paths.atomic_write(folder / "dressed.glb", lambda t: scene.export(t, file_type="glb"))
+        meshes = [(r.vertices, faces, (0.85, 0.75, 0.68, 1.0)), (d.vertices[0], d.faces, OUTFIT_RGBA)]
+    if overlay:
+        from recon.viz import render_meshes, render_overlay
+
+        paths.write_image(folder / "overlay.png", render_overlay(small, meshes, k_small))
+        side = render_meshes([(m[0] * OPENCV_TO_VIEW, m[1], m[2]) for m in meshes], size=(small.shape[0] // 2 * 2, ) * 2,
+                             yaw_deg=90) if min(small.shape[:2]) >= 64 else None
+        if side is not None:
+            paths.write_image(folder / "side.png", side)
+    js = r.to_json()
+    if s != 1.0:  # back to the original image's pixels: same 3D, focal and 2D scaled by 1/s
+        k = r.K.copy()
+        k[:2] /= s
+        js["camera"]["K"] = np.round(k, 3).tolist()
+        for key in ("joints2d", "landmarks2d", "keypoints2d_detected"):
+            js[key] = np.round(np.asarray(js[key]) / s, 2).tolist()
+        js["box"] = np.round(np.asarray(js["box"]) / s, 1).tolist()
+        js["reprojection_error_px"] = round(js["reprojection_error_px"] / s, 2)
+    js["image_size"] = list(img.shape[:2])
+    js["source"] = str(src)
+    js["files"] = sorted(p.name for p in folder.iterdir() if not p.name.startswith("."))
+    paths.atomic_write(folder / "result.json", lambda t: Path(t).write_text(json.dumps(js, indent=1)))
