@@ -187,9 +187,15 @@ def cmd_garment(args) -> int:
 
 
 def cmd_demo(args) -> int:
-    from recon.demo import body_demo
+    from recon.demo import body_demo, dressed_gif, photo_demo
+    from recon.garment.train import WEIGHTS_DIR
 
-    for p in body_demo(Path(args.out), seed=args.seed):
+    out = Path(args.out)
+    outfit = args.outfit if (WEIGHTS_DIR / f"pbns_{args.outfit}.pt").exists() else None
+    written = photo_demo(out, outfit) + body_demo(out, seed=args.seed)
+    if outfit:
+        written.append(dressed_gif(out, outfit))
+    for p in written:
         print(p)
     return 0
 
@@ -269,9 +275,10 @@ def main(argv: list[str] | None = None) -> int:
     g.add_argument("--n", type=int, default=500, help="eval: held-out test poses")
     g.add_argument("--out", default="eval/results")
     g.set_defaults(func=cmd_garment)
-    d = sub.add_parser("demo", help="render bodies in held-out mocap poses; write PNG, OBJ and GLB")
+    d = sub.add_parser("demo", help="the bundled photos through `recon run` (+ contact sheet), body and outfit renders")
     d.add_argument("--out", default="out/demo")
     d.add_argument("--seed", type=int, default=0)
+    d.add_argument("--outfit", default="tshirt-trousers", help="PBNS outfit for the dressed renders (if trained)")
     d.set_defaults(func=cmd_demo)
     args = ap.parse_args(argv)
     _threads(args.threads)

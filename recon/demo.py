@@ -63,3 +63,63 @@ def body_demo(out: Path, seed: int = 0, n: int = 4) -> list[Path]:
         paths.write_image(sm, np.concatenate(tiles, 1))
         written.append(sm)
     return written
+
+
+def photo_demo(out: Path, outfit: str | None = None) -> list[Path]:
+    """``recon run`` on the bundled example photos + one contact sheet (photo | overlay | side)."""
+    import cv2
+
+    from recon.run import run
+
+    photos = sorted(p for p in EXAMPLES.iterdir() if p.suffix.lower() in (".jpg", ".png"))
+    summary = run(photos, out / "photos", outfit=outfit, progress=False, log=lambda m: None)
+    rows = []
+    for p in photos:
+        d = out / "photos" / p.stem
+        if not (d / "result.json").exists():
+            continue
+        tiles = [cv2.imread(str(p))] + [cv2.imread(str(d / n)) for n in ("overlay.png", "side.png")]
+        h = 320
+        rows.append(np.concatenate([cv2.resize(t, (round(t.shape[1] * h / t.shape[0]), h)) for t in tiles], 1))
+    if not rows:
+        raise RuntimeError(f"no example photo was reconstructed: {summary.failed}")
+    w = max(r.shape[1] for r in rows)
+    sheet = np.concatenate([np.pad(r, ((0, 0), (0, w - r.shape[1]), (0, 0)), constant_values=255) for r in rows], 0)
+    path = out / "examples.png"
+    paths.write_image(path, sheet[..., ::-1])
+    return [path, out / "photos"]
+
+
+def dressed_gif(out: Path, outfit: str, frames: int = 60, size=(360, 480)) -> Path:
+    """The outfit on a held-out mocap clip (first test clip), rendered with pyrender as a GIF."""
+    import roma
+    from PIL import Image
+
+    from recon.body import default_body
+    from recon.garment.dress import Dresser
+    from recon.poses.mocap import MocapPoses
+    from recon.viz import render_meshes
+
+    body = default_body()
+    m = MocapPoses.load("test")
+    clip = m.clip[0]
+    sel = np.nonzero(m.clip == clip)[0][:frames * 2:2]  # 15 fps
+    rot = roma.rotvec_to_rotmat(torch.from_numpy(m.rotvec[sel]).float())
+    rot[:, 0] = torch.eye(3)  # face the camera, keep the limbs' motion
+    dresser = Dresser(outfit)
+    shape = dresser.shape
+    with torch.no_grad():
+        bv = body(rot, shape[None].expand(len(rot), -1)).vertices.numpy()
+    cloth = dresser(body, rot, shape.expand(len(rot), -1))
+    images = []
+    centre = bv.reshape(-1, 3).mean(0)
+    for i in range(len(rot)):
+        img = render_meshes([(bv[i] - centre, body.faces.numpy(), (0.85, 0.75, 0.68, 1.0)),
+                             (cloth.vertices[i] - centre, cloth.faces, (0.35, 0.45, 0.8, 1.0))],
+                            size=size, yaw_deg=25, distance=3.2, center=np.zeros(3))
+        images.append(Image.fromarray(img))
+    path = out / f"{outfit}-mocap.gif"
+    out.mkdir(parents=True, exist_ok=True)
+    paths.atomic_write(path, lambda t: images[0].save(t, format="GIF", save_all=True, append_images=images[1:],
+                                                       duration=67, loop=0))
+    return path

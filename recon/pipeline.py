@@ -154,7 +154,6 @@ class Reconstructor:
               ) -> list[Reconstruction | Exception]:
         """Keypoints per image, then one batched SMPLR + body call for all found people.
         Entries are Reconstructions, or NoPersonFound for images without a person."""
-
         ks = ks or [None] * len(images)
         results: list = [None] * len(images)
         found, kps, kmats, t_kp = [], [], [], []

@@ -33,7 +33,7 @@ def look_at(eye: np.ndarray, target: np.ndarray, up=(0.0, 1.0, 0.0)) -> np.ndarr
 
 
 def render_meshes(meshes: list[tuple[np.ndarray, np.ndarray, tuple]], size=(512, 512), yaw_deg: float = 0.0,
-                  distance: float | None = None) -> np.ndarray:
+                  distance: float | None = None, center: np.ndarray | None = None) -> np.ndarray:
     """Render [(vertices, faces, rgba)] seen from the front (body frame), rotated by ``yaw_deg``.
 
     Returns an (H, W, 3) uint8 image on a white background.
@@ -42,7 +42,7 @@ def render_meshes(meshes: list[tuple[np.ndarray, np.ndarray, tuple]], size=(512,
     import trimesh
 
     allv = np.concatenate([m[0] for m in meshes])
-    center = 0.5 * (allv.min(0) + allv.max(0))
+    center = 0.5 * (allv.min(0) + allv.max(0)) if center is None else np.asarray(center, float)
     extent = float(np.max(allv.max(0) - allv.min(0)))
     scene = pyrender.Scene(bg_color=[1.0, 1.0, 1.0, 1.0], ambient_light=[0.35, 0.35, 0.35])
     for v, f, rgba in meshes:

@@ -205,3 +205,18 @@ def test_animated_glb_reproduces_body_and_cloth(body, tmp_path):
     assert np.abs(skinned(0) - ref).mean() < 2e-3  # top-4 influences of the 24
     cloth = dresser(body, rot[frame:frame + 1], body.mean_shape, transl[frame:frame + 1]).vertices[0]
     assert np.abs(skinned(1) - cloth).mean() < 2e-3
+
+
+def test_user_obj_garment(body, outfits, tmp_path):
+    import trimesh
+
+    from recon.garment.templates import GarmentSpec, make_outfit
+
+    g = outfits["top-shorts"].garments[1]
+    trimesh.Trimesh(g.vertices, g.faces).export(tmp_path / "top.obj")
+    o = make_outfit(body, [GarmentSpec("obj", "mine", path=str(tmp_path / "top.obj"))])
+    assert len(o.garments[0].faces) == len(g.faces)
+    far = trimesh.Trimesh(g.vertices + 5.0, g.faces)
+    far.export(tmp_path / "far.obj")
+    with pytest.raises(ValueError, match="not around the rest body"):
+        make_outfit(body, [GarmentSpec("obj", "far", path=str(tmp_path / "far.obj"))])

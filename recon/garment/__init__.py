@@ -1,1 +1,3 @@
-"""Procedural outfits (CLOTH3D) and PBNS neural simulation (thesis ch. 3, 5). Not built yet: issue 6."""
+"""Garments (thesis ch. 3 and 5): procedural outfit templates on the rest body (templates),
+PBNS neural simulation (pbns, losses, train, evaluate), dressing a posed body of any shape
+(dress) and animated glTF export (gltf)."""

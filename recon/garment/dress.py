@@ -31,6 +31,8 @@ class Dresser:
     def __init__(self, outfit: str = "tshirt-trousers", path: str | Path | None = None):
         import json
 
+        if path is None and outfit.endswith(".pt"):  # a weights file instead of a preset name
+            path = outfit
         path = Path(path or WEIGHTS_DIR / f"pbns_{outfit}.pt")
         if not path.exists():
             raise FileNotFoundError(f"no trained outfit {path}: run `recon garment train --outfit {outfit}`")

@@ -77,9 +77,10 @@ class PBNS(nn.Module):
         """Pose the outfit. transforms: (B, 24, 3, 4) rest -> posed per joint (BodyOutput.transforms).
         Returns (posed vertices (B, N, 3), dT (B, N, 3))."""
         dt = self.deformation(rotmats)
-        t = torch.einsum("nk,bkij->bnij", self.weights, transforms)
+        b = transforms.shape[0]
+        t = (self.weights @ transforms.reshape(b, -1, 12)).view(b, -1, 3, 4)  # blended per vertex
         x = self.rest + dt
-        return (t[..., :3] @ x[..., None])[..., 0] + t[..., 3], dt
+        return (t[..., :3] * x[..., None, :]).sum(-1) + t[..., 3], dt
 
     # --- persistence ----------------------------------------------------------------------------
     def save(self, path: Path, extra: dict) -> None:

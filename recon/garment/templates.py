@@ -41,7 +41,10 @@ class Width:
 
 @dataclass
 class GarmentSpec:
-    """One garment. kind: "top" (t-shirt/top), "trousers", "skirt", "dress", "jumpsuit".
+    """One garment. kind: "top" (t-shirt/top), "trousers", "skirt", "dress", "jumpsuit", or
+    "obj": a user mesh at ``path`` (any format trimesh reads), modelled on the rest body in the
+    body frame (metres, +Y up); it is cleaned (merged vertices, largest piece) and pushed out of
+    the body, and vertices within 3 cm below its top are pinned when ``pin_waist`` is True.
 
     sleeve / leg: length as a fraction of the arm (shoulder -> wrist) / leg (hip -> ankle);
     hem: top's hem height relative to the pelvis joint (m); skirt_length: metres below the waist.
@@ -61,6 +64,7 @@ class GarmentSpec:
     subdivide_above: float = 0.02  # midpoint-subdivide while the median edge is longer (-> ~1-1.5 cm)
     layer: int = 0  # 0 = innermost
     pin_waist: bool | None = None  # default: lower garments are pinned at the waist
+    path: str | None = None  # kind "obj"
 
 
 PRESETS: dict[str, list[GarmentSpec]] = {
@@ -163,8 +167,10 @@ def make_outfit(body, specs: list[GarmentSpec] | str, shape: torch.Tensor | None
 
 
 def make_garment(rb: RestBody, spec: GarmentSpec) -> Garment:
-    if spec.kind not in ("top", "trousers", "skirt", "dress", "jumpsuit"):
+    if spec.kind not in ("top", "trousers", "skirt", "dress", "jumpsuit", "obj"):
         raise ValueError(f"unknown garment kind {spec.kind!r}")
+    if spec.kind == "obj":
+        return _from_file(rb, spec)
     pelvis_y = rb.j[J["pelvis"]][1]
     if spec.kind == "skirt":
         v, f, top = _skirt(rb, spec, _waist_loop(rb, pelvis_y + spec.waist, spec.torso.w0 * 0.5), pelvis_y)
@@ -320,6 +326,22 @@ def _finish(rb: RestBody, spec: GarmentSpec, v: np.ndarray, f: np.ndarray, pinne
     v = push_out(rb, v, margin=0.004 + 0.004 * spec.layer)
     pin = pinned if spec.pin_waist is not False else np.zeros(len(v), bool)
     return Garment(spec.name or spec.kind, v.astype(np.float32), np.ascontiguousarray(f), spec.layer, pin)
+
+
+def _from_file(rb: RestBody, spec: GarmentSpec) -> Garment:
+    import trimesh
+
+    if not spec.path:
+        raise ValueError("a garment of kind 'obj' needs a path")
+    m = trimesh.load(spec.path, force="mesh", process=True)
+    if not isinstance(m, trimesh.Trimesh) or len(m.faces) == 0:
+        raise ValueError(f"{spec.path}: no triangle mesh found")
+    v, f = gm.largest_component(np.asarray(m.vertices, np.float64), np.asarray(m.faces))
+    body_box = (rb.v.min(0) - 0.3, rb.v.max(0) + 0.3)
+    if (v < body_box[0]).any() or (v > body_box[1]).any():
+        raise ValueError(f"{spec.path}: the garment is not around the rest body (body frame, metres, +Y up?)")
+    pinned = v[:, 1] > v[:, 1].max() - 0.03 if spec.pin_waist else np.zeros(len(v), bool)
+    return _finish(rb, spec, v, f, pinned)
 
 
 def _nearest(points: np.ndarray, query: np.ndarray):

@@ -33,13 +33,13 @@ class GarmentTrainConfig:
     epochs: int = 6
     batch: int = 16
     lr: float = 1e-3
-    lr_psd: float = 1e-4  # learning rate of the PSD matrix D
+    lr_psd: float = 3e-4  # learning rate of the PSD matrix D
     seed: int = 0
     candidates: int = 8  # nearest-neighbour candidates per vertex and pose (collision search)
     model: PBNSConfig = field(default_factory=PBNSConfig)
     edge: L.EdgeConfig = field(default_factory=L.EdgeConfig)
     bend: L.BendConfig = field(default_factory=L.BendConfig)
-    collision: L.CollisionConfig = field(default_factory=L.CollisionConfig)
+    collision: L.CollisionConfig = field(default_factory=lambda: L.CollisionConfig(weight=1e5))
     gravity: L.GravityConfig = field(default_factory=L.GravityConfig)
     pin: L.PinConfig = field(default_factory=L.PinConfig)
 
