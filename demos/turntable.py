@@ -10,13 +10,13 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import numpy as np
 import torch
 from PIL import Image
 
 from recon import io, paths
 from recon.demo import EXAMPLES
 from recon.garment.dress import Dresser
+from recon.garment.pbns import remove_yaw
 from recon.pipeline import Reconstructor
 from recon.viz import render_meshes
 
@@ -33,8 +33,8 @@ def main() -> None:
     rec = rec_model(io.load_image(a.photo))
     body = rec_model.body
     rot = torch.tensor(rec.rotmats[None], dtype=torch.float32)
-    # upright and facing +Z: remove the camera view, keep the reconstructed articulation
-    rot[0, 0] = torch.eye(3)
+    # into the gravity frame (camera assumed upright: OpenCV -> body axes), heading removed
+    rot[0, 0] = remove_yaw(torch.diag(torch.tensor([1.0, -1.0, -1.0])) @ rot[0, 0])
     shape = torch.tensor(rec.shape[None], dtype=torch.float32)
     with torch.no_grad():
         bv = body(rot, shape).vertices[0].numpy()

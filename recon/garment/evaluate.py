@@ -19,7 +19,7 @@ import torch
 
 from recon import paths
 from recon.garment import losses as L
-from recon.garment.mesh import unique_edges, vertex_normals
+from recon.garment.mesh import unique_edges
 from recon.garment.pbns import PBNS
 from recon.garment.train import WEIGHTS_DIR, pose_set, posed_bodies
 
