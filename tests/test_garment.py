@@ -220,3 +220,17 @@ def test_user_obj_garment(body, outfits, tmp_path):
     far.export(tmp_path / "far.obj")
     with pytest.raises(ValueError, match="not around the rest body"):
         make_outfit(body, [GarmentSpec("obj", "far", path=str(tmp_path / "far.obj"))])
+
+
+def test_physical_metrics_count_inside_vertices():
+    from recon.garment.evaluate import physical_metrics
+
+    v, f = _grid(5)
+    rest = torch.tensor(v).float()
+    body_v, body_n = rest[None], torch.tensor([0.0, 0.0, 1.0]).expand(1, len(v), 3)
+    cloth = rest[None] + torch.tensor([0.0, 0.0, 0.01])
+    m = physical_metrics(cloth, f, rest, body_v, body_n)
+    assert m["collision_pct"] == 0 and m["edge_mm"] == pytest.approx(0, abs=1e-4)
+    cloth[0, :5, 2] = -0.01  # five of 25 vertices behind the body surface
+    m = physical_metrics(cloth, f, rest, body_v, body_n)
+    assert m["collision_pct"] == pytest.approx(20.0) and m["edge_mm"] > 0
