@@ -14,7 +14,7 @@ import time
 import torch
 
 from recon import io
-from recon.demo import EXAMPLES
+from recon.demo import example_photos
 from recon.pipeline import Reconstructor, default_intrinsics
 
 
@@ -24,7 +24,7 @@ def main() -> None:
     a = ap.parse_args()
     torch.set_num_threads(1)
     rec = Reconstructor(refine_steps=30)
-    images = [io.load_image(p) for p in sorted(EXAMPLES.glob("*.*")) if p.suffix in (".jpg", ".png")]
+    images = [io.load_image(p) for p in example_photos()]
     times: dict[str, list[float]] = {"mediapipe": [], "adapter": [], "smplr+mesh+place": [], "2D fit (30 steps)": []}
     for _ in range(a.repeats):
         for img in images:

@@ -153,16 +153,12 @@ def cmd_keypoints(args) -> int:
 def cmd_run(args) -> int:
     from recon.run import run
 
-    inputs = args.inputs or [str(p) for p in _examples()]
+    from recon.demo import example_photos
+
+    inputs = args.inputs or [str(p) for p in example_photos()]
     s = run(inputs, Path(args.out), batch_size=args.batch_size, device=args.device, focal_factor=args.focal,
             overlay=not args.no_overlay, refine_steps=args.refine_steps, outfit=args.outfit)
     return 130 if s.interrupted else (1 if s.failed and not s.done else 0)
-
-
-def _examples():
-    from recon.demo import EXAMPLES
-
-    return sorted(p for p in EXAMPLES.iterdir() if p.suffix.lower() in (".jpg", ".png"))
 
 
 def cmd_garment(args) -> int:

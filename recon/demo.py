@@ -65,13 +65,18 @@ def body_demo(out: Path, seed: int = 0, n: int = 4) -> list[Path]:
     return written
 
 
+def example_photos() -> list[Path]:
+    """The bundled example photos (recon/data/examples, see its SOURCES.md)."""
+    return sorted(p for p in EXAMPLES.iterdir() if p.suffix.lower() in (".jpg", ".png"))
+
+
 def photo_demo(out: Path, outfit: str | None = None) -> list[Path]:
     """``recon run`` on the bundled example photos + one contact sheet (photo | overlay | side)."""
     import cv2
 
     from recon.run import run
 
-    photos = sorted(p for p in EXAMPLES.iterdir() if p.suffix.lower() in (".jpg", ".png"))
+    photos = example_photos()
     summary = run(photos, out / "photos", outfit=outfit, progress=False, log=lambda m: None)
     rows = []
     for p in photos:

@@ -82,19 +82,15 @@ class MediaPipeBaseline:
     description = "MediaPipe Pose 3D world landmarks mapped to our joints"
 
     def __init__(self, body=None):
-        try:
-            import mediapipe as mp
-        except ImportError as e:
-            raise RuntimeError("mediapipe is not installed (scripts/setup.sh installs it)") from e
-        self.pose = mp.solutions.pose.Pose(static_image_mode=True, model_complexity=1, enable_segmentation=True)
+        from recon.keypoints.mediapipe import MediaPipePose
+
+        self.pose = MediaPipePose(complexity=1, segmentation=True)
 
     def __call__(self, rgb: np.ndarray, k: np.ndarray) -> Prediction | None:
-        r = self.pose.process(np.ascontiguousarray(rgb))
-        if r.pose_world_landmarks is None:
+        r = self.pose(rgb)
+        if r is None:
             return None
-        w = np.array([[p.x, p.y, p.z] for p in r.pose_world_landmarks.landmark])
-        mask = None if r.segmentation_mask is None else r.segmentation_mask > 0.5
-        return Prediction(mediapipe_to_joints(w), mask=mask)
+        return Prediction(mediapipe_to_joints(r.world), mask=r.mask)
 
 
 class SMPLROracle2D:

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from recon.garment.mesh import smooth_vertex_values
 from recon.garment.pbns import PBNS
 from recon.garment.train import WEIGHTS_DIR
 
@@ -54,7 +55,7 @@ class Dresser:
             rest = self.model.rest.numpy()
             _, idx = cKDTree(v0[0].numpy()).query(rest)
             d = (v1[0] - v0[0]).numpy()[idx]
-            d = _laplacian_smooth(d, self.model.faces.numpy(), smooth)
+            d = smooth_vertex_values(d, self.model.faces.numpy(), smooth)
             self._resized[key] = torch.from_numpy(rest + d).float()
         return self._resized[key]
 
@@ -71,23 +72,7 @@ class Dresser:
         if up is not None:
             r[:, 0] = up.to(r) @ r[:, 0]
         dt = self.model.deformation(r)
-        verts = []
-        for i in range(b):
-            rest = self.rest_for(body, shape[i])
-            t = torch.einsum("nk,kij->nij", self.model.weights, out.transforms[i])
-            verts.append((t[..., :3] @ (rest + dt[i])[..., None])[..., 0] + t[..., 3])
-        return DressedOutfit(torch.stack(verts).numpy(), self.model.faces.numpy(), self.garment_id, self.names)
+        rest = torch.stack([self.rest_for(body, s) for s in shape])
+        verts = self.model.skin(rest + dt, out.transforms)
+        return DressedOutfit(verts.numpy(), self.model.faces.numpy(), self.garment_id, self.names)
 
-
-def _laplacian_smooth(x: np.ndarray, faces: np.ndarray, iterations: int) -> np.ndarray:
-    import scipy.sparse as sp
-
-    from recon.garment.mesh import unique_edges
-
-    e = unique_edges(faces)
-    n = len(x)
-    a = sp.coo_matrix((np.ones(2 * len(e)), (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])), shape=(n, n)).tocsr()
-    deg = np.maximum(np.asarray(a.sum(1)).ravel(), 1)[:, None]
-    for _ in range(iterations):
-        x = 0.5 * x + 0.5 * (a @ x) / deg
-    return x

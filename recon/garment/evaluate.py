@@ -75,11 +75,7 @@ def evaluate(body, outfit: str, n_poses: int = 500, weights: Path | None = None)
     for name, zero in (("skinning only (dT = 0)", True), ("PBNS", False)):
         vs = []
         for i in range(0, len(rot), 64):
-            v, _ = model(rot[i:i + 64], bt[i:i + 64])
-            if zero:
-                t = torch.einsum("nk,bkij->bnij", model.weights, bt[i:i + 64])
-                v = (t[..., :3] @ model.rest[..., None])[..., 0] + t[..., 3]
-            vs.append(v)
+            vs.append(model.skin(model.rest, bt[i:i + 64]) if zero else model(rot[i:i + 64], bt[i:i + 64])[0])
         rows[name] = physical_metrics(torch.cat(vs), faces, model.rest, bv, bn)
     rows["PBNS"] |= speed(model, body, rot, shape)
     return {"outfit": outfit, "vertices": int(model.rest.shape[0]), "faces": int(len(faces)),

@@ -79,6 +79,19 @@ def unique_edges(faces: np.ndarray) -> np.ndarray:
     return np.unique(np.sort(e, 1), axis=0)
 
 
+def smooth_vertex_values(x: np.ndarray, faces: np.ndarray, iterations: int) -> np.ndarray:
+    """Laplacian smoothing of per-vertex values (N, C): x <- (x + mean of the neighbours) / 2."""
+    import scipy.sparse as sp
+
+    e = unique_edges(faces)
+    n = len(x)
+    a = sp.coo_matrix((np.ones(2 * len(e)), (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])), shape=(n, n)).tocsr()
+    deg = np.maximum(np.asarray(a.sum(1)).ravel(), 1)[:, None]
+    for _ in range(iterations):
+        x = 0.5 * x + 0.5 * (a @ x) / deg
+    return x
+
+
 def face_adjacency(faces: np.ndarray) -> np.ndarray:
     """(A, 2) pairs of faces sharing an edge."""
     import trimesh

@@ -73,14 +73,19 @@ class PBNS(nn.Module):
         x = self.mlp(pose_features(rotmats))
         return (x @ self.D).view(x.shape[0], -1, 3)
 
+    def skin(self, x: torch.Tensor, transforms: torch.Tensor) -> torch.Tensor:
+        """LBS of rest-pose points x ((N, 3) or (B, N, 3)) with the joint transforms (B, 24, 3, 4)
+        (BodyOutput.transforms, rest -> posed). One matmul blends the transforms per vertex:
+        faster than an einsum over joints for batches (measured)."""
+        b = transforms.shape[0]
+        t = (self.weights @ transforms.reshape(b, -1, 12)).view(b, -1, 3, 4)
+        return (t[..., :3] * x[..., None, :]).sum(-1) + t[..., 3]
+
     def forward(self, rotmats: torch.Tensor, transforms: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Pose the outfit. transforms: (B, 24, 3, 4) rest -> posed per joint (BodyOutput.transforms).
         Returns (posed vertices (B, N, 3), dT (B, N, 3))."""
         dt = self.deformation(rotmats)
-        b = transforms.shape[0]
-        t = (self.weights @ transforms.reshape(b, -1, 12)).view(b, -1, 3, 4)  # blended per vertex
-        x = self.rest + dt
-        return (t[..., :3] * x[..., None, :]).sum(-1) + t[..., 3], dt
+        return self.skin(self.rest + dt, transforms), dt
 
     # --- persistence ----------------------------------------------------------------------------
     def save(self, path: Path, extra: dict) -> None:
@@ -105,14 +110,7 @@ def initial_weights(rb: RestBody, outfit: Outfit, diffusion: int = 0) -> np.ndar
     _, idx = cKDTree(rb.v).query(outfit.vertices)
     w = rb.weights[idx].astype(np.float64)
     if diffusion > 0:
-        import scipy.sparse as sp
+        from recon.garment.mesh import smooth_vertex_values
 
-        from recon.garment.mesh import unique_edges
-
-        e = unique_edges(outfit.faces)
-        n = len(w)
-        a = sp.coo_matrix((np.ones(2 * len(e)), (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])), shape=(n, n)).tocsr()
-        deg = np.asarray(a.sum(1)).ravel()
-        for _ in range(diffusion):
-            w = 0.5 * w + 0.5 * (a @ w) / np.maximum(deg, 1)[:, None]
+        w = smooth_vertex_values(w, outfit.faces, diffusion)
     return (w / w.sum(1, keepdims=True)).astype(np.float32)

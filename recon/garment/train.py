@@ -128,10 +128,8 @@ def candidates(model: PBNS, crit: Criterion, rot, bt, bv, k: int, chunk: int = 6
     from recon.garment.losses import nearest
 
     body_c, cloth_c = [], [[] for _ in crit.collision.pairs()]
-    w = model.weights
     for i in range(0, len(rot), chunk):
-        t = torch.einsum("nk,bkij->bnij", w, bt[i:i + chunk])
-        v = (t[..., :3] @ model.rest[..., None])[..., 0] + t[..., 3]
+        v = model.skin(model.rest, bt[i:i + chunk])
         body_c.append(nearest(bv[i:i + chunk], v, k).to(torch.int16 if bv.shape[1] < 32767 else torch.int32))
         for j, (inner, outer) in enumerate(crit.collision.pairs()):
             cloth_c[j].append(nearest(v[:, inner], v[:, outer], k).to(torch.int32))

@@ -36,19 +36,24 @@ IN_DIM = NUM_MP * 6  # xy (2) + world (3) + visibility (1)
 OUT_DIM = skeleton.NUM_POINTS * 5  # 3D (3) + 2D (2)
 
 
-def normalise_2d(xy: np.ndarray, k: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-    """Pixels (..., 33, 2) -> (centred scaled coords, mid-hip in normalised camera coords, scale)."""
-    n = (xy - k[:2, 2]) / k[0, 0]
-    hip = n[..., MP_HIPS, :].mean(-2, keepdims=True)
-    rel = n - hip
-    s = np.sqrt((rel ** 2).sum(-1).mean(-1, keepdims=True))[..., None]
-    return rel / np.maximum(s, 1e-6), hip[..., 0, :], s[..., 0, 0]
+def normalise_2d(xy: np.ndarray, k: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Pixels (..., P, 2) with intrinsics (..., 3, 3) -> (coords centred on MediaPipe's mid-hip and
+    divided by their RMS spread, mid-hip (..., 2) in normalised camera coords, spread (...))."""
+    n = (xy - k[..., None, :2, 2]) / k[..., None, :1, 0]
+    hip = n[..., MP_HIPS, :].mean(-2)
+    rel = n - hip[..., None, :]
+    s = np.sqrt((rel ** 2).sum(-1).mean(-1))
+    return rel / np.maximum(s, 1e-6)[..., None, None], hip, s
 
 
 def features(xy: np.ndarray, world: np.ndarray, vis: np.ndarray, k: np.ndarray) -> np.ndarray:
-    """(33,2) pixels, (33,3) world, (33,) visibility, K -> (198,) adapter input."""
-    rel, _, _ = normalise_2d(xy, k)
-    return np.concatenate([rel, world, vis[:, None]], -1).reshape(-1).astype(np.float32)
+    """(..., 33, 2) pixels, (..., 33, 3) world, (..., 33) visibility, K (..., 3, 3) -> (..., 198) input."""
+    return _assemble(normalise_2d(xy, k)[0], world, vis)
+
+
+def _assemble(rel: np.ndarray, world: np.ndarray, vis: np.ndarray) -> np.ndarray:
+    x = np.concatenate([rel, world, vis[..., None]], -1)
+    return x.reshape(*x.shape[:-2], -1).astype(np.float32)
 
 
 @dataclass
@@ -171,20 +176,12 @@ def load_collected(folder: Path) -> dict[str, np.ndarray]:
 def targets(d: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Collected arrays -> (inputs (N,198), J+ 3D root-relative (N,42,3), J+ 2D scaled (N,42,2))."""
     k = d["K"]
-    rel, hip, s = _normalise_batch(d["xy"], k)
-    x = np.concatenate([rel, d["world"], d["vis"][..., None]], -1).reshape(len(k), -1).astype(np.float32)
+    rel, hip, s = normalise_2d(d["xy"], k)
+    x = _assemble(rel, d["world"], d["vis"])
     p3 = d["points3d"] - d["points3d"][:, :1]
     n2 = (d["points2d"] - k[:, None, :2, 2]) / k[:, None, :1, 0]
     p2 = (n2 - hip[:, None]) / s[:, None, None]
     return x, p3.astype(np.float32), p2.astype(np.float32)
-
-
-def _normalise_batch(xy, k):
-    n = (xy - k[:, None, :2, 2]) / k[:, None, :1, 0]
-    hip = n[:, MP_HIPS].mean(1)
-    rel = n - hip[:, None]
-    s = np.sqrt((rel ** 2).sum(-1).mean(-1))
-    return rel / np.maximum(s, 1e-6)[:, None, None], hip, s
 
 
 def flip(x: np.ndarray, p3: np.ndarray, p2: np.ndarray):
