@@ -1,9 +1,11 @@
-"""Latency of the image pipeline, batch 1, per stage (median over repeats on the bundled photos).
+"""Latency of the image pipeline, batch 1, per stage, both keypoint sources side by side
+(median over repeats on the bundled photos).
 
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_pipeline.py [--repeats 10]
 
-Stages: MediaPipe Pose, adapter, SMPLR (DAE + Omega + Psi + full anny mesh) + placement, and the
-optional 2D fit (`recon run` default: 30 steps). Prints ms and each stage's share of the total.
+Stages: keypoints (MediaPipe Pose + adapter, or our hourglass: 3 passes = whole image, then two
+metric crops), SMPLR (DAE + Omega + Psi + full anny mesh) + placement, and the optional 2D fit
+(`recon run` default: 30 steps). Prints ms and each total relative to the MediaPipe pipeline.
 """
 from __future__ import annotations
 
@@ -14,6 +16,7 @@ import time
 import torch
 
 from recon import io
+from recon.body import default_body
 from recon.demo import example_photos
 from recon.pipeline import Reconstructor, default_intrinsics
 
@@ -23,34 +26,39 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=10)
     a = ap.parse_args()
     torch.set_num_threads(1)
-    rec = Reconstructor(refine_steps=30)
+    body = default_body()
     images = [io.load_image(p) for p in example_photos()]
-    times: dict[str, list[float]] = {"mediapipe": [], "adapter": [], "smplr+mesh+place": [], "2D fit (30 steps)": []}
-    for _ in range(a.repeats):
-        for img in images:
-            k = default_intrinsics(*img.shape[:2])
-            t0 = time.perf_counter()
-            mp = rec.source.mp(img)
-            t1 = time.perf_counter()
-            rec.source.adapter.predict(mp, k)
-            t2 = time.perf_counter()
-            rec.refine_steps = 0
-            r0 = rec.batch([img], [k])[0]  # includes MediaPipe + adapter again: subtracted below
-            t3 = time.perf_counter()
-            rec.refine_steps = 30
-            r = rec.batch([img], [k])[0]
-            times["mediapipe"].append((t1 - t0) * 1000)
-            times["adapter"].append((t2 - t1) * 1000)
-            times["smplr+mesh+place"].append((t3 - t2) * 1000 - r0.timings_ms["keypoints"])
-            times["2D fit (30 steps)"].append(r.timings_ms["refine"])
-    med = {k: statistics.median(v) for k, v in times.items()}
-    base = med["mediapipe"] + med["adapter"] + med["smplr+mesh+place"]
+    rows = {}
+    for source in ("mediapipe", "backbone"):
+        rec = Reconstructor(body, source=source, refine_steps=30)
+        t: dict[str, list[float]] = {"keypoints": [], "backbone, one pass": [], "smplr+mesh+place": [], "2D fit": []}
+        for _ in range(a.repeats):
+            for img in images:
+                k = default_intrinsics(*img.shape[:2])
+                rec.refine_steps = 0
+                t0 = time.perf_counter()
+                r0 = rec.batch([img], [k])[0]
+                total = (time.perf_counter() - t0) * 1000
+                t["keypoints"].append(r0.timings_ms["keypoints"])
+                t["smplr+mesh+place"].append(total - r0.timings_ms["keypoints"])
+                rec.refine_steps = 30
+                t["2D fit"].append(rec.batch([img], [k])[0].timings_ms["refine"])
+                if source == "backbone":
+                    from recon.backbone.model import whole_image_crop
+
+                    t1 = time.perf_counter()
+                    rec.source.net.predict([img], [whole_image_crop(img.shape, k)])
+                    t["backbone, one pass"].append((time.perf_counter() - t1) * 1000)
+        rows[source] = {k: statistics.median(v) for k, v in t.items() if v}
     print(f"{len(images)} photos x {a.repeats} repeats, 1 thread, batch 1 (median ms)\n")
-    print("| stage | ms | share of the pipeline without fit |\n|---|---|---|")
-    for k, v in med.items():
-        print(f"| {k} | {v:.1f} | {v / base:.2f} |")
-    print(f"| **total without fit** | **{base:.1f}** | 1.00 |\n| total with fit | {base + med['2D fit (30 steps)']:.1f} | "
-          f"{(base + med['2D fit (30 steps)']) / base:.2f} |")
+    print("| source | keypoints | of which one backbone pass | SMPLR + mesh + place | **total without fit** | "
+          "x MediaPipe pipeline | 2D fit (30 steps) |\n|---|---|---|---|---|---|---|")
+    base = rows["mediapipe"]["keypoints"] + rows["mediapipe"]["smplr+mesh+place"]
+    for s, m in rows.items():
+        tot = m["keypoints"] + m["smplr+mesh+place"]
+        one = f"{m['backbone, one pass']:.1f}" if "backbone, one pass" in m else "-"
+        print(f"| {s} | {m['keypoints']:.1f} | {one} | {m['smplr+mesh+place']:.1f} | **{tot:.1f}** | {tot / base:.2f} | "
+              f"{m['2D fit']:.1f} |")
 
 
 if __name__ == "__main__":

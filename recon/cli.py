@@ -123,9 +123,22 @@ def cmd_backbone(args) -> int:
     from recon.backbone.train import BackboneTrainConfig, train
     from recon.synth.dataset import BENCHMARKS, bench_dir
 
-    val = bench_dir(args.val) if args.val in BENCHMARKS else Path(args.val)
-    cfg = BackboneTrainConfig(size=args.size, steps=args.steps, batch=args.batch, workers=args.workers)
-    log = train([Path(p) for p in args.train], val, Path(args.out), cfg, device=args.device)
+    if args.action == "export":
+        from recon.backbone.model import WEIGHTS, export
+
+        print(export(Path(args.out), Path(args.weights or WEIGHTS)))
+        return 0
+    if args.online:  # render training data (and synth-val) on the fly
+        train_roots, val = None, args.val
+    else:
+        if not args.train:
+            raise SystemExit("give --train folders or --online")
+        train_roots = [Path(p) for p in args.train]
+        val = bench_dir(args.val) if args.val in BENCHMARKS else Path(args.val)
+    cfg = BackboneTrainConfig(size=args.size, steps=args.steps, batch=args.batch, workers=args.workers, lr=args.lr,
+                              minutes=args.minutes, run_minutes=args.run_minutes, eval_every=args.eval_every,
+                              val_images=args.val_images, repeats=args.repeats)
+    log = train(train_roots, val, Path(args.out), cfg, device=args.device)
     print(json.dumps({k: v for k, v in log.items() if k != "history"}))
     return 0
 
@@ -157,7 +170,7 @@ def cmd_run(args) -> int:
 
     inputs = args.inputs or [str(p) for p in example_photos()]
     s = run(inputs, Path(args.out), batch_size=args.batch_size, device=args.device, focal_factor=args.focal,
-            overlay=not args.no_overlay, refine_steps=args.refine_steps, outfit=args.outfit)
+            overlay=not args.no_overlay, refine_steps=args.refine_steps, outfit=args.outfit, source=args.source)
     return 130 if s.interrupted else (1 if s.failed and not s.done else 0)
 
 
@@ -235,14 +248,23 @@ def main(argv: list[str] | None = None) -> int:
     e.add_argument("--n", type=int, default=None, help="only the first N images")
     e.add_argument("--out", default="eval/results")
     e.set_defaults(func=cmd_eval)
-    k = sub.add_parser("backbone", help="train the volumetric hourglass on `recon synth` folders")
-    k.add_argument("action", choices=["train"])
-    k.add_argument("--train", nargs="+", required=True, help="synth folders with training shards")
-    k.add_argument("--val", default="synth-val", help="benchmark name or folder for validation")
+    k = sub.add_parser("backbone", help="train the volumetric hourglass on rendered or stored synthetic data")
+    k.add_argument("action", choices=["train", "export"], help="export: best checkpoint of --out -> shipped weights "
+                   "(+ crop-depth calibration on synth-val)")
+    k.add_argument("--weights", default=None, help="export: destination (default recon/backbone/weights/hourglass_base.pt)")
+    k.add_argument("--train", nargs="+", help="synth folders with training shards")
+    k.add_argument("--online", action="store_true", help="render training data on the fly in the loader workers")
+    k.add_argument("--val", default="synth-val", help="benchmark name (rendered when --online) or folder")
     k.add_argument("--out", required=True, help="checkpoint folder (resumes if it holds state.pt)")
-    k.add_argument("--size", choices=["cpu", "gpu"], default="cpu")
+    k.add_argument("--size", choices=["cpu", "base", "gpu"], default="base")
     k.add_argument("--steps", type=int, default=20000)
+    k.add_argument("--minutes", type=float, default=0.0, help="total wall-clock budget; the lr schedule follows it")
+    k.add_argument("--run-minutes", type=float, default=0.0, help="stop this invocation after N minutes (resumable)")
     k.add_argument("--batch", type=int, default=16)
+    k.add_argument("--lr", type=float, default=1e-3)
+    k.add_argument("--eval-every", type=int, default=500)
+    k.add_argument("--val-images", type=int, default=256)
+    k.add_argument("--repeats", type=int, default=1, help="--online: augmented crops per rendered sample")
     k.add_argument("--workers", type=int, default=2)
     k.add_argument("--device", default="cpu")
     k.set_defaults(func=cmd_backbone)
@@ -262,6 +284,8 @@ def main(argv: list[str] | None = None) -> int:
     r.add_argument("--no-overlay", action="store_true", help="skip overlay.png / side.png rendering")
     r.add_argument("--outfit", default=None, help="dress the body with a trained PBNS outfit (e.g. tshirt-trousers)")
     r.add_argument("--refine-steps", type=int, default=30, help="2D keypoint fitting steps after SMPLR (0: off)")
+    r.add_argument("--source", choices=["mediapipe", "backbone"], default="mediapipe",
+                   help="keypoints: MediaPipe + adapter (default) or our volumetric hourglass alone")
     r.set_defaults(func=cmd_run)
     g = sub.add_parser("garment", help="PBNS outfits: train (unsupervised, physics energies) or evaluate")
     g.add_argument("action", choices=["train", "eval"])

@@ -4,8 +4,8 @@
         --> placed in the camera by least-squares reprojection of J+ onto the 2D keypoints.
 
 Keypoint sources implement ``__call__(rgb, K) -> Keypoints | None`` (None: no person found).
-Shipped: ``MediaPipeSource`` (MediaPipe Pose + the learned adapter to our J+). The volumetric
-backbone (recon.backbone) plugs in the same way once trained weights exist.
+Shipped: ``MediaPipeSource`` (MediaPipe Pose + the learned adapter to our J+, the default) and
+``BackboneSource`` (our volumetric hourglass alone, trained on synthetic renders only).
 
 Output frame: OpenCV camera (x right, y down, z forward), metres. Intrinsics: given, or a
 pinhole with focal = ``focal_factor`` x the longer image side, principal point at the centre.
@@ -62,6 +62,55 @@ class MediaPipeSource:
         p3, uv = self.adapter.predict(r, k)
         conf = float(np.mean(r.visibility))
         return Keypoints(p3, uv, conf, r.box(), r.mask)
+
+
+class BackboneSource:
+    """The volumetric stacked hourglass (recon.backbone) without any other detector: a first
+    pass over the whole image locates the person, then ``passes - 1`` metric crops centred on
+    the predicted joints at the bone-length depth. ``None`` when the mean peak confidence is
+    under ``min_confidence`` (the network saw no person in training, so this is a weak test)."""
+
+    name = "backbone"
+
+    def __init__(self, body=None, weights=None, passes: int = 3, min_confidence: float = 0.05, device: str = "cpu"):
+        from recon.backbone.model import Backbone
+        from recon.body import default_body
+        from recon.smplr.features import template_distances
+
+        self.net = Backbone.load(weights, device)
+        self.template = template_distances(body or default_body()).cpu().numpy()
+        self.passes, self.min_confidence = passes, min_confidence
+
+    def locate(self, rgb: np.ndarray, k: np.ndarray, depth_scale=None):
+        """Run the passes; returns the last pass' (J+ camera frame, 2D, confidences, crop)."""
+        from recon.backbone.model import crop_from_keypoints, whole_image_crop
+
+        scale = self.net.depth_scale if depth_scale is None else depth_scale
+        crop = whole_image_crop(rgb.shape, k)
+        for p in range(self.passes):
+            pts, uv, conf = self.net.predict([rgb], [crop])
+            if p < self.passes - 1:  # bone-length depth, times the factor calibrated on synth-val
+                crop = crop_from_keypoints(uv[0], k, self.template, scale[min(p, len(scale) - 1)])
+        return pts[0], uv[0], conf[0], crop
+
+    def __call__(self, rgb: np.ndarray, k: np.ndarray) -> Keypoints | None:
+        pts, uv, conf, _ = self.locate(rgb, k)
+        c = float(conf.mean())
+        if c < self.min_confidence:
+            return None
+        h, w = rgb.shape[:2]
+        x0, y0 = np.clip(uv.min(0), 0, [w, h])
+        x1, y1 = np.clip(uv.max(0), 0, [w, h])
+        return Keypoints(pts - pts[:1], uv, c, (float(x0), float(y0), float(x1), float(y1)))
+
+
+def make_source(name: str, body=None, device: str = "cpu"):
+    """Keypoint source by name: "mediapipe" (default) or "backbone"."""
+    if name == "mediapipe":
+        return MediaPipeSource()
+    if name == "backbone":
+        return BackboneSource(body, device=device)
+    raise ValueError(f"unknown keypoint source {name!r}; choose 'mediapipe' or 'backbone'")
 
 
 @dataclass
@@ -123,7 +172,7 @@ class Reconstructor:
 
     Args:
         body: body model (default anny).
-        source: keypoint source (default MediaPipeSource).
+        source: keypoint source object, or "mediapipe" (default) / "backbone".
         focal_factor: focal length in units of the longer image side when K is not given.
         device: torch device for SMPLR and the body model.
     """
@@ -136,7 +185,8 @@ class Reconstructor:
         self.body = body or default_body()
         self.device = torch.device(device)
         self.smplr = SMPLR.load(self.body, smplr_path).to(self.device)
-        self.source = source or MediaPipeSource()
+        self.source = make_source(source or "mediapipe", self.body, device) if source is None or isinstance(source, str) \
+            else source
         self.focal_factor = focal_factor
         self.refine_steps = refine_steps
 

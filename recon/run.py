@@ -56,7 +56,7 @@ def check_writable(out: Path) -> None:
 
 def run(inputs: list[str | Path], out: str | Path, batch_size: int = 4, device: str = "cpu",
         focal_factor: float = 1.0, overlay: bool = True, reconstructor=None, progress: bool = True,
-        log=print, refine_steps: int = 30, outfit: str | None = None) -> RunSummary:
+        log=print, refine_steps: int = 30, outfit: str | None = None, source: str = "mediapipe") -> RunSummary:
     from tqdm import tqdm
 
     out = Path(out)
@@ -88,7 +88,7 @@ def run(inputs: list[str | Path], out: str | Path, batch_size: int = 4, device: 
             if not loaded:
                 continue
             if rec is None:
-                rec = reconstructor or _make_reconstructor(device, focal_factor, refine_steps)
+                rec = reconstructor or _make_reconstructor(device, focal_factor, refine_steps, source)
             small = [_downscale(img) for _, _, img in loaded]
             ks = [np.diag([s, s, 1.0]) @ _intrinsics(img, focal_factor) for (_, _, img), (_, s) in zip(loaded, small)]
             results = rec.batch([im for im, _ in small], ks)
@@ -118,10 +118,10 @@ def run(inputs: list[str | Path], out: str | Path, batch_size: int = 4, device: 
     return summary
 
 
-def _make_reconstructor(device: str, focal_factor: float, refine_steps: int):
+def _make_reconstructor(device: str, focal_factor: float, refine_steps: int, source: str = "mediapipe"):
     from recon.pipeline import Reconstructor
 
-    return Reconstructor(device=device, focal_factor=focal_factor, refine_steps=refine_steps)
+    return Reconstructor(source=source, device=device, focal_factor=focal_factor, refine_steps=refine_steps)
 
 
 def _intrinsics(img: np.ndarray, focal_factor: float) -> np.ndarray:
@@ -181,5 +181,6 @@ def _write(folder: Path, src: Path, img, small, s: float, k_small, r, rec, overl
         js["reprojection_error_px"] = round(js["reprojection_error_px"] / s, 2)
     js["image_size"] = list(img.shape[:2])
     js["source"] = str(src)
+    js["keypoint_source"] = getattr(getattr(rec, "source", None), "name", None)
     js["files"] = sorted(p.name for p in folder.iterdir() if not p.name.startswith("."))
     paths.atomic_write(folder / "result.json", lambda t: Path(t).write_text(json.dumps(js, indent=1)))

@@ -25,6 +25,7 @@ class HourglassConfig:
 
 
 SIZES = {"cpu": HourglassConfig(stacks=2, width=64, depth_bins=16, input_size=128),
+         "base": HourglassConfig(stacks=2, width=128, depth_bins=16, input_size=128),
          "gpu": HourglassConfig(stacks=5, width=256, depth_bins=16, input_size=256, limbs=4)}
 
 

@@ -34,10 +34,38 @@ def voxel_index(coords: torch.Tensor, shape: tuple[int, int, int]) -> tuple[torc
     return flat, valid
 
 
+def trilinear_target(coords: torch.Tensor, shape: tuple[int, int, int]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Split each point's unit mass over its 8 surrounding voxel centres (trilinear weights).
+
+    Unlike a one-hot voxel, the target's expectation equals the point itself, so a network
+    trained with cross-entropy against it is not pulled to voxel centres (a one-hot target on
+    16 depth bins of a 2.5 m volume costs ~4 cm of quantisation per axis). Returns flat indices
+    (B, P, 8), weights (B, P, 8) and validity (B, P); mass falling outside the volume is clamped
+    onto its border voxel."""
+    d, h, w = shape
+    idx, wts = [], []
+    per_axis = []
+    for c, n in ((coords[..., 0], w), (coords[..., 1], h), (coords[..., 2], d)):
+        t = c * n - 0.5  # continuous voxel index (centres at integers)
+        lo = t.floor()
+        frac = t - lo
+        lo = lo.long()
+        per_axis.append(((lo.clamp(0, n - 1), 1 - frac), ((lo + 1).clamp(0, n - 1), frac)))
+    for ix, wx in per_axis[0]:
+        for iy, wy in per_axis[1]:
+            for iz, wz in per_axis[2]:
+                idx.append((iz * h + iy) * w + ix)
+                wts.append(wx * wy * wz)
+    valid = ((coords >= 0) & (coords <= 1)).all(-1)
+    return torch.stack(idx, -1), torch.stack(wts, -1), valid
+
+
 def volumetric_ce(logits: torch.Tensor, coords: torch.Tensor) -> torch.Tensor:
-    """Softmax cross-entropy of each point's volume against its ground-truth voxel (thesis
-    2.4.1); points outside the volume are ignored."""
+    """Softmax cross-entropy of each point's volume against its ground-truth location (thesis
+    2.4.1), with the mass split trilinearly over the 8 nearest voxels (see ``trilinear_target``);
+    points outside the volume are ignored."""
     b, p, d, h, w = logits.shape
-    flat, valid = voxel_index(coords, (d, h, w))
-    ce = F.cross_entropy(logits.reshape(b * p, -1), flat.reshape(-1), reduction="none").view(b, p)
+    idx, wts, valid = trilinear_target(coords, (d, h, w))
+    logp = F.log_softmax(logits.reshape(b, p, -1).float(), dim=-1)
+    ce = -(logp.gather(-1, idx) * wts).sum(-1)
     return (ce * valid).sum() / valid.sum().clamp(min=1)

@@ -8,9 +8,8 @@ import numpy as np
 import torch
 
 from recon.body import skeleton
-from recon.pipeline import OPENCV_TO_VIEW, place
+from recon.pipeline import OPENCV_TO_VIEW, _in_image, place
 from recon.synth.scene import BODY_TO_CAMERA_FRONT
-
 
 
 @dataclass
@@ -106,7 +105,7 @@ class SMPLROracle2D:
         self.model = SMPLR.load(body)
         self.needs_gt = True
 
-    def __call__(self, rgb, k, points2d=None) -> Prediction:
+    def __call__(self, rgb, k, points2d=None, **_) -> Prediction:
         xy = (points2d - k[:2, 2]) / k[0, 0]  # normalised image coordinates = X / Z
         # Metric scale for the DAE-2D: depth ~ template bone length / 2D bone length, with a
         # typical foreshortening of 0.85 (median over the 41 J+ links).
@@ -149,5 +148,57 @@ class MediaPipeSMPLRFit(MediaPipeSMPLR):
     refine_steps = 30
 
 
+class BackboneMethod:
+    """Our volumetric hourglass (shipped weights) and the stages on top of it (thesis Table 2.x
+    rows): ``stage`` "net" = decoded J+ alone, "dae" = after the 3D DAE, "smplr" = DAE + SMPLR
+    mesh placed by reprojection of the predicted 2D. ``crop`` "gt" = the metric crop around the
+    ground-truth mean joint (the thesis protocol; uses GT), "self" = found by the network
+    itself (``recon.pipeline.BackboneSource``; no GT)."""
+
+    crop, stage = "gt", "net"
+
+    def __init__(self, body):
+        from recon.pipeline import BackboneSource
+        from recon.smplr import SMPLR
+
+        self.source = BackboneSource(body)
+        self.smplr = SMPLR.load(body) if self.stage != "net" else None
+        self.needs_gt = self.crop == "gt"
+
+    def __call__(self, rgb, k, points3d=None, **_) -> Prediction | None:
+        from recon.backbone.crop import Crop
+
+        if self.crop == "gt":
+            pts, uv, _conf = self.source.net.predict([rgb], [Crop.around(points3d[:24].astype(np.float64).mean(0), k)])
+            pts, uv = pts[0], uv[0]
+        else:
+            kp = self.source(rgb, k)
+            if kp is None:
+                return None
+            uv = kp.points2d
+            pts = kp.points3d + place(kp.points3d, uv, k)
+        if self.stage == "net":
+            return Prediction(pts[:24], pts[24:])
+        x = torch.tensor(((pts - pts[:1]) * OPENCV_TO_VIEW)[None], dtype=torch.float32)
+        with torch.no_grad():
+            o = self.smplr(x, mode="3d", denoise=True, points_only=self.stage == "dae")
+        if self.stage == "dae":
+            p = o.points_in[0].numpy() * OPENCV_TO_VIEW + pts[:1]
+            return Prediction(p[:24], p[24:])
+        v = o.body.vertices[0].numpy() * OPENCV_TO_VIEW
+        j, lm = o.body.joints[0].numpy() * OPENCV_TO_VIEW, o.body.landmarks[0].numpy() * OPENCV_TO_VIEW
+        t = place(np.concatenate([j, lm]) - j[:1], uv, k, weights=_in_image(uv, rgb.shape))
+        return Prediction(j - j[:1] + t, lm - j[:1] + t, v - j[:1] + t)
+
+
+def _backbone(crop: str, stage: str) -> type:
+    what = {"net": "J+ decoded from the volumes", "dae": "+ 3D DAE", "smplr": "+ DAE + SMPLR mesh"}[stage]
+    where = {"gt": "GT metric crop (thesis protocol)", "self": "crop found by the network (no GT)"}[crop]
+    name = "backbone" + ("-gtcrop" if crop == "gt" else "") + ("" if stage == "net" else "-" + stage)
+    return type(name, (BackboneMethod,), {"name": name, "crop": crop, "stage": stage,
+                                          "description": f"our hourglass, {where}: {what}"})
+
+
 METHODS = {"mean": MeanBaseline, "mediapipe": MediaPipeBaseline, "smplr-gt2d": SMPLROracle2D,
            "mediapipe-smplr": MediaPipeSMPLR, "mediapipe-smplr-fit": MediaPipeSMPLRFit}
+METHODS.update({c.name: c for c in (_backbone(crop, stage) for crop in ("gt", "self") for stage in ("net", "dae", "smplr"))})

@@ -33,7 +33,7 @@ def run_method(name: str, ds: SynthDataset, body, n: int | None = None) -> dict:
 
     for i in tqdm(range(min(n or len(ds), len(ds))), desc=f"eval {name}", unit="img", mininterval=5):
         s = ds[i]
-        extra = {"points2d": s["points2d"]} if getattr(method, "needs_gt", False) else {}
+        extra = {"points2d": s["points2d"], "points3d": s["points3d"]} if getattr(method, "needs_gt", False) else {}
         pred = method(s["rgb"], s["K"], **extra)
         if pred is None:
             failures += 1

@@ -1,0 +1,96 @@
+"""The trained backbone: soft targets, shipped weights on rendered val images, self-found crops,
+online training data."""
+import numpy as np
+import pytest
+import torch
+
+from recon.backbone.volumetric import soft_argmax_3d, trilinear_target, volumetric_ce
+
+
+def test_trilinear_target_has_the_point_as_its_expectation():
+    torch.manual_seed(0)
+    shape = (8, 16, 16)
+    coords = 0.1 + 0.8 * torch.rand(2, 5, 3, dtype=torch.float64)  # inside the voxel-centre hull
+    idx, w, valid = trilinear_target(coords, shape)
+    assert valid.all() and torch.allclose(w.sum(-1), torch.ones(2, 5, dtype=torch.float64))
+    target = torch.zeros(2, 5, 8 * 16 * 16, dtype=torch.float64).scatter_add_(-1, idx, w)
+    logits = torch.log(target.clamp_min(1e-300)).view(2, 5, *shape)
+    torch.testing.assert_close(soft_argmax_3d(logits), coords, atol=1e-9, rtol=0)
+    # the loss is lowest at the target distribution itself
+    assert volumetric_ce(logits, coords) < volumetric_ce(logits + 0.5 * torch.randn_like(logits), coords)
+
+
+@pytest.fixture(scope="module")
+def val_samples(body, mocap):
+    from recon.synth.dataset import BENCHMARKS
+    from recon.synth.scene import SceneSampler
+
+    b = BENCHMARKS["synth-val"]
+    sampler = SceneSampler(body, b["split"], b["seed"], pool=256)
+    return [sampler.sample(i) for i in range(6)]
+
+
+def _mpjpe(p, gt):
+    return float(np.linalg.norm((p[:24] - p[:1]) - (gt[:24] - gt[:1]), axis=1).mean() * 1000)
+
+
+def test_shipped_weights_beat_an_untrained_network_on_rendered_images(val_samples):
+    from recon.backbone.crop import Crop
+    from recon.backbone.hourglass import StackedHourglass
+    from recon.backbone.model import Backbone
+
+    torch.set_num_threads(1)
+    net = Backbone.load()
+    untrained = Backbone(StackedHourglass(net.net.cfg))
+    errs = {"trained": [], "untrained": []}
+    for s in val_samples:
+        crop = Crop.around(s["points3d"][:24].astype(np.float64).mean(0), s["K"].astype(np.float64))
+        for name, m in (("trained", net), ("untrained", untrained)):
+            pts, uv, conf = m.predict([s["rgb"]], [crop])
+            assert pts.shape == (1, 42, 3) and uv.shape == (1, 42, 2) and conf.shape == (1, 42)
+            errs[name].append(_mpjpe(pts[0], s["points3d"].astype(np.float64)))
+    # the model card reports ~114 mm on synth-val; an untrained network is > 300 mm
+    assert np.mean(errs["trained"]) < 200 < np.mean(errs["untrained"])
+
+
+def test_backbone_source_finds_the_person_without_ground_truth(body, val_samples):
+    from recon.pipeline import BackboneSource
+
+    torch.set_num_threads(1)
+    src = BackboneSource(body)
+    d2, depth = [], []
+    for s in val_samples:
+        k = s["K"].astype(np.float64)
+        kp = src(s["rgb"], k)
+        assert kp is not None and kp.points3d.shape == (42, 3) and np.allclose(kp.points3d[0], 0)
+        d2.append(np.linalg.norm(kp.points2d[:24] - s["points2d"][:24], axis=1).mean())
+        _, _, _, crop = src.locate(s["rgb"], k)
+        depth.append(crop.zc / s["points3d"][:24, 2].mean())
+    assert np.median(d2) < 15  # pixels, 256 x 256 images
+    assert 0.7 < np.median(depth) < 1.3
+
+
+def test_online_crops_are_valid_training_samples(body, mocap):
+    from recon.backbone.train import OnlineCrops
+
+    it = iter(OnlineCrops(64, seed=3, repeats=2, buffer=4))
+    for _ in range(6):
+        img, grid, *_ = next(it)
+        assert img.shape == (3, 64, 64) and 0 <= img.min() and img.max() <= 1
+        assert grid.shape == (42, 3) and ((grid > -0.2) & (grid < 1.2)).all()
+
+
+def test_recon_run_with_the_backbone_source(tmp_path, val_samples):
+    import json
+
+    import cv2
+
+    from recon.run import run
+
+    torch.set_num_threads(1)
+    cv2.imwrite(str(tmp_path / "synthetic.png"), val_samples[0]["rgb"][..., ::-1])
+    s = run([tmp_path / "synthetic.png"], tmp_path / "out", overlay=False, refine_steps=0, source="backbone",
+            progress=False, log=lambda *_: None)
+    assert s.done == ["synthetic"]
+    js = json.loads((tmp_path / "out" / "synthetic" / "result.json").read_text())
+    assert js["keypoint_source"] == "backbone" and len(js["joints3d"]) == 24
