@@ -183,15 +183,32 @@ def cmd_garment(args) -> int:
         from recon.garment.train import GarmentTrainConfig, train
 
         for o in outfits:
-            cfg = GarmentTrainConfig(outfit=o, epochs=args.epochs, poses=args.poses)
+            cfg = GarmentTrainConfig(outfit=o, poses=args.poses)
+            cfg.epochs = cfg.epochs if args.epochs is None else args.epochs
             meta = train(default_body(), cfg)
             last = meta["curve"][-1]
             print(json.dumps({"outfit": o, "train_seconds": meta["train_seconds"],
                               "val_collision_pct": last["val_collision_pct"], "val_edge_mm": last["val_edge_mm"]}))
         return 0
+    if args.action == "resize":
+        from recon.garment.resize import RESIZE_WEIGHTS, ResizeConfig
+        from recon.garment.resize import train as train_resizer
+        from recon.garment.train import WEIGHTS_DIR
+
+        for o in outfits:
+            cfg = ResizeConfig() if args.epochs is None else ResizeConfig(epochs=args.epochs)
+            meta = train_resizer(default_body(), WEIGHTS_DIR / f"pbns_{o}.pt", RESIZE_WEIGHTS.format(outfit=o), cfg)
+            print(json.dumps({"outfit": o, "train_seconds": meta["train_seconds"], "transfer_only": meta["val_transfer_only"],
+                              "resized": meta["curve"][-1]}))
+        return 0
+    from recon.garment import resize
     from recon.garment.evaluate import evaluate_and_report
 
-    print(evaluate_and_report(default_body(), outfits, args.n, Path(args.out)))
+    body = default_body()
+    print(evaluate_and_report(body, outfits, args.n, Path(args.out)))
+    for o in outfits:  # the resizing table, for outfits with a trained resizer
+        if Path(resize.RESIZE_WEIGHTS.format(outfit=o)).exists():
+            print(Path(resize.evaluate(body, o, out_dir=Path(args.out))).read_text())
     return 0
 
 
@@ -288,9 +305,10 @@ def main(argv: list[str] | None = None) -> int:
                    help="keypoints: MediaPipe + adapter (default) or our volumetric hourglass alone")
     r.set_defaults(func=cmd_run)
     g = sub.add_parser("garment", help="PBNS outfits: train (unsupervised, physics energies) or evaluate")
-    g.add_argument("action", choices=["train", "eval"])
+    g.add_argument("action", choices=["train", "eval", "resize"],
+                   help="resize: train the shape + tightness resizer of a trained outfit (thesis 5.5.6)")
     g.add_argument("--outfit", nargs="+", default=["tshirt-trousers"], help="preset names or 'all'")
-    g.add_argument("--epochs", type=int, default=6)
+    g.add_argument("--epochs", type=int, default=None, help="default: 6 (train), 2 (resize)")
     g.add_argument("--poses", type=int, default=3000)
     g.add_argument("--n", type=int, default=500, help="eval: held-out test poses")
     g.add_argument("--out", default="eval/results")

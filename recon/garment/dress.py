@@ -3,7 +3,9 @@
 The outfit was simulated on one body shape. For another shape its rest pose is resized the
 CLOTH3D way (thesis 3.3.2): the rest-body displacement between the two shapes is transferred
 to every cloth vertex from its nearest body vertex and Laplacian-smoothed, so body detail does
-not print through. Pose-space deformations (PBNS) and skinning then follow the new body.
+not print through; when the outfit has a trained resizer (``recon garment resize``, thesis
+5.5.6) its correction is added and a tightness can be asked for. Pose-space deformations
+(PBNS) and skinning then follow the new body.
 """
 from __future__ import annotations
 
@@ -29,7 +31,7 @@ class DressedOutfit:
 class Dresser:
     """``Dresser("tshirt-trousers")(body, rotmats, shape, transl) -> DressedOutfit``."""
 
-    def __init__(self, outfit: str = "tshirt-trousers", path: str | Path | None = None):
+    def __init__(self, outfit: str = "tshirt-trousers", path: str | Path | None = None, resizer: bool = True):
         import json
 
         if path is None and outfit.endswith(".pt"):  # a weights file instead of a preset name
@@ -42,9 +44,29 @@ class Dresser:
         self.garment_id = ck["garment_id"].numpy()
         self.names = json.loads(ck["meta_json"])["garments"]
         self._resized: dict[bytes, torch.Tensor] = {}
+        self.resizer, self._resizer_path = None, None
+        name = json.loads(ck["meta_json"]).get("outfit")
+        if resizer and name:
+            from recon.garment.resize import RESIZE_WEIGHTS
 
-    def rest_for(self, body, shape: torch.Tensor, smooth: int = 10) -> torch.Tensor:
-        """Outfit rest vertices resized to ``shape`` (1-D tensor)."""
+            p = Path(RESIZE_WEIGHTS.format(outfit=name))
+            self._resizer_path = p if p.exists() else None
+
+    def rest_for(self, body, shape: torch.Tensor, smooth: int = 10, tightness=None) -> torch.Tensor:
+        """Outfit rest vertices resized to ``shape`` (1-D tensor); ``tightness`` (2,) needs a
+        trained resizer (> 0 looser, see recon.garment.resize)."""
+        if self._resizer_path is not None:
+            from recon.garment.resize import OutfitResizer
+
+            if self.resizer is None:
+                self.resizer = OutfitResizer(body, self._resizer_path, self.model.rest.numpy(), self.model.faces.numpy())
+            t = torch.zeros(2) if tightness is None else torch.as_tensor(tightness, dtype=torch.float32)
+            key = shape.detach().cpu().numpy().tobytes() + t.numpy().tobytes()
+            if key not in self._resized:
+                self._resized[key] = self.resizer.rest(shape.detach().cpu(), t)[0]
+            return self._resized[key]
+        if tightness is not None:
+            raise ValueError("tightness needs a trained resizer: run `recon garment resize`")
         key = shape.detach().cpu().numpy().tobytes()
         if key not in self._resized:
             from scipy.spatial import cKDTree
@@ -61,7 +83,7 @@ class Dresser:
 
     @torch.no_grad()
     def __call__(self, body, rotmats: torch.Tensor, shape: torch.Tensor, transl: torch.Tensor | None = None,
-                 up: torch.Tensor | None = None) -> DressedOutfit:
+                 up: torch.Tensor | None = None, tightness=None) -> DressedOutfit:
         """``up``: (3, 3) rotation from the frame of ``rotmats``' root to the gravity-aligned body
         frame (+Y up); e.g. diag(1, -1, -1) for poses in an upright OpenCV camera frame. The
         network sees the gravity-aligned pose; the cloth is posed in the input frame."""
@@ -72,7 +94,7 @@ class Dresser:
         if up is not None:
             r[:, 0] = up.to(r) @ r[:, 0]
         dt = self.model.deformation(r)
-        rest = torch.stack([self.rest_for(body, s) for s in shape])
+        rest = torch.stack([self.rest_for(body, s, tightness=tightness) for s in shape])
         verts = self.model.skin(rest + dt, out.transforms)
         return DressedOutfit(verts.numpy(), self.model.faces.numpy(), self.garment_id, self.names)
 

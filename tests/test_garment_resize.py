@@ -1,0 +1,52 @@
+"""Outfit resizing (thesis 5.5.6): tightness convention, a short training run, the Dresser hook."""
+import numpy as np
+import torch
+
+from recon.garment.train import WEIGHTS_DIR
+
+PBNS_FILE = WEIGHTS_DIR / "pbns_top-shorts.pt"
+
+
+def _girth(v: np.ndarray, body_v: np.ndarray) -> float:
+    """Mean horizontal distance of cloth vertices from the body's vertical axis."""
+    c = body_v.mean(0)
+    return float(np.linalg.norm((v - c)[:, [0, 2]], axis=1).mean())
+
+
+def test_transfer_tightness_is_looser_when_positive(body):
+    from recon.garment.resize import Transfer, _outfit_for
+
+    outfit, shape0, _ = _outfit_for(body, PBNS_FILE)
+    tr = Transfer(body, outfit.vertices, outfit.faces, shape0)
+    s = shape0[None].float()
+    same = tr(s, torch.zeros(1, 2))[0]
+    np.testing.assert_allclose(same, outfit.vertices, atol=1e-6)  # own shape, no tightness: the template
+    with torch.no_grad():
+        bv = body.rest_geometry(s)[0][0].numpy()
+    loose, tight = tr(s, torch.tensor([[0.3, 0.0]]))[0], tr(s, torch.tensor([[-0.1, 0.0]]))[0]
+    assert _girth(tight, bv) < _girth(same, bv) < _girth(loose, bv)
+
+
+def test_resizer_trains_and_feeds_the_dresser(body, tmp_path, monkeypatch):
+    from recon.garment import resize
+
+    torch.set_num_threads(1)
+    cfg = resize.ResizeConfig(samples=16, val_samples=4, epochs=3, batch=8)
+    out = tmp_path / "resize_top-shorts.pt"
+    meta = resize.train(body, PBNS_FILE, out, cfg, log=lambda *_: None)
+    assert out.exists() and len(meta["curve"]) == 3
+    assert np.isfinite(meta["curve"][-1]["val_collision_pct"])
+    outfit, _, _ = resize._outfit_for(body, PBNS_FILE)
+    rz = resize.OutfitResizer(body, out, outfit.vertices, outfit.faces)
+    shape = body.mean_shape.clone()
+    v = rz.rest(shape, torch.tensor([0.1, 0.0]))
+    base = rz.rest(shape, torch.tensor([0.1, 0.0]), corrected=False)
+    assert v.shape == (1, len(outfit.vertices), 3) and not torch.equal(v, base)
+    # the Dresser picks up a resizer file named after the outfit and accepts a tightness
+    monkeypatch.setattr(resize, "RESIZE_WEIGHTS", str(tmp_path / "resize_{outfit}.pt"))
+    from recon.garment.dress import Dresser
+
+    d = Dresser("top-shorts")
+    rot = torch.eye(3).expand(1, 24, 3, 3).clone()
+    dressed = d(body, rot, shape[None], tightness=(0.1, 0.0))
+    assert dressed.vertices.shape == (1, len(outfit.vertices), 3) and np.isfinite(dressed.vertices).all()
