@@ -81,15 +81,17 @@ class BackboneSource:
         self.template = template_distances(body or default_body()).cpu().numpy()
         self.passes, self.min_confidence = passes, min_confidence
 
-    def locate(self, rgb: np.ndarray, k: np.ndarray, depth_scale=None):
-        """Run the passes; returns the last pass' (J+ camera frame, 2D, confidences, crop)."""
+    def locate(self, rgb: np.ndarray, k: np.ndarray, depth_scale=None, passes: int | None = None):
+        """Run the passes (default ``self.passes``); returns the last pass' (J+ camera frame, 2D,
+        confidences, crop)."""
         from recon.backbone.model import crop_from_keypoints, whole_image_crop
 
         scale = self.net.depth_scale if depth_scale is None else depth_scale
         crop = whole_image_crop(rgb.shape, k)
-        for p in range(self.passes):
+        passes = self.passes if passes is None else passes
+        for p in range(passes):
             pts, uv, conf = self.net.predict([rgb], [crop])
-            if p < self.passes - 1:  # bone-length depth, times the factor calibrated on synth-val
+            if p < passes - 1:  # bone-length depth, times the factor calibrated on synth-val
                 crop = crop_from_keypoints(uv[0], k, self.template, scale[min(p, len(scale) - 1)])
         return pts[0], uv[0], conf[0], crop
 

@@ -13,10 +13,11 @@ from pathlib import Path
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 
 from recon.backbone.crop import EXTENT_M, Crop
 from recon.backbone.hourglass import HourglassConfig, StackedHourglass
-from recon.backbone.volumetric import soft_argmax_3d
+from recon.backbone.volumetric import soft_argmax_3d, voxel_index
 from recon.body import skeleton
 
 WEIGHTS = Path(__file__).parent / "weights" / "hourglass_base.pt"
@@ -50,17 +51,11 @@ class Backbone:
             logits = self.net(x)[-1][:, :skeleton.NUM_POINTS].float()
         g = soft_argmax_3d(logits)
         b, p, d, h, w = logits.shape
-        prob = torch.softmax(logits.reshape(b, p, -1), -1).view(b, p, d, h, w)
-        idx = [(g[..., i] * n - 0.5).round().long() for i, n in ((2, d), (1, h), (0, w))]
-        conf = torch.zeros(b, p, device=logits.device)
-        for dz in (-1, 0, 1):  # mass of the 3x3x3 voxels around the estimate
-            for dy in (-1, 0, 1):
-                for dx in (-1, 0, 1):
-                    iz, iy, ix = idx[0] + dz, idx[1] + dy, idx[2] + dx
-                    ok = (iz >= 0) & (iz < d) & (iy >= 0) & (iy < h) & (ix >= 0) & (ix < w)
-                    flat = (iz.clamp(0, d - 1) * h + iy.clamp(0, h - 1)) * w + ix.clamp(0, w - 1)
-                    conf += prob.reshape(b, p, -1).gather(-1, flat[..., None])[..., 0] * ok
-        return g.cpu(), conf.cpu()
+        prob = torch.softmax(logits.reshape(b, p, -1), -1).view(b * p, 1, d, h, w)
+        # mass of the 3x3x3 voxels around each voxel (zero outside), read at the estimate's voxel
+        mass = (F.avg_pool3d(prob, 3, stride=1, padding=1) * 27).view(b, p, -1)
+        flat, _ = voxel_index(g, (d, h, w))
+        return g.cpu(), mass.gather(-1, flat[..., None])[..., 0].cpu()
 
     def predict(self, images: list[np.ndarray], crops: list[Crop]):
         batch = np.stack([c.image(im, self.size) for im, c in zip(images, crops)])
@@ -105,10 +100,7 @@ def calibrate_depth_scale(source, samples, passes: int = 2) -> tuple[float, ...]
         ratios = []
         for s in samples:
             k = s["K"].astype(np.float64)
-            saved = source.passes
-            source.passes = p + 1
-            _, uv, _, _ = source.locate(s["rgb"], k, depth_scale=scale + [1.0])
-            source.passes = saved
+            _, uv, _, _ = source.locate(s["rgb"], k, depth_scale=scale + [1.0], passes=p + 1)
             z_true = float(s["points3d"][:24].astype(np.float64).mean(0)[2])
             ratios.append(z_true / crop_from_keypoints(uv, k, source.template).zc)
         scale.append(float(np.median(ratios)))

@@ -106,11 +106,11 @@ class SMPLROracle2D:
         self.needs_gt = True
 
     def __call__(self, rgb, k, points2d=None, **_) -> Prediction:
+        from recon.backbone.model import depth_from_bones
+
         xy = (points2d - k[:2, 2]) / k[0, 0]  # normalised image coordinates = X / Z
-        # Metric scale for the DAE-2D: depth ~ template bone length / 2D bone length, with a
-        # typical foreshortening of 0.85 (median over the 41 J+ links).
-        d2 = np.linalg.norm(xy[1:] - xy[list(skeleton.KINTREE_PLUS[1:])], axis=1)
-        depth = 0.85 * np.median(self.model.template.numpy() / np.maximum(d2, 1e-6))
+        # metric scale for the DAE-2D: the depth where template bones match the 2D bones
+        depth = depth_from_bones(points2d, k, self.model.template.numpy())
         x = np.concatenate([xy * depth, np.zeros((len(xy), 1))], 1) * OPENCV_TO_VIEW
         with torch.no_grad():
             out = self.model(torch.tensor(x[None], dtype=torch.float32), mode="2d")

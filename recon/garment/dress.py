@@ -15,7 +15,6 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from recon.garment.mesh import smooth_vertex_values
 from recon.garment.pbns import PBNS
 from recon.garment.train import WEIGHTS_DIR
 
@@ -44,7 +43,7 @@ class Dresser:
         self.garment_id = ck["garment_id"].numpy()
         self.names = json.loads(ck["meta_json"])["garments"]
         self._resized: dict[bytes, torch.Tensor] = {}
-        self.resizer, self._resizer_path = None, None
+        self.resizer, self._resizer_path, self.transfer = None, None, None
         name = json.loads(ck["meta_json"]).get("outfit")
         if resizer and name:
             from recon.garment.resize import RESIZE_WEIGHTS
@@ -69,16 +68,11 @@ class Dresser:
             raise ValueError("tightness needs a trained resizer: run `recon garment resize`")
         key = shape.detach().cpu().numpy().tobytes()
         if key not in self._resized:
-            from scipy.spatial import cKDTree
+            from recon.garment.resize import Transfer
 
-            with torch.no_grad():
-                v0, _ = body.rest_geometry(self.shape[None].to(body.mean_shape))
-                v1, _ = body.rest_geometry(shape.reshape(1, -1).to(body.mean_shape))
-            rest = self.model.rest.numpy()
-            _, idx = cKDTree(v0[0].numpy()).query(rest)
-            d = (v1[0] - v0[0]).numpy()[idx]
-            d = smooth_vertex_values(d, self.model.faces.numpy(), smooth)
-            self._resized[key] = torch.from_numpy(rest + d).float()
+            if self.transfer is None or self.transfer.smooth != smooth:
+                self.transfer = Transfer(body, self.model.rest.numpy(), self.model.faces.numpy(), self.shape, smooth)
+            self._resized[key] = torch.from_numpy(self.transfer.resize(shape.detach().cpu().reshape(1, -1))[0])
         return self._resized[key]
 
     @torch.no_grad()

@@ -26,15 +26,16 @@ from recon.garment.train import WEIGHTS_DIR, pose_set, posed_bodies
 
 @torch.no_grad()
 def physical_metrics(v: torch.Tensor, faces: np.ndarray, rest: torch.Tensor, body_v, body_n) -> dict:
+    """``rest``: (N, 3) template, or (B, N, 3) one rest garment per sample (resizing)."""
     e = torch.from_numpy(unique_edges(faces))
-    l0 = (rest[e[:, 0]] - rest[e[:, 1]]).norm(dim=-1)
+    l0 = (rest[..., e[:, 0], :] - rest[..., e[:, 1], :]).norm(dim=-1)
     strain = (v[:, e[:, 0]] - v[:, e[:, 1]]).norm(dim=-1) - l0
     bend = L.BendLoss(faces)
     pen = L.CollisionLoss.penetration(v, body_v, body_n, L.nearest(body_v, v), 0.0)
     floor = body_v[..., 1].min(1).values[:, None]
     return {"collision_pct": float((pen < 0).float().mean() * 100),
             "edge_mm": float(strain.abs().mean() * 1000),
-            "edge_pct": float(strain.abs().sum(1).mean() / l0.sum() * 100),  # length-weighted
+            "edge_pct": float((strain.abs().sum(1) / l0.sum(-1)).mean() * 100),  # length-weighted
             "bend": float(bend.energy(v).mean()),
             "gravity_m": float((v[..., 1] - floor).mean())}
 

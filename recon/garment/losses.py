@@ -51,12 +51,14 @@ class EdgeLoss(nn.Module):
         w = torch.ones(len(e)) if fabric is None else 0.5 * (fabric[e[:, 0]] + fabric[e[:, 1]])
         self.register_buffer("w", w)
 
-    def strain(self, v: torch.Tensor) -> torch.Tensor:
-        """Signed edge-length error (B, E), metres."""
-        return (v[:, self.edges[:, 0]] - v[:, self.edges[:, 1]]).norm(dim=-1) - self.rest_len
+    def strain(self, v: torch.Tensor, rest_len: torch.Tensor | None = None) -> torch.Tensor:
+        """Signed edge-length error (B, E), metres; ``rest_len`` (B, E) overrides the template's
+        lengths per sample (resizing: each body size has its own rest garment)."""
+        l0 = self.rest_len if rest_len is None else rest_len
+        return (v[:, self.edges[:, 0]] - v[:, self.edges[:, 1]]).norm(dim=-1) - l0
 
-    def forward(self, v):
-        return self.cfg.weight * (self.w * self.strain(v) ** 2).mean(1)
+    def forward(self, v, rest_len: torch.Tensor | None = None):
+        return self.cfg.weight * (self.w * self.strain(v, rest_len) ** 2).mean(1)
 
 
 @dataclass

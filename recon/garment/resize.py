@@ -27,7 +27,9 @@ from torch import nn
 
 from recon import paths
 from recon.garment import losses as L
+from recon.garment import mesh as gm
 from recon.garment.mesh import smooth_vertex_values, vertex_normals
+from recon.garment.train import Criterion
 
 RESIZE_WEIGHTS = str(Path(__file__).resolve().parent / "weights" / "resize_{outfit}.pt")
 TIGHTNESS_PHENOTYPES = ("weight", "height")  # what gamma offsets (anny), like CLOTH3D's beta_0, beta_1
@@ -73,7 +75,9 @@ class Resizer(nn.Module):
 
 
 class Transfer:
-    """E_T: CLOTH3D displacement transfer of an outfit's rest vertices to other shapes."""
+    """E_T: CLOTH3D displacement transfer (3.3.2) of an outfit's rest vertices, modelled on the
+    body of shape ``shape0``, to other shapes: the rest-body displacement of each cloth vertex's
+    nearest body vertex, Laplacian-smoothed so body detail does not print through."""
 
     def __init__(self, body, rest: np.ndarray, faces: np.ndarray, shape0: torch.Tensor, smooth: int = 10):
         from scipy.spatial import cKDTree
@@ -82,19 +86,24 @@ class Transfer:
         with torch.no_grad():
             self.v0 = body.rest_geometry(shape0.reshape(1, -1).to(body.mean_shape))[0][0].numpy()
         self.idx = cKDTree(self.v0).query(rest)[1]
-        self.cols = [list(body.shape_names).index(n) for n in TIGHTNESS_PHENOTYPES]
 
     def target(self, shape: torch.Tensor, tightness: torch.Tensor) -> torch.Tensor:
+        """Shape the garment is sized for: ``shape`` with gamma added to TIGHTNESS_PHENOTYPES."""
+        cols = [list(self.body.shape_names).index(n) for n in TIGHTNESS_PHENOTYPES]
         t = shape.clone()
-        t[..., self.cols] = (t[..., self.cols] + tightness).clamp(0, 1)
+        t[..., cols] = (t[..., cols] + tightness).clamp(0, 1)
         return t
 
-    def __call__(self, shape: torch.Tensor, tightness: torch.Tensor) -> np.ndarray:
-        """(B, S), (B, 2) -> (B, N, 3) resized rest vertices."""
+    def resize(self, shape: torch.Tensor) -> np.ndarray:
+        """(B, S) target shapes -> (B, N, 3) resized rest vertices."""
         with torch.no_grad():
-            v1 = self.body.rest_geometry(self.target(shape, tightness).to(self.body.mean_shape))[0].numpy()
+            v1 = self.body.rest_geometry(shape.to(self.body.mean_shape))[0].numpy()
         return np.stack([self.rest + smooth_vertex_values(v[self.idx] - self.v0[self.idx], self.faces, self.smooth)
                          for v in v1]).astype(np.float32)
+
+    def __call__(self, shape: torch.Tensor, tightness: torch.Tensor) -> np.ndarray:
+        """(B, S), (B, 2) -> (B, N, 3) rest vertices sized for shape + tightness."""
+        return self.resize(self.target(shape, tightness))
 
 
 def sample_conditions(body, n: int, seed: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -120,33 +129,12 @@ class _Data:
         self.cand = L.nearest(self.bv, self.base, k).to(torch.int16 if bv.shape[1] < 32767 else torch.int32)
 
 
-class ResizeCriterion(nn.Module):
-    """PBNS energies (Eq. 5.3) in rest pose, edge lengths of E_T per sample."""
+def rest_metrics(v: torch.Tensor, base: torch.Tensor, faces: np.ndarray, bv, bn) -> dict:
+    """Vertices inside the body (%) and mean |edge - E_T edge| (mm)."""
+    from recon.garment.evaluate import physical_metrics
 
-    def __init__(self, outfit, cfg: ResizeConfig):
-        super().__init__()
-        self.edge = L.EdgeLoss(torch.from_numpy(outfit.vertices), outfit.faces, cfg.edge)
-        self.bend = L.BendLoss(outfit.faces, cfg.bend)
-        self.collision = L.CollisionLoss(outfit.layer, cfg.collision)
-        self.gravity = L.GravityLoss(cfg.gravity)
-        self.pin = L.PinLoss(outfit.pinned, cfg.pin)
-        self.register_buffer("faces", torch.from_numpy(np.ascontiguousarray(outfit.faces)).long())
-
-    def forward(self, v, dv, rest_len, body_v, body_n, body_cand=None):
-        strain = (v[:, self.edge.edges[:, 0]] - v[:, self.edge.edges[:, 1]]).norm(dim=-1) - rest_len
-        self.terms = {"edge": self.edge.cfg.weight * (self.edge.w * strain ** 2).mean(1), "bend": self.bend(v),
-                      "collision": self.collision(v, body_v, body_n, self.faces, body_cand, None),
-                      "gravity": self.gravity(v), "pin": self.pin(dv)}
-        self.strain = strain
-        return sum(self.terms.values())
-
-
-@torch.no_grad()
-def rest_metrics(v: torch.Tensor, rest_len: torch.Tensor, edges: torch.Tensor, bv, bn) -> dict:
-    """Vertices inside the body (%) and mean |edge - E_T edge| (mm), per set."""
-    pen = L.CollisionLoss.penetration(v, bv, bn, L.nearest(bv, v), 0.0)
-    strain = (v[:, edges[:, 0]] - v[:, edges[:, 1]]).norm(dim=-1) - rest_len
-    return {"collision_pct": float((pen < 0).float().mean() * 100), "edge_mm": float(strain.abs().mean() * 1000)}
+    m = physical_metrics(v, faces, base, bv, bn)
+    return {k: m[k] for k in ("collision_pct", "edge_mm")}
 
 
 def _outfit_for(body, pbns_path: Path):
@@ -169,10 +157,9 @@ def train(body, pbns_path: Path, out: Path, cfg: ResizeConfig = ResizeConfig(), 
     t0 = time.time()
     outfit, shape0, name = _outfit_for(body, Path(pbns_path))
     transfer = Transfer(body, outfit.vertices, outfit.faces, shape0, cfg.smooth)
-    crit = ResizeCriterion(outfit, cfg)
-    edges = crit.edge.edges
-    tr = _Data(body, transfer, *sample_conditions(body, cfg.samples, cfg.seed), edges, cfg.candidates)
-    va = _Data(body, transfer, *sample_conditions(body, cfg.val_samples, cfg.seed + 1), edges, 1)
+    crit = Criterion(outfit, torch.from_numpy(outfit.vertices), cfg)
+    tr = _Data(body, transfer, *sample_conditions(body, cfg.samples, cfg.seed), crit.edge.edges, cfg.candidates)
+    va = _Data(body, transfer, *sample_conditions(body, cfg.val_samples, cfg.seed + 1), crit.edge.edges, 1)
     net = Resizer(len(outfit.vertices), body.num_shape_params + 2, cfg)
     opt = torch.optim.Adam([{"params": [net.D], "lr": cfg.lr_psd},
                             {"params": [p for n, p in net.named_parameters() if n != "D"], "lr": cfg.lr}])
@@ -180,7 +167,7 @@ def train(body, pbns_path: Path, out: Path, cfg: ResizeConfig = ResizeConfig(), 
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, steps)
     log(f"resizer {name}: {len(outfit.vertices)} vertices, {cfg.samples} train / {cfg.val_samples} val conditions; "
         f"set-up {time.time() - t0:.1f} s")
-    base_val = rest_metrics(va.base, va.rest_len, edges, va.bv, va.bn)
+    base_val = rest_metrics(va.base, va.base, outfit.faces, va.bv, va.bn)
     curve = []
     bar = tqdm(total=steps, desc=f"resize {name}", unit="step")
     for ep in range(cfg.epochs):
@@ -189,7 +176,7 @@ def train(body, pbns_path: Path, out: Path, cfg: ResizeConfig = ResizeConfig(), 
             i = order[b * cfg.batch:(b + 1) * cfg.batch]
             dv = net(tr.shape[i], tr.tight[i])
             v = tr.base[i] + dv
-            loss = crit(v, dv, tr.rest_len[i], tr.bv[i], tr.bn[i], tr.cand[i]).mean()
+            loss = crit(v, dv, tr.bv[i], tr.bn[i], tr.cand[i], rest_len=tr.rest_len[i]).mean()
             opt.zero_grad()
             loss.backward()
             opt.step()
@@ -198,7 +185,7 @@ def train(body, pbns_path: Path, out: Path, cfg: ResizeConfig = ResizeConfig(), 
         with torch.no_grad():
             v = va.base + net(va.shape, va.tight)
         row = {"epoch": ep + 1, "seconds": round(time.time() - t0, 1)} | {
-            f"val_{k}": x for k, x in rest_metrics(v, va.rest_len, edges, va.bv, va.bn).items()}
+            f"val_{k}": x for k, x in rest_metrics(v, va.base, outfit.faces, va.bv, va.bn).items()}
         curve.append(row)
         bar.set_postfix(coll=f"{row['val_collision_pct']:.2f}%", edge=f"{row['val_edge_mm']:.2f}mm")
     bar.close()
@@ -239,8 +226,7 @@ def evaluate(body, outfit: str, n: int = 200, seed: int = 1234, out_dir: Path = 
     o, _, _ = _outfit_for(body, WEIGHTS_DIR / f"pbns_{outfit}.pt")
     path = Path(RESIZE_WEIGHTS.format(outfit=outfit))
     rz = OutfitResizer(body, path, o.vertices, o.faces)
-    crit = ResizeCriterion(o, ResizeConfig())
-    data = _Data(body, rz.transfer, *sample_conditions(body, n, seed), crit.edge.edges, 1)
+    data = _Data(body, rz.transfer, *sample_conditions(body, n, seed), torch.from_numpy(gm.unique_edges(o.faces)), 1)
     t = time.perf_counter()
     with torch.no_grad():
         dv = rz.net(data.shape, data.tight)
@@ -248,10 +234,8 @@ def evaluate(body, outfit: str, n: int = 200, seed: int = 1234, out_dir: Path = 
     rows = {}
     loose = data.tight[:, 0] >= 0
     for subset, m in (("all", torch.ones_like(loose)), ("loose (gamma_weight >= 0)", loose), ("tight (gamma_weight < 0)", ~loose)):
-        e = crit.edge.edges
-        rows[f"transfer only (CLOTH3D E_T), {subset}"] = rest_metrics(data.base[m], data.rest_len[m], e, data.bv[m], data.bn[m])
-        rows[f"E_T + resizer (PBNS 5.5.6), {subset}"] = rest_metrics((data.base + dv)[m], data.rest_len[m], e, data.bv[m],
-                                                                     data.bn[m])
+        for name, v in (("transfer only (CLOTH3D E_T)", data.base), ("E_T + resizer (PBNS 5.5.6)", data.base + dv)):
+            rows[f"{name}, {subset}"] = rest_metrics(v[m], data.base[m], o.faces, data.bv[m], data.bn[m])
     meta = json.loads(torch.load(path, map_location="cpu", weights_only=True)["meta_json"])
     res = {"outfit": outfit, "conditions": n, "seed": seed, "rows": rows, "ms_per_outfit_batched": ms,
            "train_seconds": meta["train_seconds"]}

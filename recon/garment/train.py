@@ -87,8 +87,8 @@ class Criterion(torch.nn.Module):
         self.pin = L.PinLoss(outfit.pinned, cfg.pin)
         self.register_buffer("faces", torch.from_numpy(np.ascontiguousarray(outfit.faces)).long())
 
-    def forward(self, v, dt, body_v, body_n, body_cand=None, cloth_cand=None):
-        self.terms = {"edge": self.edge(v), "bend": self.bend(v),
+    def forward(self, v, dt, body_v, body_n, body_cand=None, cloth_cand=None, rest_len=None):
+        self.terms = {"edge": self.edge(v, rest_len), "bend": self.bend(v),
                       "collision": self.collision(v, body_v, body_n, self.faces, body_cand, cloth_cand),
                       "gravity": self.gravity(v), "pin": self.pin(dt)}
         return sum(self.terms.values())
