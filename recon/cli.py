@@ -201,11 +201,17 @@ def cmd_garment(args) -> int:
             print(json.dumps({"outfit": o, "train_seconds": meta["train_seconds"], "transfer_only": meta["val_transfer_only"],
                               "resized": meta["curve"][-1]}))
         return 0
+    if args.action == "reference":
+        from recon.garment.evaluate import reference_and_report
+
+        for o in outfits:
+            print(Path(reference_and_report(o, args.n or 4, Path(args.out), args.frames, args.workers)).read_text())
+        return 0
     from recon.garment import resize
     from recon.garment.evaluate import evaluate_and_report
 
     body = default_body()
-    print(evaluate_and_report(body, outfits, args.n, Path(args.out)))
+    print(evaluate_and_report(body, outfits, args.n or 500, Path(args.out)))
     for o in outfits:  # the resizing table, for outfits with a trained resizer
         if Path(resize.RESIZE_WEIGHTS.format(outfit=o)).exists():
             print(Path(resize.evaluate(body, o, out_dir=Path(args.out))).read_text())
@@ -305,12 +311,15 @@ def main(argv: list[str] | None = None) -> int:
                    help="keypoints: MediaPipe + adapter (default) or our volumetric hourglass alone")
     r.set_defaults(func=cmd_run)
     g = sub.add_parser("garment", help="PBNS outfits: train (unsupervised, physics energies) or evaluate")
-    g.add_argument("action", choices=["train", "eval", "resize"],
-                   help="resize: train the shape + tightness resizer of a trained outfit (thesis 5.5.6)")
+    g.add_argument("action", choices=["train", "eval", "resize", "reference"],
+                   help="resize: train the shape + tightness resizer of a trained outfit (thesis 5.5.6); "
+                        "reference: PBNS against a newton cloth drape (needs newton, slow: minutes per pose)")
     g.add_argument("--outfit", nargs="+", default=["tshirt-trousers"], help="preset names or 'all'")
     g.add_argument("--epochs", type=int, default=None, help="default: 6 (train), 2 (resize)")
     g.add_argument("--poses", type=int, default=3000)
-    g.add_argument("--n", type=int, default=500, help="eval: held-out test poses")
+    g.add_argument("--n", type=int, default=None, help="held-out test poses (default: 500 for eval, 4 for reference)")
+    g.add_argument("--frames", type=int, default=60, help="reference: frame cap of each drape")
+    g.add_argument("--workers", type=int, default=1, help="reference: drapes run in parallel processes")
     g.add_argument("--out", default="eval/results")
     g.set_defaults(func=cmd_garment)
     d = sub.add_parser("demo", help="the bundled photos through `recon run` (+ contact sheet), body and outfit renders")

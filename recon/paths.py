@@ -20,6 +20,16 @@ def shared_dir() -> Path:
     return Path(os.environ.get("RECON_SHARED_DIR", REPO_ROOT.parent / "shared"))
 
 
+def load_checkpoint(path: str | Path, trained_by: str) -> dict:
+    """``torch.load(path, weights_only=True)`` on the CPU; a missing file names the command that makes it."""
+    import torch
+
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"weights {path} not found: train them with `{trained_by}`")
+    return torch.load(path, map_location="cpu", weights_only=True)
+
+
 def atomic_write(path: Path, write) -> None:
     """Call ``write(tmp_path)`` then rename onto ``path``: readers never see a partial file."""
     path = Path(path)

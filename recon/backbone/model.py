@@ -15,6 +15,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from recon import paths
 from recon.backbone.crop import EXTENT_M, Crop
 from recon.backbone.hourglass import HourglassConfig, StackedHourglass
 from recon.backbone.volumetric import soft_argmax_3d, voxel_index
@@ -35,10 +36,7 @@ class Backbone:
 
     @classmethod
     def load(cls, path: str | Path | None = None, device: str = "cpu") -> "Backbone":
-        path = Path(path or WEIGHTS)
-        if not path.exists():
-            raise FileNotFoundError(f"backbone weights {path} not found: train them with `recon backbone train`")
-        ck = torch.load(path, map_location="cpu", weights_only=True)
+        ck = paths.load_checkpoint(path or WEIGHTS, "recon backbone train")
         net = StackedHourglass(HourglassConfig(**ck["config"]))
         net.load_state_dict(ck["net"])
         return cls(net, device, ck.get("crop_depth_scale", (1.0, 1.0)))
@@ -112,7 +110,6 @@ def export(run_dir: Path, out: Path = WEIGHTS, calibrate_on: int = 300) -> Path:
     crop-depth factors calibrated on the first ``calibrate_on`` synth-val images."""
     import json
 
-    from recon import paths
     from recon.body import default_body
     from recon.pipeline import BackboneSource
     from recon.synth.dataset import SynthDataset, bench_dir

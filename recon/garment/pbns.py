@@ -96,7 +96,9 @@ class PBNS(nn.Module):
 
     @classmethod
     def load(cls, path: Path) -> tuple["PBNS", dict]:
-        ck = torch.load(path, map_location="cpu", weights_only=True)
+        from recon import paths
+
+        ck = paths.load_checkpoint(path, "recon garment train")
         sd = ck["state"]
         m = cls(sd["rest"], sd["faces"], torch.softmax(sd["weight_logits"], -1), PBNSConfig(**ck["cfg"]))
         m.load_state_dict(sd)

@@ -203,7 +203,7 @@ class OutfitResizer:
     """Trained resizer: ``rest(shape, tightness)`` -> (B, N, 3) rest outfit on that body."""
 
     def __init__(self, body, path: Path, rest: np.ndarray, faces: np.ndarray):
-        ck = torch.load(path, map_location="cpu", weights_only=True)
+        ck = paths.load_checkpoint(path, "recon garment resize")
         meta = json.loads(ck["meta_json"])
         cfg = ResizeConfig(**{k: v for k, v in meta["config"].items() if k in ("hidden", "layers", "embedding", "smooth")})
         self.net = Resizer(ck["num_vertices"], ck["num_inputs"], cfg).eval()

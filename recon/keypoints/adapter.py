@@ -90,10 +90,7 @@ class KeypointAdapter(nn.Module):
 
     @classmethod
     def load(cls, path: str | Path | None = None) -> "KeypointAdapter":
-        path = Path(path or WEIGHTS)
-        if not path.exists():
-            raise FileNotFoundError(f"adapter weights {path} not found: train them with `recon keypoints train`")
-        ck = torch.load(path, map_location="cpu", weights_only=True)
+        ck = paths.load_checkpoint(path or WEIGHTS, "recon keypoints train")
         m = cls(AdapterConfig(**ck["cfg"]))
         m.load_state_dict(ck["state"])
         return m.eval()

@@ -7,6 +7,7 @@ from pathlib import Path
 import torch
 from torch import nn
 
+from recon import paths
 from recon.body import BodyOutput
 from recon.smplr import features
 from recon.smplr.networks import DAEConfig, DenoisingAutoencoder, PoseNet, ShapeNet
@@ -35,10 +36,7 @@ class SMPLR(nn.Module):
         from recon.body import default_body
 
         body = body or default_body()
-        path = Path(path or WEIGHTS)
-        if not path.exists():
-            raise FileNotFoundError(f"SMPLR weights {path} not found: train them with `recon smplr train`")
-        ck = torch.load(path, map_location="cpu", weights_only=True)
+        ck = paths.load_checkpoint(path or WEIGHTS, "recon smplr train")
         if ck["num_shape"] != body.num_shape_params:
             raise ValueError(f"weights expect {ck['num_shape']} shape parameters, body has {body.num_shape_params}")
         omega = PoseNet(**ck["omega_cfg"])
