@@ -8,20 +8,10 @@ vertices from phenotypes and pose the full 13,718-vertex mesh.
 from __future__ import annotations
 
 import argparse
-import statistics
-import time
 
 import torch
 
-
-def bench(fn, repeats: int) -> float:
-    fn()  # warm-up
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return 1000 * statistics.median(times)
+from recon.bench.timing import median_ms as bench
 
 
 def main() -> None:

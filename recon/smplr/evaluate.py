@@ -7,8 +7,6 @@ the DAE, and 2D lifting. Errors in mm, root (pelvis) aligned; PA = after similar
 from __future__ import annotations
 
 import json
-import statistics
-import time
 from pathlib import Path
 
 import torch
@@ -88,14 +86,10 @@ def _rows(model: SMPLR, data, chunk: int = 250) -> dict[str, dict]:
 def _latency(model: SMPLR, points: torch.Tensor, repeats: int = 50) -> dict[str, float]:
     x = points[:1]
 
+    from recon.bench.timing import median_ms
+
     def med(fn):
-        fn()
-        ts = []
-        for _ in range(repeats):
-            t0 = time.perf_counter()
-            fn()
-            ts.append(time.perf_counter() - t0)
-        return 1000 * statistics.median(ts)
+        return median_ms(fn, repeats)
 
     with torch.no_grad():
         nets = med(lambda: model.regress(model.dae3d(x - x[:, :1])))

@@ -1,0 +1,55 @@
+"""PBNS inference speed: the shipped skinning (einsum for the 3x3 part) against the previous
+broadcast-and-sum form, side by side in one run, for every trained outfit.
+
+    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_garment.py [--threads 1] [--repeats 10]
+
+Prints frames per second (median over repeats, float32, CPU) of the garment model alone given
+the body's joint transforms (pose -> MLP -> PSD -> skinning), and the ratio.
+"""
+from __future__ import annotations
+
+import argparse
+
+import torch
+
+from recon.bench.timing import median_ms
+
+
+def skin_broadcast(model, x, transforms):
+    """The previous PBNS.skin: blended transforms applied by broadcasting to (B, N, 3, 3)."""
+    b = transforms.shape[0]
+    t = (model.weights @ transforms.reshape(b, -1, 12)).view(b, -1, 3, 4)
+    return (t[..., :3] * x[..., None, :]).sum(-1) + t[..., 3]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--batch", type=int, nargs="+", default=[1, 64, 256])
+    ap.add_argument("--repeats", type=int, default=10)
+    ap.add_argument("--threads", type=int, default=1)
+    args = ap.parse_args()
+    torch.set_num_threads(args.threads)
+    from recon.body import default_body
+    from recon.garment.pbns import PBNS
+    from recon.garment.train import WEIGHTS_DIR, pose_set
+
+    body = default_body()
+    rot_all = pose_set("test", max(args.batch), 0.5, seed=123)
+    print(f"threads={args.threads}; FPS = frames per second, garment model given joint transforms\n")
+    print("| outfit | vertices | batch | FPS einsum (shipped) | FPS broadcast (before) | ratio |\n|---|---|---|---|---|---|")
+    for path in sorted(WEIGHTS_DIR.glob("pbns_*.pt")):
+        model, ck = PBNS.load(path)
+        shape = ck["shape"][None]
+        for b in args.batch:
+            rot = rot_all[torch.arange(b) % len(rot_all)]
+            with torch.no_grad():
+                t = body(rot, shape.expand(b, -1), points_only=True).transforms
+                reps = args.repeats if b > 1 else 20 * args.repeats
+                new = median_ms(lambda: model(rot, t), reps)  # noqa: B023
+                old = median_ms(lambda: skin_broadcast(model, model.rest + model.deformation(rot), t), reps)  # noqa: B023
+            print(f"| {path.stem[5:]} | {model.rest.shape[0]} | {b} | {1000 * b / new:.0f} | {1000 * b / old:.0f} | "
+                  f"{old / new:.2f} |")
+
+
+if __name__ == "__main__":
+    main()
