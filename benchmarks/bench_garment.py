@@ -1,10 +1,11 @@
-"""PBNS inference speed: the shipped skinning (einsum for the 3x3 part) against the previous
-broadcast-and-sum form, side by side in one run, for every trained outfit.
+"""PBNS inference speed, side by side in one run for every trained outfit: the shipped forward
+(cached blend weights, einsum for the 3x3 part) against two earlier forms: the blend-weight
+softmax recomputed every call, and the broadcast-and-sum skinning.
 
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_garment.py [--threads 1] [--repeats 10]
 
 Prints frames per second (median over repeats, float32, CPU) of the garment model alone given
-the body's joint transforms (pose -> MLP -> PSD -> skinning), and the ratio.
+the body's joint transforms (pose -> MLP -> PSD -> skinning), and the ratios shipped / earlier.
 """
 from __future__ import annotations
 
@@ -16,10 +17,17 @@ from recon.bench.timing import median_ms
 
 
 def skin_broadcast(model, x, transforms):
-    """The previous PBNS.skin: blended transforms applied by broadcasting to (B, N, 3, 3)."""
+    """The first PBNS.skin: blended transforms applied by broadcasting to (B, N, 3, 3)."""
     b = transforms.shape[0]
-    t = (model.weights @ transforms.reshape(b, -1, 12)).view(b, -1, 3, 4)
+    t = (torch.softmax(model.weight_logits, -1) @ transforms.reshape(b, -1, 12)).view(b, -1, 3, 4)
     return (t[..., :3] * x[..., None, :]).sum(-1) + t[..., 3]
+
+
+def skin_softmax(model, x, transforms):
+    """PBNS.skin with the blend-weight softmax recomputed on every call (before the cache)."""
+    b = transforms.shape[0]
+    t = (torch.softmax(model.weight_logits, -1) @ transforms.reshape(b, -1, 12)).view(b, -1, 3, 4)
+    return torch.einsum("bnij,bnj->bni", t[..., :3], x.expand(b, -1, -1)) + t[..., 3]
 
 
 def main() -> None:
@@ -36,7 +44,8 @@ def main() -> None:
     body = default_body()
     rot_all = pose_set("test", max(args.batch), 0.5, seed=123)
     print(f"threads={args.threads}; FPS = frames per second, garment model given joint transforms\n")
-    print("| outfit | vertices | batch | FPS einsum (shipped) | FPS broadcast (before) | ratio |\n|---|---|---|---|---|---|")
+    print("| outfit | vertices | batch | FPS shipped | FPS softmax per call | ratio | FPS broadcast | ratio |\n"
+          "|---|---|---|---|---|---|---|---|")
     for path in sorted(WEIGHTS_DIR.glob("pbns_*.pt")):
         model, ck = PBNS.load(path)
         shape = ck["shape"][None]
@@ -46,9 +55,10 @@ def main() -> None:
                 t = body(rot, shape.expand(b, -1), points_only=True).transforms
                 reps = args.repeats if b > 1 else 20 * args.repeats
                 new = median_ms(lambda: model(rot, t), reps)  # noqa: B023
+                soft = median_ms(lambda: skin_softmax(model, model.rest + model.deformation(rot), t), reps)  # noqa: B023
                 old = median_ms(lambda: skin_broadcast(model, model.rest + model.deformation(rot), t), reps)  # noqa: B023
-            print(f"| {path.stem[5:]} | {model.rest.shape[0]} | {b} | {1000 * b / new:.0f} | {1000 * b / old:.0f} | "
-                  f"{old / new:.2f} |")
+            print(f"| {path.stem[5:]} | {model.rest.shape[0]} | {b} | {1000 * b / new:.0f} | {1000 * b / soft:.0f} | "
+                  f"{soft / new:.2f} | {1000 * b / old:.0f} | {old / new:.2f} |")
 
 
 if __name__ == "__main__":

@@ -4,7 +4,8 @@
 
 Overrides are GarmentTrainConfig fields ("epochs", "lr_psd") or "<term>.<field>" for a nested
 config ("edge.weight", "collision.weight", "gravity.weight", "model.embedding"). Weights go to
-/tmp/pbns-ablation/NAME.pt (never over the shipped ones); prints one JSON line "RESULT ...".
+/tmp/pbns-ablation/NAME.pt (never over the shipped ones); prints one JSON line "RESULT ...",
+with the error to the newton drapes when `recon garment reference` has cached them.
 Results: eval/results/garment-ablation-top-shorts.md.
 """
 from __future__ import annotations
@@ -27,7 +28,8 @@ def main() -> None:
     torch.set_num_threads(a.threads)
     from recon.body import default_body
     from recon.garment import train as T
-    from recon.garment.evaluate import evaluate
+    from recon.garment.evaluate import error_to_drapes, evaluate
+    from recon.garment.pbns import PBNS
 
     cfg = T.GarmentTrainConfig(outfit=a.outfit)
     for key, value in json.loads(a.overrides).items():
@@ -41,6 +43,8 @@ def main() -> None:
     out.parent.mkdir(parents=True, exist_ok=True)
     T.train(body, cfg, out=out)
     r = evaluate(body, cfg.outfit, n_poses=500, weights=out)
+    model, ck = PBNS.load(out)
+    r["error_to_drapes"] = error_to_drapes(model, cfg.outfit, ck["shape"], body)  # None without cached drapes
     print("RESULT", a.name, json.dumps(r))
 
 

@@ -4,7 +4,7 @@ import torch
 
 from recon.garment import losses as L
 from recon.garment import mesh as gm
-from recon.garment.pbns import PBNS, PBNSConfig, pose_features, remove_yaw
+from recon.garment.pbns import PBNS, PBNSConfig, initial_weights, pose_features, remove_yaw
 
 
 def _grid(n=6):
@@ -58,6 +58,18 @@ def test_pbns_identity_and_gradients():
     assert torch.allclose(out, torch.tensor(v).float() + torch.tensor([0.0, 1.0, 0.0]), atol=1e-6)
     (out[..., 1].sum() + dt.pow(2).sum()).backward()
     assert m.D.grad is not None and m.weight_logits.grad is not None
+
+
+def test_pbns_weight_cache_follows_changes():
+    v, f = _grid(4)
+    w = torch.full((len(v), 24), 1 / 24)
+    m = PBNS(torch.tensor(v), torch.tensor(f), w, PBNSConfig(optimise_weights=True))
+    with torch.no_grad():
+        w0 = m.weights
+        assert m.weights is w0  # cached outside autograd
+        m.weight_logits[0, 3] += 5.0  # an optimiser step / load_state_dict changes it in place
+        assert m.weights[0, 3] > 0.5 and torch.allclose(m.weights.sum(-1), torch.ones(len(v)))
+    assert m.weights.requires_grad  # training still differentiates through the softmax
 
 
 def test_energies():
@@ -234,3 +246,55 @@ def test_physical_metrics_count_inside_vertices():
     cloth[0, :5, 2] = -0.01  # five of 25 vertices behind the body surface
     m = physical_metrics(cloth, f, rest, body_v, body_n)
     assert m["collision_pct"] == pytest.approx(20.0) and m["edge_mm"] > 0
+
+
+def test_diffused_blend_weights_stretch_the_skinned_cloth_less(body, outfits):
+    """Nearest-vertex weights jump between bones across the crotch; the shipped diffusion must
+    cut the skinned (dT = 0) shorts' edge error on a wide-legged, bent-forward pose."""
+    import roma
+
+    from recon.garment.evaluate import physical_metrics
+    from recon.garment.mesh import vertex_normals
+    from recon.garment.templates import RestBody
+
+    o = outfits["top-shorts"]
+    rb = RestBody(body)
+    rv = torch.zeros(1, 24, 3)
+    rv[0, 1] = torch.tensor([-1.0, 0.0, 0.5])  # left hip: flexed and abducted
+    rv[0, 2] = torch.tensor([0.3, 0.0, -0.5])  # right hip: extended and abducted
+    rv[0, 3] = torch.tensor([0.4, 0.0, 0.0])  # spine bent forward
+    rot = roma.rotvec_to_rotmat(rv)
+    with torch.no_grad():
+        out = body(rot, body.mean_shape[None])
+    bn = vertex_normals(out.vertices, body.faces)
+    edge = {}
+    for steps in (0, PBNSConfig().weight_diffusion):
+        w = torch.from_numpy(initial_weights(rb, o, steps))
+        m = PBNS(torch.from_numpy(o.vertices), torch.from_numpy(o.faces), w)
+        with torch.no_grad():
+            v = m.skin(m.rest, out.transforms)
+        edge[steps] = physical_metrics(v, o.faces, m.rest, out.vertices, bn)["edge_mm"]
+    assert edge[PBNSConfig().weight_diffusion] < 0.75 * edge[0], edge
+
+
+def test_error_to_cached_drapes_lines_up_poses(body, tmp_path, monkeypatch):
+    """Scoring a PBNS variant against cached simulator drapes must pair each drape with its pose:
+    a 'drape' made of PBNS's own output (shifted 10 mm down) scores 10 mm, skinning more."""
+    from recon.garment import evaluate as E
+    from recon.garment.train import WEIGHTS_DIR, pose_set, posed_bodies
+
+    model, ck = PBNS.load(WEIGHTS_DIR / "pbns_top-shorts.pt")
+    idx = np.array([3, 7])
+    rot = pose_set("test", 20, 0.5, seed=123)[torch.from_numpy(idx)]
+    rot[:, 0] = remove_yaw(rot[:, 0])
+    with torch.no_grad():
+        v = model(rot, posed_bodies(body, rot, ck["shape"][None])[2])[0]
+    v[..., 1] -= 0.01
+    monkeypatch.setattr(E, "drapes_path", lambda outfit: tmp_path / f"{outfit}.npz")
+    np.savez(tmp_path / "top-shorts.npz", vertices=v.numpy(), poses=idx, pool_size=20, min_pose_distance=0.5)
+    r = E.error_to_drapes(model, "top-shorts", ck["shape"], body)
+    assert r["poses"] == 2
+    assert r["pbns_mm"] == pytest.approx(10.0, abs=0.01)
+    assert r["pbns_height_mm"] == pytest.approx(10.0, abs=0.01)
+    assert r["skinning_mm"] > 12.0
+    assert E.error_to_drapes(model, "dress", ck["shape"], body) is None  # no drapes cached

@@ -138,7 +138,37 @@ def _drape_one(args) -> dict:
     rows["PBNS"]["seconds"] = pbns_s
     rows["newton VBD drape"]["seconds"] = r["seconds"]
     return {"pose": index, "frames": r["frames"], "settled": r["settled"], "last_move_mm": r["last_move_mm"],
-            "rows": rows}
+            "rows": rows, "vertices": r["vertices"].astype(np.float32)}
+
+
+def drapes_path(outfit: str) -> Path:
+    return paths.cache_dir() / "garment-reference" / f"{outfit}.npz"
+
+
+@torch.no_grad()
+def error_to_drapes(model: PBNS, outfit: str, shape: torch.Tensor, body=None) -> dict | None:
+    """Mean Euclidean error (mm) of PBNS and of its skinned template to the cached newton drapes
+    of `recon garment reference` (None when there are none)."""
+    path = drapes_path(outfit)
+    if not path.exists():
+        return None
+    d = np.load(path)
+    sim = torch.from_numpy(d["vertices"])
+    if sim.shape[1] != model.rest.shape[0]:
+        return None
+    from recon.body import default_body
+    from recon.garment.pbns import remove_yaw
+
+    body = body or default_body()
+    rot = pose_set("test", int(d["pool_size"]), float(d["min_pose_distance"]), seed=123)[torch.from_numpy(d["poses"])]
+    rot[:, 0] = remove_yaw(rot[:, 0])
+    _, _, bt = posed_bodies(body, rot, shape.reshape(1, -1))
+    pv, sk = model(rot, bt)[0], model.skin(model.rest, bt)
+    err = lambda v: float((v - sim).norm(dim=-1).mean()) * 1000  # noqa: E731
+    # height: mean cloth height above the drape's (> 0: the cloth does not sag as far)
+    return {"poses": len(sim), "skinning_mm": err(sk), "pbns_mm": err(pv),
+            "skinning_height_mm": float((sk[..., 1] - sim[..., 1]).mean()) * 1000,
+            "pbns_height_mm": float((pv[..., 1] - sim[..., 1]).mean()) * 1000}
 
 
 def reference_and_report(outfit: str, poses: int, out_dir: Path, frames: int = 60, workers: int = 1,
@@ -158,6 +188,15 @@ def reference_and_report(outfit: str, poses: int, out_dir: Path, frames: int = 6
             per_pose = list(ex.map(_drape_one, jobs))
     else:
         per_pose = [_drape_one(j) for j in jobs]
+    # drapes kept in the cache so other PBNS variants can be scored without re-simulating
+    drapes = np.stack([p.pop("vertices") for p in per_pose])
+    cached = drapes_path(outfit)
+    min_dist = json.loads(PBNS.load(WEIGHTS_DIR / f"pbns_{outfit}.pt")[1]["meta_json"])["config"]["min_pose_distance"]
+
+    def save(tmp):
+        with open(tmp, "wb") as f:
+            np.savez(f, vertices=drapes, poses=np.arange(poses), pool_size=pool_size, min_pose_distance=min_dist)
+    paths.atomic_write(cached, save)
     names = list(per_pose[0]["rows"])
     keys = list(per_pose[0]["rows"][names[0]])
     mean = {n: {k: float(np.mean([p["rows"][n][k] for p in per_pose if k in p["rows"][n]]))

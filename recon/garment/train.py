@@ -100,8 +100,9 @@ def build(body, cfg: GarmentTrainConfig, shape: torch.Tensor | None = None):
     outfit = make_outfit(body, cfg.outfit, shape)
     rb = RestBody(body, shape)
     skirted = any(g.name in SKIRTED for g in outfit.garments) or any(s.kind in SKIRTED for s in PRESETS[cfg.outfit])
+    # skirts hang between the legs: their weights need more smoothing (thesis 5.3.2)
     mcfg = PBNSConfig(**{**asdict(cfg.model), "optimise_weights": skirted or cfg.model.optimise_weights,
-                         "weight_diffusion": cfg.model.weight_diffusion or (20 if skirted else 0)})
+                         "weight_diffusion": max(cfg.model.weight_diffusion, 20) if skirted else cfg.model.weight_diffusion})
     w = initial_weights(rb, outfit, mcfg.weight_diffusion)
     model = PBNS(torch.from_numpy(outfit.vertices), torch.from_numpy(outfit.faces), torch.from_numpy(w), mcfg)
     return outfit, model, shape
@@ -181,7 +182,8 @@ def train(body, cfg: GarmentTrainConfig = GarmentTrainConfig(), out: Path | None
         curve.append(row)
         bar.set_postfix(coll=f"{row['val_collision_pct']:.2f}%", edge=f"{row['val_edge_mm']:.2f}mm")
     bar.close()
-    meta = {"outfit": cfg.outfit, "config": asdict(cfg), "vertices": int(len(outfit.vertices)),
+    # "model": the PBNS config in effect (skirted outfits override weight diffusion/optimisation)
+    meta = {"outfit": cfg.outfit, "config": asdict(cfg), "model": asdict(model.cfg), "vertices": int(len(outfit.vertices)),
             "faces": int(len(outfit.faces)), "train_seconds": round(time.time() - t0, 1),
             "shape": shape[0].tolist(), "garments": [g.name for g in outfit.garments], "curve": curve}
     model.save(out, {"meta_json": json.dumps(meta), "layer": torch.from_numpy(outfit.layer),
