@@ -16,17 +16,22 @@ import torch
 from recon.bench.timing import median_ms
 
 
+def blend_uncached(model, transforms):
+    """Per-vertex blended (B, N, 3, 4) transforms, softmax of the weights recomputed (no cache)."""
+    b = transforms.shape[0]
+    return (torch.softmax(model.weight_logits, -1) @ transforms.reshape(b, -1, 12)).view(b, -1, 3, 4)
+
+
 def skin_broadcast(model, x, transforms):
     """The first PBNS.skin: blended transforms applied by broadcasting to (B, N, 3, 3)."""
-    b = transforms.shape[0]
-    t = (torch.softmax(model.weight_logits, -1) @ transforms.reshape(b, -1, 12)).view(b, -1, 3, 4)
+    t = blend_uncached(model, transforms)
     return (t[..., :3] * x[..., None, :]).sum(-1) + t[..., 3]
 
 
 def skin_softmax(model, x, transforms):
     """PBNS.skin with the blend-weight softmax recomputed on every call (before the cache)."""
     b = transforms.shape[0]
-    t = (torch.softmax(model.weight_logits, -1) @ transforms.reshape(b, -1, 12)).view(b, -1, 3, 4)
+    t = blend_uncached(model, transforms)
     return torch.einsum("bnij,bnj->bni", t[..., :3], x.expand(b, -1, -1)) + t[..., 3]
 
 

@@ -20,7 +20,7 @@ import torch
 from recon import paths
 from recon.garment import losses as L
 from recon.garment.mesh import unique_edges
-from recon.garment.pbns import PBNS
+from recon.garment.pbns import PBNS, remove_yaw
 from recon.garment.train import WEIGHTS_DIR, pose_set, posed_bodies
 
 
@@ -106,22 +106,27 @@ def evaluate_and_report(body, outfits: list[str], n_poses: int, out_dir: Path) -
 
 # --- against a physics simulation (thesis Table 5.1) ------------------------------------------
 
+def reference_poses(pool_size: int, min_pose_distance: float, indices) -> torch.Tensor:
+    """Poses the reference drapes (and scores against): picks of the balanced test pool, root
+    heading removed."""
+    rot = pose_set("test", pool_size, min_pose_distance, seed=123)[torch.as_tensor(indices)]
+    rot[:, 0] = remove_yaw(rot[:, 0])
+    return rot
+
+
 @torch.no_grad()
 def _drape_one(args) -> dict:
     """One held-out pose: drape with newton (reference.drape), metrics of skinning, PBNS and the
     simulation, Euclidean error of each to the simulation. Runs in a worker process."""
-    outfit, index, n_poses, frames = args
+    outfit, index, n_poses, min_dist, frames = args
     from recon.body import default_body
     from recon.garment import reference
-    from recon.garment.pbns import remove_yaw
     from recon.garment.templates import make_outfit
 
     torch.set_num_threads(1)
     body = default_body()
     model, ck = PBNS.load(WEIGHTS_DIR / f"pbns_{outfit}.pt")
-    meta = json.loads(ck["meta_json"])
-    rot = pose_set("test", n_poses, meta["config"]["min_pose_distance"], seed=123)[index:index + 1]
-    rot[:, 0] = remove_yaw(rot[:, 0])
+    rot = reference_poses(n_poses, min_dist, [index])
     bv, bn, bt = posed_bodies(body, rot, ck["shape"][None])
     t = time.perf_counter()
     pv = model(rot, bt)[0]
@@ -157,11 +162,9 @@ def error_to_drapes(model: PBNS, outfit: str, shape: torch.Tensor, body=None) ->
     if sim.shape[1] != model.rest.shape[0]:
         return None
     from recon.body import default_body
-    from recon.garment.pbns import remove_yaw
 
     body = body or default_body()
-    rot = pose_set("test", int(d["pool_size"]), float(d["min_pose_distance"]), seed=123)[torch.from_numpy(d["poses"])]
-    rot[:, 0] = remove_yaw(rot[:, 0])
+    rot = reference_poses(int(d["pool_size"]), float(d["min_pose_distance"]), torch.from_numpy(d["poses"]))
     _, _, bt = posed_bodies(body, rot, shape.reshape(1, -1))
     pv, sk = model(rot, bt)[0], model.skin(model.rest, bt)
     err = lambda v: float((v - sim).norm(dim=-1).mean()) * 1000  # noqa: E731
@@ -182,7 +185,8 @@ def reference_and_report(outfit: str, poses: int, out_dir: Path, frames: int = 6
 
     if not reference.available():
         raise RuntimeError('the reference simulation needs newton: pip install "newton==1.8.0" (see README)')
-    jobs = [(outfit, i, pool_size, frames) for i in range(poses)]
+    min_dist = json.loads(PBNS.load(WEIGHTS_DIR / f"pbns_{outfit}.pt")[1]["meta_json"])["config"]["min_pose_distance"]
+    jobs = [(outfit, i, pool_size, min_dist, frames) for i in range(poses)]
     if workers > 1:
         with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as ex:
             per_pose = list(ex.map(_drape_one, jobs))
@@ -190,13 +194,11 @@ def reference_and_report(outfit: str, poses: int, out_dir: Path, frames: int = 6
         per_pose = [_drape_one(j) for j in jobs]
     # drapes kept in the cache so other PBNS variants can be scored without re-simulating
     drapes = np.stack([p.pop("vertices") for p in per_pose])
-    cached = drapes_path(outfit)
-    min_dist = json.loads(PBNS.load(WEIGHTS_DIR / f"pbns_{outfit}.pt")[1]["meta_json"])["config"]["min_pose_distance"]
 
     def save(tmp):
         with open(tmp, "wb") as f:
             np.savez(f, vertices=drapes, poses=np.arange(poses), pool_size=pool_size, min_pose_distance=min_dist)
-    paths.atomic_write(cached, save)
+    paths.atomic_write(drapes_path(outfit), save)
     names = list(per_pose[0]["rows"])
     keys = list(per_pose[0]["rows"][names[0]])
     mean = {n: {k: float(np.mean([p["rows"][n][k] for p in per_pose if k in p["rows"][n]]))
