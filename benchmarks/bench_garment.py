@@ -5,7 +5,10 @@ softmax recomputed every call, and the broadcast-and-sum skinning.
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_garment.py [--threads 1] [--repeats 10]
 
 Prints frames per second (median over repeats, float32, CPU) of the garment model alone given
-the body's joint transforms (pose -> MLP -> PSD -> skinning), and the ratios shipped / earlier.
+the body's joint transforms (pose -> MLP -> PSD -> skinning), and the ratios shipped / earlier;
+then the cost of the collision resolution the Dresser applies (recon.garment.collide) per
+frame, and its body normals (sparse incidence matmul) against the index_add of
+recon.garment.mesh.vertex_normals, side by side.
 """
 from __future__ import annotations
 
@@ -64,6 +67,36 @@ def main() -> None:
                 old = median_ms(lambda: skin_broadcast(model, model.rest + model.deformation(rot), t), reps)  # noqa: B023
             print(f"| {path.stem[5:]} | {model.rest.shape[0]} | {b} | {1000 * b / new:.0f} | {1000 * b / soft:.0f} | "
                   f"{soft / new:.2f} | {1000 * b / old:.0f} | {old / new:.2f} |")
+    bench_resolution(body, rot_all, args.repeats)
+
+
+def bench_resolution(body, rot_all, repeats: int) -> None:
+    import numpy as np
+
+    from recon.garment.collide import CollisionResolver
+    from recon.garment.mesh import vertex_normals
+    from recon.garment.pbns import PBNS
+    from recon.garment.train import WEIGHTS_DIR
+
+    print("\n| outfit | PBNS ms/frame | + collision resolution ms/frame | body normals: incidence ms | "
+          "index_add ms | ratio |\n|---|---|---|---|---|---|")
+    bf = body.faces.numpy()
+    for path in sorted(WEIGHTS_DIR.glob("pbns_*.pt")):
+        model, ck = PBNS.load(path)
+        res = CollisionResolver(model.faces.numpy(), ck["layer"].numpy())
+        rot = rot_all[:1]
+        with torch.no_grad():
+            out = body(rot, ck["shape"][None])
+            t = out.transforms
+            pbns = median_ms(lambda: model(rot, t), 20 * repeats)  # noqa: B023
+        bv = out.vertices
+        both = median_ms(lambda: res(model(rot, t)[0], bv, bf), 2 * repeats)  # noqa: B023
+        inc = CollisionResolver.incidence(bf, bv.shape[1])
+        bv0 = bv[0].numpy()
+        n_inc = median_ms(lambda: CollisionResolver.normals(bv0, bf, inc), 5 * repeats)  # noqa: B023
+        n_add = median_ms(lambda: vertex_normals(bv, body.faces), 5 * repeats)  # noqa: B023
+        assert np.allclose(CollisionResolver.normals(bv0, bf, inc), vertex_normals(bv, body.faces)[0].numpy(), atol=1e-4)
+        print(f"| {path.stem[5:]} | {pbns:.2f} | {both:.1f} | {n_inc:.2f} | {n_add:.2f} | {n_add / n_inc:.2f} |")
 
 
 if __name__ == "__main__":

@@ -44,7 +44,7 @@ def main() -> None:
     T.train(body, cfg, out=out)
     r = evaluate(body, cfg.outfit, n_poses=500, weights=out)
     model, ck = PBNS.load(out)
-    r["error_to_drapes"] = error_to_drapes(model, cfg.outfit, ck["shape"], body)  # None without cached drapes
+    r["error_to_drapes"] = error_to_drapes(model, cfg.outfit, ck["shape"], body, ck["layer"].numpy())  # None without cached drapes
     print("RESULT", a.name, json.dumps(r))
 
 

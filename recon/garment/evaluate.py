@@ -6,7 +6,9 @@ bending (mean squared normal difference of adjacent faces), gravity (mean height
 lowest body point, m) and speed (CPU, 1 thread: frames per second for batch 1, 64 and 256,
 garment model alone given joint transforms, and with the body's forward kinematics). Edge %
 is length-weighted: sum |l - l0| / sum l0 (slivers at cut lines would dominate a plain mean). The
-skinned template without PBNS (dT = 0) is evaluated on the same poses as the baseline.
+skinned template without PBNS (dT = 0) is evaluated on the same poses as the baseline, and
+PBNS followed by the collision resolution the Dresser applies (recon.garment.collide) as the
+output users get; its FPS b=1 includes that post-process.
 """
 from __future__ import annotations
 
@@ -19,6 +21,7 @@ import torch
 
 from recon import paths
 from recon.garment import losses as L
+from recon.garment.collide import CollisionResolver
 from recon.garment.mesh import unique_edges
 from recon.garment.pbns import PBNS, remove_yaw
 from recon.garment.train import WEIGHTS_DIR, pose_set, posed_bodies
@@ -72,13 +75,19 @@ def evaluate(body, outfit: str, n_poses: int = 500, weights: Path | None = None)
     rot = pose_set("test", n_poses, meta["config"]["min_pose_distance"], seed=123)
     bv, bn, bt = posed_bodies(body, rot, shape)
     faces = model.faces.numpy()
-    rows = {}
+    rows, posed = {}, {}
     for name, zero in (("skinning only (dT = 0)", True), ("PBNS", False)):
         vs = []
         for i in range(0, len(rot), 64):
             vs.append(model.skin(model.rest, bt[i:i + 64]) if zero else model(rot[i:i + 64], bt[i:i + 64])[0])
-        rows[name] = physical_metrics(torch.cat(vs), faces, model.rest, bv, bn)
+        posed[name] = torch.cat(vs)
+        rows[name] = physical_metrics(posed[name], faces, model.rest, bv, bn)
     rows["PBNS"] |= speed(model, body, rot, shape)
+    # the post-process the Dresser applies by default (not part of the network)
+    res = CollisionResolver(faces, ck["layer"].numpy())
+    rows["PBNS + collision resolution"] = physical_metrics(res(posed["PBNS"], bv, body.faces), faces, model.rest, bv, bn)
+    rows["PBNS + collision resolution"]["fps_batch1"] = _fps(
+        lambda: res(model(rot[:1], bt[:1])[0], bv[:1], body.faces), 1, 50)
     return {"outfit": outfit, "vertices": int(model.rest.shape[0]), "faces": int(len(faces)),
             "test_poses": int(len(rot)), "train_seconds": meta["train_seconds"], "rows": rows}
 
@@ -137,7 +146,9 @@ def _drape_one(args) -> dict:
                         pinned, reference.DrapeConfig(frames=frames))
     sim = torch.from_numpy(r["vertices"]).float()[None]
     rows = {}
-    for name, v in (("skinning only (dT = 0)", sk), ("PBNS", pv), ("newton VBD drape", sim)):
+    pr = CollisionResolver(model.faces.numpy(), ck["layer"].numpy())(pv, bv, body.faces)
+    for name, v in (("skinning only (dT = 0)", sk), ("PBNS", pv), ("PBNS + collision resolution", pr),
+                    ("newton VBD drape", sim)):
         rows[name] = physical_metrics(v, model.faces.numpy(), model.rest, bv, bn)
         rows[name]["error_mm"] = float((v[0] - sim[0]).norm(dim=-1).mean()) * 1000
     rows["PBNS"]["seconds"] = pbns_s
@@ -151,9 +162,10 @@ def drapes_path(outfit: str) -> Path:
 
 
 @torch.no_grad()
-def error_to_drapes(model: PBNS, outfit: str, shape: torch.Tensor, body=None) -> dict | None:
+def error_to_drapes(model: PBNS, outfit: str, shape: torch.Tensor, body=None, layer=None) -> dict | None:
     """Mean Euclidean error (mm) of PBNS and of its skinned template to the cached newton drapes
-    of `recon garment reference` (None when there are none)."""
+    of `recon garment reference` (None when there are none); with the outfit's ``layer`` also
+    of PBNS + collision resolution."""
     path = drapes_path(outfit)
     if not path.exists():
         return None
@@ -165,13 +177,15 @@ def error_to_drapes(model: PBNS, outfit: str, shape: torch.Tensor, body=None) ->
 
     body = body or default_body()
     rot = reference_poses(int(d["pool_size"]), float(d["min_pose_distance"]), torch.from_numpy(d["poses"]))
-    _, _, bt = posed_bodies(body, rot, shape.reshape(1, -1))
+    bv, _, bt = posed_bodies(body, rot, shape.reshape(1, -1))
     pv, sk = model(rot, bt)[0], model.skin(model.rest, bt)
+    pr = CollisionResolver(model.faces.numpy(), layer)(pv, bv, body.faces) if layer is not None else None
     err = lambda v: float((v - sim).norm(dim=-1).mean()) * 1000  # noqa: E731
     # height: mean cloth height above the drape's (> 0: the cloth does not sag as far)
     return {"poses": len(sim), "skinning_mm": err(sk), "pbns_mm": err(pv),
             "skinning_height_mm": float((sk[..., 1] - sim[..., 1]).mean()) * 1000,
-            "pbns_height_mm": float((pv[..., 1] - sim[..., 1]).mean()) * 1000}
+            "pbns_height_mm": float((pv[..., 1] - sim[..., 1]).mean()) * 1000} | (
+            {} if pr is None else {"pbns_resolved_mm": err(pr)})
 
 
 def reference_and_report(outfit: str, poses: int, out_dir: Path, frames: int = 60, workers: int = 1,

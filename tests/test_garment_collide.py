@@ -1,0 +1,60 @@
+import numpy as np
+import pytest
+import torch
+import trimesh
+
+from recon.garment.collide import CollisionResolver
+from recon.garment.mesh import vertex_normals
+
+
+def _sphere(r):
+    s = trimesh.creation.icosphere(subdivisions=3, radius=r)
+    return torch.tensor(s.vertices, dtype=torch.float32), np.asarray(s.faces)
+
+
+def _depth(v, surf, faces):
+    """Signed distance along the normal of the nearest surface vertex (the collision metric)."""
+    from scipy.spatial import cKDTree
+
+    n = vertex_normals(surf[None], torch.as_tensor(faces))[0]
+    idx = cKDTree(surf.numpy()).query(v.numpy())[1]
+    return ((v - surf[idx]) * n[idx]).sum(-1)
+
+
+def test_cloth_inside_the_body_is_pushed_out_and_far_cloth_stays():
+    body, bf = _sphere(0.10)
+    cloth, cf = _sphere(0.105)
+    dent = cloth[:, 2] > 0.08  # a patch pressed 1 cm into the body
+    cloth[dent] *= 0.09 / 0.105
+    res = CollisionResolver(cf, eps=0.002)
+    out = res(cloth[None], body[None], bf)[0]
+    assert (_depth(cloth, body, bf) < 0).sum() == dent.sum()
+    assert (_depth(out, body, bf) >= 0).all()  # nothing left inside
+    assert out[dent].norm(dim=-1).min() >= 0.1  # on or outside the body's vertices
+    far = cloth[:, 2] < 0.0
+    assert torch.equal(out[far], cloth[far])  # the move stays local
+
+
+def test_outer_layer_is_pushed_out_of_the_inner_one_which_stays_put():
+    inner, f = _sphere(0.11)
+    outer, _ = _sphere(0.12)
+    cloth = torch.cat([inner, outer])
+    faces = np.concatenate([f, f + len(inner)])
+    layer = np.r_[np.zeros(len(inner)), np.ones(len(outer))].astype(np.int64)
+    dent = torch.zeros(len(cloth), dtype=torch.bool)
+    dent[len(inner):] = outer[:, 0] > 0.1
+    cloth[dent] *= 0.105 / 0.12  # 5 mm inside the inner layer
+    body, bf = _sphere(0.05)  # far inside: no body contact
+    out = CollisionResolver(faces, layer, eps=0.002)(cloth[None], body[None], bf)[0]
+    assert torch.equal(out[: len(inner)], cloth[: len(inner)])
+    assert out[dent].norm(dim=-1).min() >= 0.11 - 1e-3
+
+
+def test_nothing_to_resolve_is_identity_and_batches_are_independent():
+    body, bf = _sphere(0.10)
+    cloth, cf = _sphere(0.12)
+    res = CollisionResolver(cf)
+    bad = cloth.clone() * 0.8
+    out = res(torch.stack([cloth, bad]), body.expand(2, -1, -1), bf)
+    assert torch.equal(out[0], cloth)
+    assert out[1].norm(dim=-1).min() == pytest.approx(0.10, abs=0.003)
