@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from recon.garment.mesh import unique_edges
+from recon.garment.mesh import neighbour_mean
 
 
 class CollisionResolver:
@@ -21,26 +21,27 @@ class CollisionResolver:
 
     def __init__(self, faces: np.ndarray, layer: np.ndarray | None = None, eps: float = 0.002,
                  spread: int = 2, passes: int = 3, cloth_reach: float = 0.02):
-        import scipy.sparse as sp
-
-        n = int(np.asarray(faces).max()) + 1
-        self.layer = np.zeros(n, np.int64) if layer is None else np.asarray(layer).astype(np.int64)
+        self.faces = np.asarray(faces)
+        self.n = int(self.faces.max()) + 1
+        layer = np.zeros(self.n, np.int64) if layer is None else np.asarray(layer).astype(np.int64)
+        # (inner, outer) vertex ids per outer layer, the order of CollisionLoss.pairs
+        self.pairs = [(np.nonzero(layer < lay)[0], np.nonzero(layer == lay)[0]) for lay in sorted(set(layer.tolist()))[1:]]
         self.eps, self.spread, self.passes, self.cloth_reach = eps, spread, passes, cloth_reach
-        e = unique_edges(np.asarray(faces))
-        a = sp.coo_matrix((np.ones(2 * len(e)), (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])), shape=(n, n))
-        deg = np.maximum(np.asarray(a.sum(1)).ravel(), 1)
-        self.avg = (sp.diags(1.0 / deg) @ a).tocsr().astype(np.float32)  # neighbour mean
-        self.faces_np = np.asarray(faces)
-        self.cloth_inc = self.incidence(self.faces_np, n)
-        self._body_key, self._body_inc = None, None
+        self.avg = neighbour_mean(self.faces, self.n).astype(np.float32)
+        self.cloth_inc = self.incidence(self.faces, self.n)
+        self._body_faces, self._body_inc = None, None
 
-    def _extend(self, push: np.ndarray, fixed: np.ndarray) -> np.ndarray:
-        """Displacements (N, 3) fixed at the colliding vertices, relaxed towards the neighbour mean
-        elsewhere (``spread`` Jacobi steps): the move fades over a few rings."""
-        d = push.copy()
+    def _extend(self, rows: np.ndarray, push: np.ndarray, hit: np.ndarray) -> np.ndarray:
+        """Displacements (N, 3) equal to ``push`` at the colliding vertices (``rows[hit]``), relaxed
+        towards the neighbour mean elsewhere (``spread`` Jacobi steps): the move fades over a few
+        rings."""
+        fixed = rows[hit]
+        d = np.zeros((self.n, 3), np.float32)
+        d[fixed] = push[hit]
+        target = d[fixed].copy()
         for _ in range(self.spread):
             d = self.avg @ d
-            d[fixed] = push[fixed]
+            d[fixed] = target
         return d
 
     def _push(self, v: np.ndarray, tree, surf: np.ndarray, surf_n: np.ndarray, reach: float | None = None):
@@ -56,7 +57,7 @@ class CollisionResolver:
     @staticmethod
     def incidence(faces: np.ndarray, n: int):
         """(n, F) sparse vertex-face incidence: vertex normals = incidence @ face normals (an
-        index_add over faces costs 2-3x more on one thread: benchmarks/bench_garment.py)."""
+        index_add over faces costs 2-4x more on one thread: benchmarks/bench_garment.py)."""
         import scipy.sparse as sp
 
         f = np.asarray(faces)
@@ -75,33 +76,27 @@ class CollisionResolver:
         out = torch.as_tensor(cloth, dtype=torch.float32).detach().cpu().numpy().copy()
         bv = torch.as_tensor(body_v, dtype=torch.float32).detach().cpu().numpy()
         bf = np.asarray(body_faces)
-        if self._body_key != (bf.shape, bf[:8].tobytes(), bv.shape[1]):  # body mesh changes rarely
-            self._body_key, self._body_inc = (bf.shape, bf[:8].tobytes(), bv.shape[1]), self.incidence(bf, bv.shape[1])
-        layers = sorted(set(self.layer.tolist()))
+        if self._body_faces is None or not np.array_equal(self._body_faces, bf):  # the body mesh rarely changes
+            self._body_faces, self._body_inc = bf.copy(), self.incidence(bf, bv.shape[1])
         for b in range(len(out)):
             bn = self.normals(bv[b], bf, self._body_inc)
             tree = cKDTree(bv[b], balanced_tree=False, compact_nodes=False)  # builds 1.7x faster, queries alike
             # only moved vertices can change side, so later passes query those alone; a spread
             # move can push a neighbour into another body part (between the thighs)
-            query = np.arange(len(out[b]))
+            query = np.arange(self.n)
             for _ in range(self.passes):
                 push, inside = self._push(out[b, query], tree, bv[b], bn)
                 if not inside.any():
                     break
-                full, fixed = np.zeros_like(out[b]), np.zeros(len(out[b]), bool)
-                full[query], fixed[query] = push, inside
-                d = self._extend(full, fixed)
+                d = self._extend(query, push, inside)
                 out[b] += d
                 query = np.nonzero(np.abs(d).sum(1) > 0)[0]
-            for lay in layers[1:]:
-                inner, outer = np.nonzero(self.layer < lay)[0], np.nonzero(self.layer == lay)[0]
-                n = self.normals(out[b], self.faces_np, self.cloth_inc)[inner]
+            for inner, outer in self.pairs:
+                n = self.normals(out[b], self.faces, self.cloth_inc)[inner]
                 tree = cKDTree(out[b, inner], balanced_tree=False, compact_nodes=False)
                 push, hit = self._push(out[b, outer], tree, out[b, inner], n, self.cloth_reach)
                 if hit.any():
-                    full, fixed = np.zeros_like(out[b]), np.zeros(len(out[b]), bool)
-                    full[outer], fixed[outer] = push, hit
-                    d = self._extend(full, fixed)
-                    d[self.layer < lay] = 0.0  # inner layers stay put
+                    d = self._extend(outer, push, hit)
+                    d[inner] = 0.0  # inner layers stay put
                     out[b] += d
         return torch.from_numpy(out)

@@ -33,7 +33,7 @@ class Dresser:
     def __init__(self, outfit: str = "tshirt-trousers", path: str | Path | None = None, resizer: bool = True,
                  resolve_collisions: bool = True):
         """``resolve_collisions``: push cloth that PBNS leaves inside the body out of it
-        (recon.garment.collide; ~1 % of the vertices, about 30-50 ms a frame on one core)."""
+        (recon.garment.collide; ~1 % of the vertices, about 30-70 ms a frame on one core)."""
         import json
 
         if path is None and outfit.endswith(".pt"):  # a weights file instead of a preset name

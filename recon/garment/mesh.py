@@ -79,16 +79,22 @@ def unique_edges(faces: np.ndarray) -> np.ndarray:
     return np.unique(np.sort(e, 1), axis=0)
 
 
-def smooth_vertex_values(x: np.ndarray, faces: np.ndarray, iterations: int) -> np.ndarray:
-    """Laplacian smoothing of per-vertex values (N, C): x <- (x + mean of the neighbours) / 2."""
+def neighbour_mean(faces: np.ndarray, n: int):
+    """(n, n) sparse matrix taking per-vertex values to the mean over each vertex's edge neighbours
+    (zero for a vertex on no edge)."""
     import scipy.sparse as sp
 
     e = unique_edges(faces)
-    n = len(x)
     a = sp.coo_matrix((np.ones(2 * len(e)), (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])), shape=(n, n)).tocsr()
-    deg = np.maximum(np.asarray(a.sum(1)).ravel(), 1)[:, None]
+    deg = np.maximum(np.asarray(a.sum(1)).ravel(), 1)
+    return (sp.diags(1.0 / deg) @ a).tocsr()
+
+
+def smooth_vertex_values(x: np.ndarray, faces: np.ndarray, iterations: int) -> np.ndarray:
+    """Laplacian smoothing of per-vertex values (N, C): x <- (x + mean of the neighbours) / 2."""
+    avg = neighbour_mean(faces, len(x))
     for _ in range(iterations):
-        x = 0.5 * x + 0.5 * (a @ x) / deg
+        x = 0.5 * x + 0.5 * (avg @ x)
     return x
 
 
