@@ -4,7 +4,7 @@
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_pipeline.py [--repeats 10]
 
 Stages: keypoints (MediaPipe Pose + adapter, or our hourglass: 3 passes = whole image, then two
-metric crops), SMPLR (DAE + Omega + Psi + full anny mesh) + placement, and the optional 2D fit
+metric crops; also with 2 passes, and eager instead of the TorchScript trace), SMPLR (DAE + Omega + Psi + full anny mesh) + placement, and the optional 2D fit
 (`recon run` default: 30 steps). Prints ms and each total relative to the MediaPipe pipeline.
 """
 from __future__ import annotations
@@ -28,9 +28,15 @@ def main() -> None:
     torch.set_num_threads(1)
     body = default_body()
     images = [io.load_image(p) for p in example_photos()]
+    from recon.pipeline import BackboneSource
+
+    sources = {"mediapipe": "mediapipe",
+               "backbone, 3 passes (default)": BackboneSource(body),
+               "backbone, 2 passes": BackboneSource(body, passes=2),
+               "backbone, 3 passes, eager (no TorchScript)": BackboneSource(body, jit=False)}
     rows = {}
-    for source in ("mediapipe", "backbone"):
-        rec = Reconstructor(body, source=source, refine_steps=30)
+    for source, src in sources.items():
+        rec = Reconstructor(body, source=src, refine_steps=30)
         t: dict[str, list[float]] = {"keypoints": [], "backbone, one pass": [], "smplr+mesh+place": [], "2D fit": []}
         for _ in range(a.repeats):
             for img in images:
@@ -43,7 +49,7 @@ def main() -> None:
                 t["smplr+mesh+place"].append(total - r0.timings_ms["keypoints"])
                 rec.refine_steps = 30
                 t["2D fit"].append(rec.batch([img], [k])[0].timings_ms["refine"])
-                if source == "backbone":
+                if source != "mediapipe":
                     from recon.backbone.model import whole_image_crop
 
                     t1 = time.perf_counter()

@@ -72,12 +72,13 @@ class BackboneSource:
 
     name = "backbone"
 
-    def __init__(self, body=None, weights=None, passes: int = 3, min_confidence: float = 0.05, device: str = "cpu"):
+    def __init__(self, body=None, weights=None, passes: int = 3, min_confidence: float = 0.05, device: str = "cpu",
+                 jit: bool = True):
         from recon.backbone.model import Backbone
         from recon.body import default_body
         from recon.smplr.features import template_distances
 
-        self.net = Backbone.load(weights, device)
+        self.net = Backbone.load(weights, device, jit)
         self.template = template_distances(body or default_body()).cpu().numpy()
         self.passes, self.min_confidence = passes, min_confidence
 

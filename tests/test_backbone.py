@@ -5,7 +5,7 @@ import torch
 
 from recon.backbone.crop import Crop
 from recon.backbone.hourglass import HourglassConfig, StackedHourglass
-from recon.backbone.volumetric import soft_argmax_3d, volumetric_ce, voxel_index
+from recon.backbone.volumetric import local_mass, soft_argmax_3d, volumetric_ce, voxel_index
 
 
 def test_soft_argmax_finds_a_sharp_peak():
@@ -24,6 +24,48 @@ def test_volumetric_ce_prefers_the_target_voxel_and_ignores_outside_points():
     good = torch.zeros(1, 2, 4, 8, 8)
     good[0, 0, 1, 2, 5] = 10.0
     assert volumetric_ce(good, coords) < volumetric_ce(torch.zeros(1, 2, 4, 8, 8), coords)
+
+
+def test_local_mass_equals_a_box_filter_of_the_probabilities():
+    """The 27-voxel gather is the zero-padded 3x3x3 box sum of the softmax, read at each point's
+    voxel, including points on and beyond the volume's border."""
+    torch.manual_seed(0)
+    b, p, d, h, w = 2, 5, 4, 6, 8
+    logits = 3 * torch.randn(b, p, d, h, w, dtype=torch.float64)
+    coords = torch.rand(b, p, 3, dtype=torch.float64)
+    coords[0, 0] = torch.tensor([0.01, 0.99, 0.0])  # corner voxel
+    coords[0, 1] = torch.tensor([1.3, -0.2, 0.5])  # outside: clamped onto the border voxel
+    prob = torch.softmax(logits.reshape(b, p, -1), -1).view(b * p, 1, d, h, w)
+    box = (torch.nn.functional.avg_pool3d(prob, 3, stride=1, padding=1) * 27).view(b, p, -1)
+    flat, _ = voxel_index(coords, (d, h, w))
+    torch.testing.assert_close(local_mass(logits, coords), box.gather(-1, flat[..., None])[..., 0])
+    sharp = torch.full((1, 1, d, h, w), -1e4, dtype=torch.float64)
+    sharp[0, 0, 1, 2, 3] = 0
+    assert local_mass(sharp, soft_argmax_3d(sharp)).item() == pytest.approx(1.0)
+
+
+def test_inference_copy_and_trace_match_the_trained_network():
+    from recon.backbone.model import inference_copy, traced
+
+    torch.manual_seed(0)
+    torch.set_num_threads(1)
+    net = StackedHourglass(HourglassConfig(stacks=2, width=32, depth_bins=4, levels=2, input_size=32))
+    for m in net.modules():  # non-trivial BatchNorm statistics, as after training
+        if isinstance(m, torch.nn.BatchNorm2d):
+            m.running_mean.uniform_(-0.5, 0.5), m.running_var.uniform_(0.5, 2), m.weight.data.uniform_(0.5, 1.5)
+    net.eval()
+    fast = inference_copy(net)
+    assert not any(isinstance(m, torch.nn.BatchNorm2d) and isinstance(prev, torch.nn.Conv2d)
+                   for seq in fast.modules() if isinstance(seq, torch.nn.Sequential) for prev, m in zip(seq, seq[1:]))
+    script = traced(fast, 32)
+    assert isinstance(script, torch.jit.ScriptModule)
+    for batch in (1, 3):  # traced at batch 1, valid for any batch
+        x = torch.rand(batch, 32, 32, 3).permute(0, 3, 1, 2)
+        with torch.no_grad():
+            ref = net(x.contiguous())
+            for out in (fast(x), script(x)):
+                for a, r in zip(out, ref):
+                    torch.testing.assert_close(a, r, atol=1e-4, rtol=1e-4)
 
 
 def test_crop_round_trip_and_centre():

@@ -12,48 +12,81 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import copy
+import logging
+import warnings
+
 import torch
-import torch.nn.functional as F
+from torch import nn
+from torch.nn.utils.fusion import fuse_conv_bn_eval
 
 from recon import paths
 from recon.backbone.crop import EXTENT_M, Crop
 from recon.backbone.hourglass import HourglassConfig, StackedHourglass
-from recon.backbone.volumetric import soft_argmax_3d, voxel_index
+from recon.backbone.volumetric import local_mass, soft_argmax_3d
 from recon.body import skeleton
 
+log = logging.getLogger(__name__)
 WEIGHTS = Path(__file__).parent / "weights" / "hourglass_base.pt"
+
+
+def inference_copy(net: StackedHourglass) -> StackedHourglass:
+    """Eval-mode copy for CPU inference: every BatchNorm that follows a convolution is folded
+    into it, and weights are channels-last (oneDNN's fast layout). Same outputs to float
+    rounding; ~1.2x faster at batch 1 on one thread, mostly from the layout."""
+    net = copy.deepcopy(net).eval()
+    for seq in [m for m in net.modules() if isinstance(m, nn.Sequential)]:
+        for i in range(len(seq) - 1):
+            if isinstance(seq[i], nn.Conv2d) and isinstance(seq[i + 1], nn.BatchNorm2d):
+                seq[i], seq[i + 1] = fuse_conv_bn_eval(seq[i], seq[i + 1]), nn.Identity()
+    return net.to(memory_format=torch.channels_last)
+
+
+def traced(net: nn.Module, size: int) -> nn.Module:
+    """TorchScript trace + freeze of an inference copy (constant-folded weights, fused
+    conv+ReLU/add): ~25% faster again than eager at batch 1 on one CPU thread, ~1 s to build.
+    torch.jit is deprecated in favour of torch.compile, which takes ~35 s to compile this net on
+    the 2-core CPU for the same speed, so we keep the trace while it works and fall back to eager
+    when it does not."""
+    x = torch.zeros(1, size, size, 3).permute(0, 3, 1, 2)  # channels-last, like grids' input
+    try:
+        with torch.no_grad(), warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # deprecation + tracer warnings on the shape check
+            return torch.jit.freeze(torch.jit.trace(net, x, check_trace=False, strict=False))
+    except Exception as e:  # noqa: BLE001 - any failure of the optional fast path
+        log.warning("backbone: TorchScript trace failed (%s); running eager", e)
+        return net
 
 
 class Backbone:
     """Stacked hourglass + soft-argmax decoding. ``predict(images, ks, crops)`` -> (B, 42, 3)
     camera-frame J+ (OpenCV axes, metres), (B, 42, 2) pixels and (B, 42) peak confidences."""
 
-    def __init__(self, net: StackedHourglass, device: str = "cpu", depth_scale=(1.0, 1.0)):
+    def __init__(self, net: StackedHourglass, device: str = "cpu", depth_scale=(1.0, 1.0), jit: bool = True):
         self.depth_scale = tuple(depth_scale)  # per crop pass, see calibrate_depth_scale
-        self.net = net.to(device).eval()
+        self.net = net.to(device).eval()  # as trained; ``fast`` is what runs
         self.device = torch.device(device)
         self.size = net.cfg.input_size
+        self.fast = inference_copy(self.net)
+        if jit and self.device.type == "cpu":
+            self.fast = traced(self.fast, self.size)
 
     @classmethod
-    def load(cls, path: str | Path | None = None, device: str = "cpu") -> "Backbone":
+    def load(cls, path: str | Path | None = None, device: str = "cpu", jit: bool = True) -> "Backbone":
         ck = paths.load_checkpoint(path or WEIGHTS, "recon backbone train")
         net = StackedHourglass(HourglassConfig(**ck["config"]))
         net.load_state_dict(ck["net"])
-        return cls(net, device, ck.get("crop_depth_scale", (1.0, 1.0)))
+        return cls(net, device, ck.get("crop_depth_scale", (1.0, 1.0)), jit)
 
     def grids(self, crops_rgb: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
         """(B, S, S, 3) uint8 crops -> grid coordinates (B, 42, 3) and confidences (B, 42): the
         probability mass within one voxel of the expected position."""
+        # (B, S, S, 3) uint8 is already channels-last: permuting gives the layout the fast net wants
         x = torch.from_numpy(np.ascontiguousarray(crops_rgb)).to(self.device).permute(0, 3, 1, 2).float() / 255.0
         with torch.no_grad():
-            logits = self.net(x)[-1][:, :skeleton.NUM_POINTS].float()
-        g = soft_argmax_3d(logits)
-        b, p, d, h, w = logits.shape
-        prob = torch.softmax(logits.reshape(b, p, -1), -1).view(b * p, 1, d, h, w)
-        # mass of the 3x3x3 voxels around each voxel (zero outside), read at the estimate's voxel
-        mass = (F.avg_pool3d(prob, 3, stride=1, padding=1) * 27).view(b, p, -1)
-        flat, _ = voxel_index(g, (d, h, w))
-        return g.cpu(), mass.gather(-1, flat[..., None])[..., 0].cpu()
+            logits = self.fast(x)[-1][:, :skeleton.NUM_POINTS].float().contiguous()
+            g = soft_argmax_3d(logits)
+            return g.cpu(), local_mass(logits, g).cpu()
 
     def predict(self, images: list[np.ndarray], crops: list[Crop]):
         batch = np.stack([c.image(im, self.size) for im, c in zip(images, crops)])

@@ -69,3 +69,23 @@ def volumetric_ce(logits: torch.Tensor, coords: torch.Tensor) -> torch.Tensor:
     logp = F.log_softmax(logits.reshape(b, p, -1).float(), dim=-1)
     ce = -(logp.gather(-1, idx) * wts).sum(-1)
     return (ce * valid).sum() / valid.sum().clamp(min=1)
+
+
+def local_mass(logits: torch.Tensor, coords: torch.Tensor) -> torch.Tensor:
+    """Probability mass of the (up to) 3x3x3 voxels around each point's voxel: a peak
+    confidence in [0, 1]. (B, P, D, H, W) logits, (B, P, 3) grid coordinates -> (B, P).
+
+    Reads 27 logits per point instead of box-filtering the whole volume (~25 ms per pass at
+    42 x 16 x 32 x 32 on one CPU thread); voxels outside the volume count as zero mass."""
+    b, p, d, h, w = logits.shape
+    flat = logits.reshape(b, p, -1)
+    lse = torch.logsumexp(flat, -1, keepdim=True)
+    centre = torch.stack([(coords[..., 2] * d).floor(), (coords[..., 1] * h).floor(), (coords[..., 0] * w).floor()], -1)
+    offsets = torch.stack(torch.meshgrid(*[torch.arange(-1, 2, device=logits.device)] * 3, indexing="ij"), -1).view(27, 3)
+    idx = centre.clamp(torch.zeros(3, device=logits.device), torch.tensor([d - 1, h - 1, w - 1], device=logits.device))
+    idx = idx.long()[..., None, :] + offsets  # (B, P, 27, 3) as (z, y, x)
+    size = torch.tensor([d, h, w], device=logits.device)
+    inside = ((idx >= 0) & (idx < size)).all(-1)
+    idx = torch.minimum(idx.clamp_min(0), size - 1)
+    lin = (idx[..., 0] * h + idx[..., 1]) * w + idx[..., 2]
+    return ((flat.gather(-1, lin) - lse).exp() * inside).sum(-1)
