@@ -137,7 +137,8 @@ def cmd_backbone(args) -> int:
         val = bench_dir(args.val) if args.val in BENCHMARKS else Path(args.val)
     cfg = BackboneTrainConfig(size=args.size, steps=args.steps, batch=args.batch, workers=args.workers, lr=args.lr,
                               minutes=args.minutes, run_minutes=args.run_minutes, eval_every=args.eval_every,
-                              val_images=args.val_images, repeats=args.repeats)
+                              val_images=args.val_images, repeats=args.repeats, init=args.init or "",
+                              smplr_weight=args.smplr_weight, seed=args.seed)
     log = train(train_roots, val, Path(args.out), cfg, device=args.device)
     print(json.dumps({k: v for k, v in log.items() if k != "history"}))
     return 0
@@ -290,6 +291,10 @@ def main(argv: list[str] | None = None) -> int:
     k.add_argument("--repeats", type=int, default=1, help="--online: augmented crops per rendered sample")
     k.add_argument("--workers", type=int, default=2)
     k.add_argument("--device", default="cpu")
+    k.add_argument("--seed", type=int, default=0, help="data/initialisation seed (use a new one when fine-tuning)")
+    k.add_argument("--init", default=None, help="start from these weights, e.g. recon/backbone/weights/hourglass_base.pt")
+    k.add_argument("--smplr-weight", type=float, default=0.0,
+                   help="> 0: end-to-end fine-tuning through the frozen DAE + SMPLR (thesis 2.4.5; with --init, --lr 1e-4)")
     k.set_defaults(func=cmd_backbone)
     kp = sub.add_parser("keypoints", help="MediaPipe -> J+ adapter: collect MediaPipe on synth folders, train")
     kp.add_argument("action", choices=["collect", "train"])

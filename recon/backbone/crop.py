@@ -10,6 +10,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+import torch
 
 EXTENT_M = 2.5
 
@@ -51,3 +52,15 @@ class Crop:
         v = self.v0 + grid[:, 1] * self.side
         z = self.zc + (grid[:, 2] - 0.5) * self.extent
         return np.stack([(u - self.k[0, 2]) * z / self.k[0, 0], (v - self.k[1, 2]) * z / self.k[1, 1], z], axis=1)
+
+
+def grid_to_camera(grid: torch.Tensor, crop_vec: torch.Tensor, k: torch.Tensor) -> torch.Tensor:
+    """Batched, differentiable ``Crop.from_grid``: grid (B, P, 3), crop vectors (B, 5) =
+    (u0, v0, side, zc, extent) and intrinsics (B, 3, 3) -> camera-frame points (B, P, 3)."""
+    u0, v0, side, zc, extent = (crop_vec[:, i, None] for i in range(5))
+    u = u0 + grid[..., 0] * side
+    v = v0 + grid[..., 1] * side
+    z = zc + (grid[..., 2] - 0.5) * extent
+    x = (u - k[:, 0, 2, None]) * z / k[:, 0, 0, None]
+    y = (v - k[:, 1, 2, None]) * z / k[:, 1, 1, None]
+    return torch.stack([x, y, z], -1)

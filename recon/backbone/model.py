@@ -152,6 +152,10 @@ def export(run_dir: Path, out: Path = WEIGHTS, calibrate_on: int = 300) -> Path:
     curve = json.loads((run_dir / "curve.json").read_text())
     ck = {"net": ck["net"], "config": ck["config"], "step": ck["step"], "val_mpjpe_mm": ck["val_mpjpe_mm"],
           "train_config": curve["config"]}
+    if curve["config"].get("init"):  # fine-tuned: keep the starting weights' provenance
+        start = torch.load(curve["config"]["init"], map_location="cpu", weights_only=True)
+        ck["fine_tuned_from"] = {k: start[k] for k in ("train_config", "step", "val_mpjpe_mm", "fine_tuned_from")
+                                 if k in start}
     tmp = out.with_suffix(".uncalibrated.pt")
     torch.save(ck, tmp)
     ds = SynthDataset(bench_dir("synth-val"))

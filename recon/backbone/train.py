@@ -10,6 +10,11 @@ plus an L1 term on the soft-argmax coordinates (integral regression). Validation
 decoded joints (pelvis-aligned) on the first images of synth-val, ground-truth crop as in the
 thesis protocol; online runs render exactly those images (same generator, split and seed).
 Checkpoints are resumable; the learning curve is written as JSON next to them.
+
+End-to-end fine-tuning (thesis 2.4.5, ``--init <weights> --smplr-weight w``): the trained DAE and
+SMPLR (Omega, Psi, body model), frozen, sit on the decoded J+ of the last stack, and their L1
+errors (metres) against the ground truth are added, times ``w``, to the heatmap losses; low
+learning rate (thesis: 1e-4). Model selection then follows the MPJPE of the whole chain.
 """
 from __future__ import annotations
 
@@ -25,7 +30,7 @@ import torch
 from torch.utils.data import DataLoader, Dataset, IterableDataset, get_worker_info
 
 from recon import paths
-from recon.backbone.crop import Crop
+from recon.backbone.crop import Crop, grid_to_camera
 from recon.backbone.hourglass import SIZES, HourglassConfig, StackedHourglass
 from recon.backbone.volumetric import soft_argmax_3d, volumetric_ce
 from recon.body import skeleton
@@ -48,6 +53,8 @@ class BackboneTrainConfig:
     l1_weight: float = 10.0  # on grid coordinates in [0, 1] (x 2.5 m: 1 voxel of 32 = 0.3 of loss)
     seed: int = 0
     model: dict = field(default_factory=dict)  # overrides of HourglassConfig
+    init: str = ""  # start from these weights (e.g. the shipped ones; its architecture wins over size/model)
+    smplr_weight: float = 0.0  # > 0: end-to-end through the frozen DAE + SMPLR (see module doc)
 
 
 def make_crop(s: dict, size: int, augment: bool, rng: np.random.Generator):
@@ -144,25 +151,60 @@ class OnlineCrops(IterableDataset):
                 yield pool.pop(int(rng.integers(len(pool))))
 
 
+class EndToEnd(torch.nn.Module):
+    """The frozen DAE + SMPLR on top of the backbone (thesis 2.4.5). Targets are the ground-truth
+    grid coordinates decoded with the same crop, so flips and in-plane rotations of the crop stay
+    consistent with the image. Points go to SMPLR's frame (OpenCV axes times (1, -1, -1))."""
+
+    def __init__(self, device: str = "cpu"):
+        super().__init__()
+        from recon.smplr import SMPLR
+
+        self.smplr = SMPLR.load().to(device).eval().requires_grad_(False)
+        self.register_buffer("flip", torch.tensor([1.0, -1.0, -1.0], device=device), persistent=False)
+
+    def chain(self, grid: torch.Tensor, crop_vec: torch.Tensor, k: torch.Tensor):
+        """Grid J+ (B, 42, 3) -> (DAE output, body-model J+), both (B, 42, 3) in SMPLR's frame."""
+        pts = grid_to_camera(grid, crop_vec.float(), k.float()) * self.flip
+        out = self.smplr(pts, points_only=True)
+        return out.points_in, out.body.points
+
+    def forward(self, grid: torch.Tensor, grid_gt: torch.Tensor, crop_vec: torch.Tensor, k: torch.Tensor):
+        target = grid_to_camera(grid_gt, crop_vec.float(), k.float()) * self.flip
+        target = target - target[:, :1]
+        dae, body = self.chain(grid, crop_vec, k)
+        return (dae - dae[:, :1] - target).abs().mean() + (body - body[:, :1] - target).abs().mean()
+
+
 def decode(grid: np.ndarray, crop_vec: np.ndarray, k: np.ndarray) -> np.ndarray:
     u0, v0, side, zc, extent = crop_vec
     return Crop(u0, v0, side, zc, k, extent).from_grid(grid)
 
 
-def evaluate(net: StackedHourglass, batches, device: str) -> float:
-    """Mean pelvis-aligned joint error (mm) of the last stack's soft-argmax."""
+def _mpjpe(p: np.ndarray, gt: np.ndarray) -> float:
+    return float(np.linalg.norm((p[:24] - p[:1]) - (gt[:24] - gt[:1]), axis=1).mean())
+
+
+def evaluate(net: StackedHourglass, batches, device: str, e2e: EndToEnd | None = None) -> float | tuple[float, float]:
+    """Mean pelvis-aligned joint error (mm) of the last stack's soft-argmax; with ``e2e`` also that
+    of the whole chain (backbone -> DAE -> SMPLR -> body model joints)."""
     net.eval()
-    errs = []
+    errs, chain = [], []
     with torch.no_grad(), torch.autocast(device_type=device.split(":")[0], dtype=torch.bfloat16,
                                          enabled=device.startswith("cuda")):
         for img, _, crop_vec, k, pts in batches:
-            g = soft_argmax_3d(net(img.to(device))[-1][:, :skeleton.NUM_POINTS].float()).cpu().numpy()
+            g = soft_argmax_3d(net(img.to(device))[-1][:, :skeleton.NUM_POINTS].float())
+            if e2e is not None:
+                with torch.autocast(device_type=device.split(":")[0], enabled=False):
+                    body = (e2e.chain(g, crop_vec.to(device), k.to(device))[1] * e2e.flip).double().cpu().numpy()
+                chain += [_mpjpe(b, gt) for b, gt in zip(body, pts.numpy())]
+            g = g.cpu().numpy()
             for b in range(len(g)):
-                p = decode(g[b].astype(np.float64), crop_vec[b].numpy(), k[b].numpy())
-                gt = pts[b].numpy()
-                errs.append(np.linalg.norm((p[:24] - p[:1]) - (gt[:24] - gt[:1]), axis=1).mean())
+                errs.append(_mpjpe(decode(g[b].astype(np.float64), crop_vec[b].numpy(), k[b].numpy()), pts[b].numpy()))
     net.train()
-    return float(np.mean(errs) * 1000)
+    if e2e is None:
+        return float(np.mean(errs) * 1000)
+    return float(np.mean(errs) * 1000), float(np.mean(chain) * 1000)
 
 
 def _loader(ds, batch: int, workers: int, device: str, shuffle: bool | None = None, drop_last: bool = False):
@@ -179,9 +221,14 @@ def train(train_roots: list[Path] | None, val: Path | str, out_dir: Path,
     from tqdm import tqdm
 
     torch.manual_seed(cfg.seed)
-    mcfg = HourglassConfig(**{**asdict(SIZES[cfg.size]), **cfg.model})
+    init = paths.load_checkpoint(cfg.init, "recon backbone train") if cfg.init else None
+    mcfg = HourglassConfig(**(init["config"] if init else {**asdict(SIZES[cfg.size]), **cfg.model}))
     cuda = device.startswith("cuda")
-    net = StackedHourglass(mcfg).to(device).to(memory_format=torch.channels_last)
+    net = StackedHourglass(mcfg)
+    if init:
+        net.load_state_dict(init["net"])
+    net = net.to(device).to(memory_format=torch.channels_last)
+    e2e = EndToEnd(device) if cfg.smplr_weight > 0 else None
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
     out_dir.mkdir(parents=True, exist_ok=True)
     # optimiser moments apart from the weights: each file stays small enough to move around
@@ -208,14 +255,23 @@ def train(train_roots: list[Path] | None, val: Path | str, out_dir: Path,
         vset.index = vset.index[:cfg.val_images]
         val_batches = list(DataLoader(vset, batch_size=cfg.batch, num_workers=0))
 
-    def save(tag: str, mpjpe: float, loss: float):
+    def validate() -> tuple[float, dict]:
+        """Selection metric (the backbone's MPJPE, or the whole chain's when end-to-end) + log."""
+        if e2e is None:
+            m = evaluate(net, val_batches, device)
+            return m, {"val_mpjpe_mm": m}
+        m, chain = evaluate(net, val_batches, device, e2e)
+        return chain, {"val_mpjpe_mm": m, "val_chain_mpjpe_mm": chain}
+
+    def save(tag: str, mpjpe: float, loss: float | None, metrics: dict):
         nonlocal best
-        history.append({"step": step, "loss": loss, "val_mpjpe_mm": mpjpe, "time_s": spent + time.time() - t0,
+        history.append({"step": step, "loss": loss, **metrics, "time_s": spent + time.time() - t0,
                         "lr": opt.param_groups[0]["lr"], "tag": tag})
         if mpjpe < best:
             best = mpjpe
             paths.atomic_write(best_path, lambda t: torch.save({"net": net.state_dict(), "config": asdict(mcfg),
-                                                                "val_mpjpe_mm": mpjpe, "step": step}, t))
+                                                                "val_mpjpe_mm": metrics["val_mpjpe_mm"], "step": step,
+                                                                "val_metrics": metrics}, t))
         paths.atomic_write(opt_path, lambda t: torch.save(opt.state_dict(), t))
         paths.atomic_write(state_path, lambda t: torch.save({"net": net.state_dict(), "step": step, "best": best, "history": history,
                                                              "seconds": spent + time.time() - t0}, t))
@@ -225,8 +281,11 @@ def train(train_roots: list[Path] | None, val: Path | str, out_dir: Path,
     bar = tqdm(total=cfg.steps, initial=step, desc="train backbone", unit="step", mininterval=10)
     t0 = time.time()
     done, loss = step >= cfg.steps, torch.zeros(())
+    if init and step == 0:  # the starting point, for the curve and as the best so far
+        m, metrics = validate()
+        save("init", m, None, metrics)
     while not done:
-        for img, grid, *_ in loader:
+        for img, grid, crop_vec, k, _ in loader:
             elapsed = spent + time.time() - t0
             frac = step / cfg.steps
             if cfg.minutes > 0:
@@ -240,7 +299,10 @@ def train(train_roots: list[Path] | None, val: Path | str, out_dir: Path,
             loss = 0.0
             for o in outs:
                 o = o[:, :skeleton.NUM_POINTS].float()
-                loss = loss + volumetric_ce(o, g) + cfg.l1_weight * (soft_argmax_3d(o) - g).abs().mean()
+                coords = soft_argmax_3d(o)
+                loss = loss + volumetric_ce(o, g) + cfg.l1_weight * (coords - g).abs().mean()
+            if e2e is not None:  # on the last stack's J+
+                loss = loss + cfg.smplr_weight * e2e(coords, g, crop_vec.to(device), k.to(device))
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()
@@ -249,8 +311,8 @@ def train(train_roots: list[Path] | None, val: Path | str, out_dir: Path,
             done = step >= cfg.steps or (cfg.minutes > 0 and elapsed >= 60 * cfg.minutes)
             done = done or (cfg.run_minutes > 0 and time.time() - t0 >= 60 * cfg.run_minutes)
             if step % cfg.eval_every == 0 or done:
-                mpjpe = evaluate(net, val_batches, device)
-                save("eval", mpjpe, loss.item())
+                mpjpe, metrics = validate()
+                save("eval", mpjpe, loss.item(), metrics)
                 bar.set_postfix(loss=f"{loss.item():.3f}", val_mm=f"{mpjpe:.1f}")
             if done:
                 break
