@@ -4,8 +4,9 @@
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_pipeline.py [--repeats 10]
 
 Stages: keypoints (MediaPipe Pose + adapter, or our hourglass: 3 passes = whole image, then two
-metric crops; also with 2 passes, and eager instead of the TorchScript trace), SMPLR (DAE + Omega + Psi + full anny mesh) + placement, and the optional 2D fit
-(`recon run` default: 30 steps). Prints ms and each total relative to the MediaPipe pipeline.
+metric crops; also with 2 passes, and eager instead of the TorchScript trace), SMPLR (DAE +
+Omega + Psi + full anny mesh) + placement, and the optional 2D fit (`recon run` default: 30 steps).
+Prints ms and each total relative to the MediaPipe pipeline.
 """
 from __future__ import annotations
 
@@ -18,7 +19,7 @@ import torch
 from recon import io
 from recon.body import default_body
 from recon.demo import example_photos
-from recon.pipeline import Reconstructor, default_intrinsics
+from recon.pipeline import BackboneSource, Reconstructor, default_intrinsics
 
 
 def main() -> None:
@@ -28,8 +29,6 @@ def main() -> None:
     torch.set_num_threads(1)
     body = default_body()
     images = [io.load_image(p) for p in example_photos()]
-    from recon.pipeline import BackboneSource
-
     sources = {"mediapipe": "mediapipe",
                "backbone, 3 passes (default)": BackboneSource(body),
                "backbone, 2 passes": BackboneSource(body, passes=2),

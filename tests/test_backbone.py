@@ -99,14 +99,16 @@ def test_hourglass_shapes_and_gradients():
 
 
 def test_crop_dataset_targets_and_a_resumable_training_run(tmp_path, body, mocap):
-    from recon.backbone.train import BackboneTrainConfig, CropDataset, decode, train
+    from recon.backbone.crop import grid_to_camera
+    from recon.backbone.train import BackboneTrainConfig, CropDataset, train
     from recon.synth.dataset import generate
 
     root = generate(tmp_path / "s", "test", 3, 4, shard_size=4, workers=1, progress=False)
     ds = CropDataset([root], 64, augment=False)
     img, grid, crop_vec, k, pts = ds[0]
     assert img.shape == (3, 64, 64) and grid.shape == (42, 3)
-    np.testing.assert_allclose(decode(grid.double().numpy(), crop_vec.numpy(), k.numpy()), pts.numpy(), atol=1e-4)
+    np.testing.assert_allclose(grid_to_camera(grid.double()[None], crop_vec[None], k[None])[0].numpy(), pts.numpy(),
+                               atol=1e-4)
     aug = CropDataset([root], 64, augment=True)
     assert aug[1][0].shape == (3, 64, 64)
     cfg = BackboneTrainConfig(batch=2, steps=2, eval_every=2, val_images=2, workers=0,

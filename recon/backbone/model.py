@@ -9,13 +9,12 @@ on the predicted joints at the depth where the template's bone lengths match the
 """
 from __future__ import annotations
 
-from pathlib import Path
-
-import numpy as np
 import copy
 import logging
 import warnings
+from pathlib import Path
 
+import numpy as np
 import torch
 from torch import nn
 from torch.nn.utils.fusion import fuse_conv_bn_eval

@@ -34,6 +34,7 @@ from recon.backbone.crop import Crop, grid_to_camera
 from recon.backbone.hourglass import SIZES, HourglassConfig, StackedHourglass
 from recon.backbone.volumetric import soft_argmax_3d, volumetric_ce
 from recon.body import skeleton
+from recon.metrics import per_point_error
 from recon.synth.dataset import BENCHMARKS, SynthDataset
 
 
@@ -158,10 +159,12 @@ class EndToEnd(torch.nn.Module):
 
     def __init__(self, device: str = "cpu"):
         super().__init__()
+        from recon.pipeline import OPENCV_TO_VIEW
         from recon.smplr import SMPLR
 
         self.smplr = SMPLR.load().to(device).eval().requires_grad_(False)
-        self.register_buffer("flip", torch.tensor([1.0, -1.0, -1.0], device=device), persistent=False)
+        self.register_buffer("flip", torch.as_tensor(OPENCV_TO_VIEW, dtype=torch.float32, device=device),
+                             persistent=False)
 
     def chain(self, grid: torch.Tensor, crop_vec: torch.Tensor, k: torch.Tensor):
         """Grid J+ (B, 42, 3) -> (DAE output, body-model J+), both (B, 42, 3) in SMPLR's frame."""
@@ -176,15 +179,6 @@ class EndToEnd(torch.nn.Module):
         return (dae - dae[:, :1] - target).abs().mean() + (body - body[:, :1] - target).abs().mean()
 
 
-def decode(grid: np.ndarray, crop_vec: np.ndarray, k: np.ndarray) -> np.ndarray:
-    u0, v0, side, zc, extent = crop_vec
-    return Crop(u0, v0, side, zc, k, extent).from_grid(grid)
-
-
-def _mpjpe(p: np.ndarray, gt: np.ndarray) -> float:
-    return float(np.linalg.norm((p[:24] - p[:1]) - (gt[:24] - gt[:1]), axis=1).mean())
-
-
 def evaluate(net: StackedHourglass, batches, device: str, e2e: EndToEnd | None = None) -> float | tuple[float, float]:
     """Mean pelvis-aligned joint error (mm) of the last stack's soft-argmax; with ``e2e`` also that
     of the whole chain (backbone -> DAE -> SMPLR -> body model joints)."""
@@ -196,15 +190,12 @@ def evaluate(net: StackedHourglass, batches, device: str, e2e: EndToEnd | None =
             g = soft_argmax_3d(net(img.to(device))[-1][:, :skeleton.NUM_POINTS].float())
             if e2e is not None:
                 with torch.autocast(device_type=device.split(":")[0], enabled=False):
-                    body = (e2e.chain(g, crop_vec.to(device), k.to(device))[1] * e2e.flip).double().cpu().numpy()
-                chain += [_mpjpe(b, gt) for b, gt in zip(body, pts.numpy())]
-            g = g.cpu().numpy()
-            for b in range(len(g)):
-                errs.append(_mpjpe(decode(g[b].astype(np.float64), crop_vec[b].numpy(), k[b].numpy()), pts[b].numpy()))
+                    body = e2e.chain(g, crop_vec.to(device), k.to(device))[1] * e2e.flip
+                chain.append(per_point_error(body.double().cpu()[:, :24], pts[:, :24]))
+            errs.append(per_point_error(grid_to_camera(g.double().cpu(), crop_vec, k)[:, :24], pts[:, :24]))
     net.train()
-    if e2e is None:
-        return float(np.mean(errs) * 1000)
-    return float(np.mean(errs) * 1000), float(np.mean(chain) * 1000)
+    mm = lambda e: float(torch.cat(e).mean() * 1000)  # noqa: E731
+    return mm(errs) if e2e is None else (mm(errs), mm(chain))
 
 
 def _loader(ds, batch: int, workers: int, device: str, shuffle: bool | None = None, drop_last: bool = False):
