@@ -123,6 +123,13 @@ def cmd_backbone(args) -> int:
     from recon.backbone.train import BackboneTrainConfig, train
     from recon.synth.dataset import BENCHMARKS, bench_dir
 
+    if args.action == "calibrate":
+        from recon.backbone.model import WEIGHTS, calibrate
+
+        print(calibrate(Path(args.weights or WEIGHTS)))
+        return 0
+    if not args.out:
+        raise SystemExit(f"backbone {args.action} needs --out (checkpoint folder)")
     if args.action == "export":
         from recon.backbone.model import WEIGHTS, export
 
@@ -273,13 +280,14 @@ def main(argv: list[str] | None = None) -> int:
     e.add_argument("--out", default="eval/results")
     e.set_defaults(func=cmd_eval)
     k = sub.add_parser("backbone", help="train the volumetric hourglass on rendered or stored synthetic data")
-    k.add_argument("action", choices=["train", "export"], help="export: best checkpoint of --out -> shipped weights "
-                   "(+ crop-depth calibration on synth-val)")
-    k.add_argument("--weights", default=None, help="export: destination (default recon/backbone/weights/hourglass_base.pt)")
+    k.add_argument("action", choices=["train", "export", "calibrate"], help="export: best checkpoint of --out -> "
+                   "shipped weights (+ crop-depth calibration on synth-val); calibrate: redo that calibration in place")
+    k.add_argument("--weights", default=None, help="export/calibrate: weights file (default "
+                   "recon/backbone/weights/hourglass_base.pt)")
     k.add_argument("--train", nargs="+", help="synth folders with training shards")
     k.add_argument("--online", action="store_true", help="render training data on the fly in the loader workers")
     k.add_argument("--val", default="synth-val", help="benchmark name (rendered when --online) or folder")
-    k.add_argument("--out", required=True, help="checkpoint folder (resumes if it holds state.pt)")
+    k.add_argument("--out", default=None, help="checkpoint folder (resumes if it holds state.pt)")
     k.add_argument("--size", choices=["cpu", "base", "gpu"], default="base")
     k.add_argument("--steps", type=int, default=20000)
     k.add_argument("--minutes", type=float, default=0.0, help="total wall-clock budget; the lr schedule follows it")

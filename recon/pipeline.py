@@ -66,14 +66,15 @@ class MediaPipeSource:
 
 class BackboneSource:
     """The volumetric stacked hourglass (recon.backbone) without any other detector: a first
-    pass over the whole image locates the person, then ``passes - 1`` metric crops centred on
-    the predicted joints at the bone-length depth. ``None`` when the mean peak confidence is
+    pass over the whole image (first hourglass only) locates the person, then ``passes - 1`` metric crops centred on
+    the predicted joints at the bone-length depth (bones foreshortened as the previous pass
+    predicted them in 3D). ``None`` when the mean peak confidence is
     under ``min_confidence`` (the network saw no person in training, so this is a weak test)."""
 
     name = "backbone"
 
     def __init__(self, body=None, weights=None, passes: int = 3, min_confidence: float = 0.05, device: str = "cpu",
-                 jit: bool = True):
+                 jit: bool = True, quick_locate: bool = True):
         from recon.backbone.model import Backbone
         from recon.body import default_body
         from recon.smplr.features import template_distances
@@ -81,6 +82,8 @@ class BackboneSource:
         self.net = Backbone.load(weights, device, jit)
         self.template = template_distances(body or default_body()).cpu().numpy()
         self.passes, self.min_confidence = passes, min_confidence
+        self.quick_locate = quick_locate  # False: whole network in the first pass (benchmark; the
+        # shipped crop factors are calibrated for the first stack)
 
     def locate(self, rgb: np.ndarray, k: np.ndarray, depth_scale=None, passes: int | None = None):
         """Run the passes (default ``self.passes``); returns the last pass' (J+ camera frame, 2D,
@@ -91,10 +94,16 @@ class BackboneSource:
         crop = whole_image_crop(rgb.shape, k)
         passes = self.passes if passes is None else passes
         for p in range(passes):
-            pts, uv, conf = self.net.predict([rgb], [crop])
+            pts, uv, conf = self.net.predict([rgb], [crop], locate=self.quick_locate and p == 0 and passes > 1)
             if p < passes - 1:  # bone-length depth, times the factor calibrated on synth-val
-                crop = crop_from_keypoints(uv[0], k, self.template, scale[min(p, len(scale) - 1)])
+                crop = crop_from_keypoints(uv[0], k, self.template, scale[min(p, len(scale) - 1)],
+                                           self.depth_points(pts[0]))
         return pts[0], uv[0], conf[0], crop
+
+    def depth_points(self, pts: np.ndarray) -> np.ndarray | None:
+        """The predicted J+ that foreshorten the bones of the crop-depth estimate, or None for
+        weights calibrated for plain bone lengths (recon.backbone.model.depth_from_bones)."""
+        return pts if self.net.depth_method == "foreshortened" else None
 
     def __call__(self, rgb: np.ndarray, k: np.ndarray) -> Keypoints | None:
         pts, uv, conf, _ = self.locate(rgb, k)

@@ -45,7 +45,7 @@ def test_local_mass_equals_a_box_filter_of_the_probabilities():
 
 
 def test_inference_copy_and_trace_match_the_trained_network():
-    from recon.backbone.model import inference_copy, traced
+    from recon.backbone.model import first_stack, inference_copy, traced
 
     torch.manual_seed(0)
     torch.set_num_threads(1)
@@ -66,6 +66,9 @@ def test_inference_copy_and_trace_match_the_trained_network():
             for out in (fast(x), script(x)):
                 for a, r in zip(out, ref):
                     torch.testing.assert_close(a, r, atol=1e-4, rtol=1e-4)
+            first = traced(first_stack(fast), 32)(x)  # the locating pass: the first stack's heads
+            assert len(first) == 1
+            torch.testing.assert_close(first[0], ref[0], atol=1e-4, rtol=1e-4)
 
 
 def test_crop_round_trip_and_centre():

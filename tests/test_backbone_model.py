@@ -20,6 +20,31 @@ def test_trilinear_target_has_the_point_as_its_expectation():
     assert volumetric_ce(logits, coords) < volumetric_ce(logits + 0.5 * torch.randn_like(logits), coords)
 
 
+def test_bone_depth_uses_the_predicted_foreshortening(body):
+    """A template body turned away from the camera at 6 m: its 2D bones are foreshortened, so the
+    fixed-0.85 estimate misses the depth; with the 3D points' own foreshortening it is exact up
+    to perspective."""
+    import roma
+
+    from recon.backbone.model import crop_from_keypoints, depth_from_bones
+    from recon.smplr.features import template_distances
+
+    template = template_distances(body).cpu().numpy().astype(np.float64)
+    with torch.no_grad():
+        pts = body(points_only=True).points[0].double()
+    pts = pts - pts[:24].mean(0)
+    pts = (pts @ roma.rotvec_to_rotmat(torch.tensor([0.0, 1.2, 0.0], dtype=torch.float64)).T).numpy()
+    pts[:, 2] += 6.0
+    k = np.array([[1000.0, 0, 320], [0, 1000.0, 240], [0, 0, 1]])
+    uv = pts @ k.T
+    uv = uv[:, :2] / uv[:, 2:]
+    assert depth_from_bones(uv, k, template, pts) == pytest.approx(6.0, rel=0.02)
+    assert abs(depth_from_bones(uv, k, template) / 6.0 - 1) > 0.05
+    # the crop is centred on the joints' mean at that depth
+    c = crop_from_keypoints(uv, k, template, points=pts)
+    assert c.zc == pytest.approx(6.0, rel=0.02)
+
+
 @pytest.fixture(scope="module")
 def val_samples(body, mocap):
     from recon.synth.dataset import BENCHMARKS

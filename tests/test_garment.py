@@ -72,6 +72,35 @@ def test_pbns_weight_cache_follows_changes():
     assert m.weights.requires_grad  # training still differentiates through the softmax
 
 
+@pytest.mark.parametrize("batch", [1, 12, 20])
+def test_pbns_pose_equals_forward(batch, monkeypatch):
+    """The inference path (vertex-major, in chunks of vertices from 12 frames on) gives the
+    differentiable forward's vertices, also for per-sample rest outfits and after D changes."""
+    import recon.garment.pbns as P
+
+    monkeypatch.setattr(P, "VERTEX_MAJOR_CHUNK_FLOATS", 12 * batch * 7)  # chunks of 16 vertices: several
+    g = torch.Generator().manual_seed(0)
+    v, f = _grid(7)
+    m = PBNS(torch.tensor(v), torch.tensor(f), torch.rand(len(v), 24, generator=g), PBNSConfig())
+    with torch.no_grad():
+        m.D.normal_(0, 0.01, generator=g)
+        for p in m.mlp.parameters():
+            p.normal_(0, 0.3, generator=g)
+    import roma
+
+    rot = roma.rotvec_to_rotmat(torch.randn(batch, 24, 3, generator=g) * 0.5)
+    t = torch.cat([roma.rotvec_to_rotmat(torch.randn(batch, 24, 3, generator=g)),
+                   torch.randn(batch, 24, 3, 1, generator=g)], -1)
+    ref, dt = m(rot, t)
+    assert torch.allclose(m.pose(rot, t), ref, atol=1e-5)
+    rest = m.rest + 0.01 * torch.randn(batch, len(v), 3, generator=g)  # resized per body
+    assert torch.allclose(m.pose(rot, t, rest), m.skin(rest + dt, t), atol=1e-5)
+    with torch.no_grad():
+        m.D.mul_(2.0)  # an optimiser step / load: the cached layout must follow
+    assert torch.allclose(m.pose(rot, t), m(rot, t)[0], atol=1e-5)
+    assert not m.pose(rot, t).requires_grad
+
+
 def test_energies():
     v, f = _grid(5)
     rest = torch.tensor(v).float()

@@ -41,6 +41,16 @@ def inference_copy(net: StackedHourglass) -> StackedHourglass:
     return net.to(memory_format=torch.channels_last)
 
 
+def first_stack(net: StackedHourglass) -> StackedHourglass:
+    """Copy that stops after the first hourglass (whose heads are supervised like the last's):
+    half the cost, for the whole-image pass that only locates the person. On synth-val images
+    300-799 the three-pass MPJPE is the same with it (134.8 vs 134.7 mm, crop factors
+    recalibrated)."""
+    net = copy.deepcopy(net)
+    net.hgs = nn.ModuleList(net.hgs[:1])
+    return net
+
+
 def traced(net: nn.Module, size: int) -> nn.Module:
     """TorchScript trace + freeze of an inference copy (constant-folded weights, fused
     conv+ReLU/add): ~25% faster again than eager at batch 1 on one CPU thread, ~1 s to build.
@@ -61,53 +71,66 @@ class Backbone:
     """Stacked hourglass + soft-argmax decoding. ``predict(images, ks, crops)`` -> (B, 42, 3)
     camera-frame J+ (OpenCV axes, metres), (B, 42, 2) pixels and (B, 42) peak confidences."""
 
-    def __init__(self, net: StackedHourglass, device: str = "cpu", depth_scale=(1.0, 1.0), jit: bool = True):
+    def __init__(self, net: StackedHourglass, device: str = "cpu", depth_scale=(1.0, 1.0), jit: bool = True,
+                 depth_method: str = "bones"):
         self.depth_scale = tuple(depth_scale)  # per crop pass, see calibrate_depth_scale
+        self.depth_method = depth_method  # the crop-depth estimate the factors were calibrated for
         self.net = net.to(device).eval()  # as trained; ``fast`` is what runs
         self.device = torch.device(device)
         self.size = net.cfg.input_size
         self.fast = inference_copy(self.net)
+        self.locator = first_stack(self.fast)  # the whole-image pass of BackboneSource
         if jit and self.device.type == "cpu":
-            self.fast = traced(self.fast, self.size)
+            self.fast, self.locator = traced(self.fast, self.size), traced(self.locator, self.size)
 
     @classmethod
     def load(cls, path: str | Path | None = None, device: str = "cpu", jit: bool = True) -> "Backbone":
         ck = paths.load_checkpoint(path or WEIGHTS, "recon backbone train")
         net = StackedHourglass(HourglassConfig(**ck["config"]))
         net.load_state_dict(ck["net"])
-        return cls(net, device, ck.get("crop_depth_scale", (1.0, 1.0)), jit)
+        # files calibrated before the foreshortened estimate keep the plain bone-length one
+        return cls(net, device, ck.get("crop_depth_scale", (1.0, 1.0)), jit, ck.get("crop_depth_method", "bones"))
 
-    def grids(self, crops_rgb: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
+    def grids(self, crops_rgb: np.ndarray, locate: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
         """(B, S, S, 3) uint8 crops -> grid coordinates (B, 42, 3) and confidences (B, 42): the
-        probability mass within one voxel of the expected position."""
+        probability mass within one voxel of the expected position. ``locate``: first stack only."""
         # (B, S, S, 3) uint8 is already channels-last: permuting gives the layout the fast net wants
         x = torch.from_numpy(np.ascontiguousarray(crops_rgb)).to(self.device).permute(0, 3, 1, 2).float() / 255.0
         with torch.no_grad():
-            logits = self.fast(x)[-1][:, :skeleton.NUM_POINTS].float().contiguous()
+            logits = (self.locator if locate else self.fast)(x)[-1][:, :skeleton.NUM_POINTS].float().contiguous()
             g = soft_argmax_3d(logits)
             return g.cpu(), local_mass(logits, g).cpu()
 
-    def predict(self, images: list[np.ndarray], crops: list[Crop]):
+    def predict(self, images: list[np.ndarray], crops: list[Crop], locate: bool = False):
         batch = np.stack([c.image(im, self.size) for im, c in zip(images, crops)])
-        g, conf = self.grids(batch)
+        g, conf = self.grids(batch, locate)
         pts = np.stack([c.from_grid(gi.double().numpy()) for c, gi in zip(crops, g)])
         uv = np.stack([np.stack([c.u0 + gi[:, 0].double().numpy() * c.side, c.v0 + gi[:, 1].double().numpy() * c.side], 1)
                        for c, gi in zip(crops, g)])
         return pts, uv, conf.numpy()
 
 
-def depth_from_bones(uv: np.ndarray, k: np.ndarray, template: np.ndarray, foreshortening: float = 0.85) -> float:
+def depth_from_bones(uv: np.ndarray, k: np.ndarray, template: np.ndarray, points: np.ndarray | None = None,
+                     foreshortening: float = 0.85) -> float:
     """Camera distance at which the template's J+ bone lengths match the 2D bones (median over
-    the 41 links; 0.85 = typical foreshortening, as in the SMPLR 2D oracle)."""
+    the 41 links). Each bone's foreshortening (its image-plane share of its 3D length) comes from
+    the predicted J+ ``points`` (camera frame) when given, else is the typical 0.85 (as in the
+    SMPLR 2D oracle). Per bone it cuts the depth error's median from 7.0 to 5.8 % on synth-val
+    (the rest is mostly body size: with the true size, 4.1 %)."""
     xy = (uv - k[:2, 2]) / k[[0, 1], [0, 1]]
-    d2 = np.linalg.norm(xy[1:] - xy[list(skeleton.KINTREE_PLUS[1:])], axis=1)
-    return float(foreshortening * np.median(template / np.maximum(d2, 1e-6)))
+    parents = list(skeleton.KINTREE_PLUS[1:])
+    d2 = np.linalg.norm(xy[1:] - xy[parents], axis=1)
+    if points is not None:
+        d3 = points[1:] - points[parents]
+        foreshortening = np.linalg.norm(d3[:, :2], axis=1) / np.maximum(np.linalg.norm(d3, axis=1), 1e-6)
+    return float(np.median(foreshortening * template / np.maximum(d2, 1e-6)))
 
 
-def crop_from_keypoints(uv: np.ndarray, k: np.ndarray, template: np.ndarray, depth_scale: float = 1.0) -> Crop:
+def crop_from_keypoints(uv: np.ndarray, k: np.ndarray, template: np.ndarray, depth_scale: float = 1.0,
+                        points: np.ndarray | None = None) -> Crop:
     """Metric crop around 2D joints: centre = mean of the 24 joints back-projected at the
-    bone-length depth times ``depth_scale``."""
-    z = depth_from_bones(uv, k, template) * depth_scale
+    bone-length depth (foreshortened by ``points``, see depth_from_bones) times ``depth_scale``."""
+    z = depth_from_bones(uv, k, template, points) * depth_scale
     c = uv[:24].mean(0)
     centre = np.array([(c[0] - k[0, 2]) * z / k[0, 0], (c[1] - k[1, 2]) * z / k[1, 1], z])
     return Crop.around(centre, k)
@@ -122,29 +145,54 @@ def whole_image_crop(shape: tuple[int, ...], k: np.ndarray) -> Crop:
 
 def calibrate_depth_scale(source, samples, passes: int = 2) -> tuple[float, ...]:
     """Median (true crop depth / estimated crop depth) after each of the first ``passes`` passes
-    of ``source`` (a BackboneSource) over ``samples`` (dicts with rgb, K, points3d). Run on
-    synth-val; the factors absorb the 2D heuristic's bias and the network's pull towards the
-    crop centre (which shrinks 2D bones when the person is small in the first pass)."""
+    of ``source`` (a BackboneSource) over ``samples`` (dicts with rgb, K, points3d), for the
+    estimate ``source.net.depth_method`` names. Run on synth-val; the factors absorb the
+    template's size against the sampled bodies and the network's pull towards the crop centre
+    (which shrinks 2D bones when the person is small in the first pass)."""
     scale: list[float] = []
     for p in range(passes):
         ratios = []
         for s in samples:
             k = s["K"].astype(np.float64)
-            _, uv, _, _ = source.locate(s["rgb"], k, depth_scale=scale + [1.0], passes=p + 1)
-            z_true = float(s["points3d"][:24].astype(np.float64).mean(0)[2])
-            ratios.append(z_true / crop_from_keypoints(uv, k, source.template).zc)
+            # the crop of pass p + 2 is the raw estimate after pass p + 1 (each pass as at run time)
+            _, _, _, crop = source.locate(s["rgb"], k, depth_scale=scale + [1.0], passes=p + 2)
+            ratios.append(float(s["points3d"][:24].astype(np.float64).mean(0)[2]) / crop.zc)
         scale.append(float(np.median(ratios)))
     return tuple(scale)
+
+
+DEPTH_METHOD = "foreshortened"  # what export and calibrate write
+
+
+def calibrate(weights: Path, out: Path | None = None, calibrate_on: int = 300) -> Path:
+    """(Re)calibrate the crop-depth factors of a weights file for the current estimate
+    (``DEPTH_METHOD``) on the first ``calibrate_on`` synth-val images; writes ``out`` (default:
+    in place, atomically)."""
+    from recon.body import default_body
+    from recon.pipeline import BackboneSource
+    from recon.synth.dataset import SynthDataset, bench_dir
+
+    weights = Path(weights)
+    ck = torch.load(weights, map_location="cpu", weights_only=True)
+    ck["crop_depth_method"] = DEPTH_METHOD
+    ck["crop_depth_scale"] = (1.0, 1.0)
+    tmp = weights.with_suffix(".uncalibrated.pt")
+    torch.save(ck, tmp)
+    try:
+        ds = SynthDataset(bench_dir("synth-val"))
+        ck["crop_depth_scale"] = calibrate_depth_scale(BackboneSource(default_body(), weights=tmp),
+                                                       [ds[i] for i in range(calibrate_on)])
+    finally:
+        tmp.unlink()
+    out = Path(out or weights)
+    paths.atomic_write(out, lambda t: torch.save(ck, t))
+    return out
 
 
 def export(run_dir: Path, out: Path = WEIGHTS, calibrate_on: int = 300) -> Path:
     """Shipped weights from a training run: its best checkpoint, the training config, and the
     crop-depth factors calibrated on the first ``calibrate_on`` synth-val images."""
     import json
-
-    from recon.body import default_body
-    from recon.pipeline import BackboneSource
-    from recon.synth.dataset import SynthDataset, bench_dir
 
     run_dir = Path(run_dir)
     ck = torch.load(run_dir / "best.pt", map_location="cpu", weights_only=True)
@@ -155,11 +203,9 @@ def export(run_dir: Path, out: Path = WEIGHTS, calibrate_on: int = 300) -> Path:
         start = torch.load(curve["config"]["init"], map_location="cpu", weights_only=True)
         ck["fine_tuned_from"] = {k: start[k] for k in ("train_config", "step", "val_mpjpe_mm", "fine_tuned_from")
                                  if k in start}
-    tmp = out.with_suffix(".uncalibrated.pt")
+    tmp = Path(out).with_suffix(".exported.pt")  # the shipped file is replaced only once calibrated
     torch.save(ck, tmp)
-    ds = SynthDataset(bench_dir("synth-val"))
-    ck["crop_depth_scale"] = calibrate_depth_scale(BackboneSource(default_body(), weights=tmp),
-                                                   [ds[i] for i in range(calibrate_on)])
-    tmp.unlink()
-    paths.atomic_write(out, lambda t: torch.save(ck, t))
-    return out
+    try:
+        return calibrate(tmp, out, calibrate_on)
+    finally:
+        tmp.unlink()

@@ -95,9 +95,8 @@ class Dresser:
         r = rotmats.clone()
         if up is not None:
             r[:, 0] = up.to(r) @ r[:, 0]
-        dt = self.model.deformation(r)
         rest = torch.stack([self.rest_for(body, s, tightness=tightness) for s in shape])
-        verts = self.model.skin(rest + dt, out.transforms)
+        verts = self.model.pose(r, out.transforms, rest)
         if self.resolver is not None:
             verts = self.resolver(verts, out.vertices, body.faces)
         return DressedOutfit(verts.numpy(), self.model.faces.numpy(), self.garment_id, self.names)

@@ -57,10 +57,10 @@ def speed(model: PBNS, body, rot: torch.Tensor, shape: torch.Tensor) -> dict:
     for b, reps in ((1, 200), (64, 10), (256, 3)):
         r = rot[:b] if len(rot) >= b else rot[torch.arange(b) % len(rot)]
         t = body(r, shape.expand(b, -1), points_only=True).transforms
-        out[f"fps_batch{b}"] = _fps(lambda: model(r, t), b, reps)  # noqa: B023
+        out[f"fps_batch{b}"] = _fps(lambda: model.pose(r, t), b, reps)  # noqa: B023
         if b == 256:
             continue
-        out[f"fps_batch{b}_with_fk"] = _fps(lambda: model(r, body(r, shape.expand(b, -1), points_only=True).transforms), b, reps)  # noqa: B023,E501
+        out[f"fps_batch{b}_with_fk"] = _fps(lambda: model.pose(r, body(r, shape.expand(b, -1), points_only=True).transforms), b, reps)  # noqa: B023,E501
     return out
 
 
@@ -79,7 +79,7 @@ def evaluate(body, outfit: str, n_poses: int = 500, weights: Path | None = None)
     for name, zero in (("skinning only (dT = 0)", True), ("PBNS", False)):
         vs = []
         for i in range(0, len(rot), 64):
-            vs.append(model.skin(model.rest, bt[i:i + 64]) if zero else model(rot[i:i + 64], bt[i:i + 64])[0])
+            vs.append(model.skin(model.rest, bt[i:i + 64]) if zero else model.pose(rot[i:i + 64], bt[i:i + 64]))
         posed[name] = torch.cat(vs)
         rows[name] = physical_metrics(posed[name], faces, model.rest, bv, bn)
     rows["PBNS"] |= speed(model, body, rot, shape)
@@ -87,7 +87,7 @@ def evaluate(body, outfit: str, n_poses: int = 500, weights: Path | None = None)
     res = CollisionResolver(faces, ck["layer"].numpy())
     rows["PBNS + collision resolution"] = physical_metrics(res(posed["PBNS"], bv, body.faces), faces, model.rest, bv, bn)
     rows["PBNS + collision resolution"]["fps_batch1"] = _fps(
-        lambda: res(model(rot[:1], bt[:1])[0], bv[:1], body.faces), 1, 50)
+        lambda: res(model.pose(rot[:1], bt[:1]), bv[:1], body.faces), 1, 50)
     return {"outfit": outfit, "vertices": int(model.rest.shape[0]), "faces": int(len(faces)),
             "test_poses": int(len(rot)), "train_seconds": meta["train_seconds"], "rows": rows}
 
@@ -138,7 +138,7 @@ def _drape_one(args) -> dict:
     rot = reference_poses(n_poses, min_dist, [index])
     bv, bn, bt = posed_bodies(body, rot, ck["shape"][None])
     t = time.perf_counter()
-    pv = model(rot, bt)[0]
+    pv = model.pose(rot, bt)
     pbns_s = time.perf_counter() - t
     sk = model.skin(model.rest, bt)
     pinned = make_outfit(body, outfit, ck["shape"][None]).pinned
@@ -178,7 +178,7 @@ def error_to_drapes(model: PBNS, outfit: str, shape: torch.Tensor, body=None, la
     body = body or default_body()
     rot = reference_poses(int(d["pool_size"]), float(d["min_pose_distance"]), torch.from_numpy(d["poses"]))
     bv, _, bt = posed_bodies(body, rot, shape.reshape(1, -1))
-    pv, sk = model(rot, bt)[0], model.skin(model.rest, bt)
+    pv, sk = model.pose(rot, bt), model.skin(model.rest, bt)
     pr = CollisionResolver(model.faces.numpy(), layer)(pv, bv, body.faces) if layer is not None else None
     err = lambda v: float((v - sim).norm(dim=-1).mean()) * 1000  # noqa: E731
     # height: mean cloth height above the drape's (> 0: the cloth does not sag as far)

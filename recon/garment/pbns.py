@@ -50,6 +50,13 @@ def remove_yaw(r: torch.Tensor) -> torch.Tensor:
     return ry @ r
 
 
+# Inference batches at least this large take the vertex-major path of PBNS.pose (break-even at
+# 8-16 frames, measured); chunk size in
+# floats of blended transforms (1 MB): 256k-512k measured best, 16k slower than batch-major.
+VERTEX_MAJOR_MIN_BATCH = 12
+VERTEX_MAJOR_CHUNK_FLOATS = 1 << 18
+
+
 class PBNS(nn.Module):
     def __init__(self, rest: torch.Tensor, faces: torch.Tensor, weights: torch.Tensor, cfg: PBNSConfig = PBNSConfig()):
         super().__init__()
@@ -98,10 +105,53 @@ class PBNS(nn.Module):
         return torch.einsum("bnij,bnj->bni", t[..., :3], x) + t[..., 3]
 
     def forward(self, rotmats: torch.Tensor, transforms: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Pose the outfit. transforms: (B, 24, 3, 4) rest -> posed per joint (BodyOutput.transforms).
-        Returns (posed vertices (B, N, 3), dT (B, N, 3))."""
+        """Pose the outfit, differentiably (training). transforms: (B, 24, 3, 4) rest -> posed per
+        joint (BodyOutput.transforms). Returns (posed vertices (B, N, 3), dT (B, N, 3))."""
         dt = self.deformation(rotmats)
         return self.skin(self.rest + dt, transforms), dt
+
+    @torch.no_grad()
+    def pose(self, rotmats: torch.Tensor, transforms: torch.Tensor, rest: torch.Tensor | None = None) -> torch.Tensor:
+        """Posed vertices (B, N, 3) for inference (no gradients): ``forward``'s result, computed
+        for batches of >= ``VERTEX_MAJOR_MIN_BATCH`` frames vertex-major in chunks of vertices.
+        ``rest``: (N, 3) or (B, N, 3) rest outfit (resized per body; default the template)."""
+        rest = self.rest if rest is None else rest
+        b = rotmats.shape[0]
+        if b < VERTEX_MAJOR_MIN_BATCH:
+            return self.skin(rest + self.deformation(rotmats), transforms)
+        return self._pose_vertex_major(self.mlp(pose_features(rotmats)), transforms, rest)
+
+    def _pose_vertex_major(self, x: torch.Tensor, transforms: torch.Tensor, rest: torch.Tensor) -> torch.Tensor:
+        """The batch is the fastest axis: per chunk of vertices, dT (c, 3, B) is one GEMM with D,
+        the blended transforms (c, 12, B) one GEMM with the blend weights, and the 3x4 products
+        are elementwise over B. Chunks keep the blended transforms (the largest intermediate,
+        48 bytes per vertex and frame) in cache; batch-major, they stream through memory and the
+        3x3 products become B x N tiny matmuls (benchmarks/bench_garment.py: 1.2-3.8x at B >= 16,
+        slower at B = 1)."""
+        b, n, e = x.shape[0], self.rest.shape[0], x.shape[1]
+        d_t, w = self._vertex_major_buffers()
+        xt = x.t().contiguous()  # (E, B)
+        tb = transforms.reshape(b, 24, 12).permute(1, 2, 0).reshape(24, 12 * b)
+        rest_t = rest[:, :, None] if rest.dim() == 2 else rest.permute(1, 2, 0)  # (N, 3, 1 or B)
+        out = torch.empty(b, n, 3, dtype=x.dtype, device=x.device)
+        c = max(16, VERTEX_MAJOR_CHUNK_FLOATS // (12 * b))
+        for a in range(0, n, c):
+            z = min(n, a + c)
+            p = (d_t[a:z].reshape(-1, e) @ xt).view(z - a, 3, b).add_(rest_t[a:z])
+            t = (w[a:z] @ tb).view(z - a, 3, 4, b)
+            o = torch.addcmul(t[:, :, 3], t[:, :, 0], p[:, 0:1])
+            o.addcmul_(t[:, :, 1], p[:, 1:2]).addcmul_(t[:, :, 2], p[:, 2:3])
+            out[:, a:z] = o.permute(2, 0, 1)
+        return out
+
+    def _vertex_major_buffers(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """D as (N, 3, E) and the blend weights, cached until D or the weights change."""
+        key = (self.D.data_ptr(), self.D._version, self.weight_logits.data_ptr(), self.weight_logits._version)
+        if getattr(self, "_vm_key", None) != key:
+            n = self.rest.shape[0]
+            self._vm = (self.D.detach().t().contiguous().view(n, 3, -1), self.weights.detach().contiguous())
+            self._vm_key = key
+        return self._vm
 
     # --- persistence ----------------------------------------------------------------------------
     def save(self, path: Path, extra: dict) -> None:
