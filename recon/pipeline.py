@@ -66,10 +66,10 @@ class MediaPipeSource:
 
 class BackboneSource:
     """The volumetric stacked hourglass (recon.backbone) without any other detector: a first
-    pass over the whole image (first hourglass only) locates the person, then ``passes - 1`` metric crops centred on
-    the predicted joints at the bone-length depth (bones foreshortened as the previous pass
-    predicted them in 3D). ``None`` when the mean peak confidence is
-    under ``min_confidence`` (the network saw no person in training, so this is a weak test)."""
+    pass over the whole image (first hourglass only) locates the person, then ``passes - 1``
+    metric crops centred on the predicted joints at the bone-length depth (bones foreshortened
+    as the previous pass predicted them in 3D). ``None`` when the mean peak confidence is under
+    ``min_confidence`` (the network saw no person in training, so this is a weak test)."""
 
     name = "backbone"
 

@@ -44,8 +44,8 @@ def inference_copy(net: StackedHourglass) -> StackedHourglass:
 def first_stack(net: StackedHourglass) -> StackedHourglass:
     """Copy that stops after the first hourglass (whose heads are supervised like the last's):
     half the cost, for the whole-image pass that only locates the person. On synth-val images
-    300-799 the three-pass MPJPE is the same with it (134.8 vs 134.7 mm, crop factors
-    recalibrated)."""
+    300-799 the three-pass MPJPE is 135.1 mm with it, 134.7 without (crop factors recalibrated;
+    eval/results/backbone-crop-search.md)."""
     net = copy.deepcopy(net)
     net.hgs = nn.ModuleList(net.hgs[:1])
     return net
@@ -115,8 +115,8 @@ def depth_from_bones(uv: np.ndarray, k: np.ndarray, template: np.ndarray, points
     """Camera distance at which the template's J+ bone lengths match the 2D bones (median over
     the 41 links). Each bone's foreshortening (its image-plane share of its 3D length) comes from
     the predicted J+ ``points`` (camera frame) when given, else is the typical 0.85 (as in the
-    SMPLR 2D oracle). Per bone it cuts the depth error's median from 7.0 to 5.8 % on synth-val
-    (the rest is mostly body size: with the true size, 4.1 %)."""
+    SMPLR 2D oracle). Per bone it cuts the median depth error after three passes from 7.8 to
+    6.5 % on synth-val (eval/results/backbone-crop-search.md; most of the rest is body size)."""
     xy = (uv - k[:2, 2]) / k[[0, 1], [0, 1]]
     parents = list(skeleton.KINTREE_PLUS[1:])
     d2 = np.linalg.norm(xy[1:] - xy[parents], axis=1)
@@ -164,26 +164,30 @@ def calibrate_depth_scale(source, samples, passes: int = 2) -> tuple[float, ...]
 DEPTH_METHOD = "foreshortened"  # what export and calibrate write
 
 
-def calibrate(weights: Path, out: Path | None = None, calibrate_on: int = 300) -> Path:
-    """(Re)calibrate the crop-depth factors of a weights file for the current estimate
-    (``DEPTH_METHOD``) on the first ``calibrate_on`` synth-val images; writes ``out`` (default:
-    in place, atomically)."""
+def _calibrated(ck: dict, tmp: Path, calibrate_on: int) -> dict:
+    """``ck`` with crop-depth factors for ``DEPTH_METHOD`` calibrated on the first
+    ``calibrate_on`` synth-val images (``tmp``: where the network is written for BackboneSource)."""
     from recon.body import default_body
     from recon.pipeline import BackboneSource
     from recon.synth.dataset import SynthDataset, bench_dir
 
-    weights = Path(weights)
-    ck = torch.load(weights, map_location="cpu", weights_only=True)
-    ck["crop_depth_method"] = DEPTH_METHOD
-    ck["crop_depth_scale"] = (1.0, 1.0)
-    tmp = weights.with_suffix(".uncalibrated.pt")
+    ck = ck | {"crop_depth_method": DEPTH_METHOD, "crop_depth_scale": (1.0, 1.0)}
     torch.save(ck, tmp)
     try:
         ds = SynthDataset(bench_dir("synth-val"))
-        ck["crop_depth_scale"] = calibrate_depth_scale(BackboneSource(default_body(), weights=tmp),
-                                                       [ds[i] for i in range(calibrate_on)])
+        scale = calibrate_depth_scale(BackboneSource(default_body(), weights=tmp), [ds[i] for i in range(calibrate_on)])
     finally:
         tmp.unlink()
+    return ck | {"crop_depth_scale": scale}
+
+
+def calibrate(weights: Path, out: Path | None = None, calibrate_on: int = 300) -> Path:
+    """(Re)calibrate the crop-depth factors of a weights file for the current estimate
+    (``DEPTH_METHOD``) on the first ``calibrate_on`` synth-val images; writes ``out`` (default:
+    in place, atomically)."""
+    weights = Path(weights)
+    ck = _calibrated(torch.load(weights, map_location="cpu", weights_only=True),
+                     weights.with_suffix(".uncalibrated.pt"), calibrate_on)
     out = Path(out or weights)
     paths.atomic_write(out, lambda t: torch.save(ck, t))
     return out
@@ -203,9 +207,6 @@ def export(run_dir: Path, out: Path = WEIGHTS, calibrate_on: int = 300) -> Path:
         start = torch.load(curve["config"]["init"], map_location="cpu", weights_only=True)
         ck["fine_tuned_from"] = {k: start[k] for k in ("train_config", "step", "val_mpjpe_mm", "fine_tuned_from")
                                  if k in start}
-    tmp = Path(out).with_suffix(".exported.pt")  # the shipped file is replaced only once calibrated
-    torch.save(ck, tmp)
-    try:
-        return calibrate(tmp, out, calibrate_on)
-    finally:
-        tmp.unlink()
+    ck = _calibrated(ck, Path(out).with_suffix(".uncalibrated.pt"), calibrate_on)  # out replaced only when done
+    paths.atomic_write(out, lambda t: torch.save(ck, t))
+    return out

@@ -51,8 +51,8 @@ def remove_yaw(r: torch.Tensor) -> torch.Tensor:
 
 
 # Inference batches at least this large take the vertex-major path of PBNS.pose (break-even at
-# 8-16 frames, measured); chunk size in
-# floats of blended transforms (1 MB): 256k-512k measured best, 16k slower than batch-major.
+# 8-16 frames, measured); chunk size in floats of blended transforms (1 MB): 256k-512k measured
+# best, 16k slower than batch-major.
 VERTEX_MAJOR_MIN_BATCH = 12
 VERTEX_MAJOR_CHUNK_FLOATS = 1 << 18
 
@@ -126,10 +126,10 @@ class PBNS(nn.Module):
         the blended transforms (c, 12, B) one GEMM with the blend weights, and the 3x4 products
         are elementwise over B. Chunks keep the blended transforms (the largest intermediate,
         48 bytes per vertex and frame) in cache; batch-major, they stream through memory and the
-        3x3 products become B x N tiny matmuls (benchmarks/bench_garment.py: 1.2-3.8x at B >= 16,
-        slower at B = 1)."""
+        3x3 products become B x N tiny matmuls (benchmarks/bench_garment.py: 1.9-3.5x at B = 64
+        and 256 on one thread, slower below ~12 frames)."""
         b, n, e = x.shape[0], self.rest.shape[0], x.shape[1]
-        d_t, w = self._vertex_major_buffers()
+        d_t, w = self._d_vertex_major(), self.weights  # both cached
         xt = x.t().contiguous()  # (E, B)
         tb = transforms.reshape(b, 24, 12).permute(1, 2, 0).reshape(24, 12 * b)
         rest_t = rest[:, :, None] if rest.dim() == 2 else rest.permute(1, 2, 0)  # (N, 3, 1 or B)
@@ -144,14 +144,13 @@ class PBNS(nn.Module):
             out[:, a:z] = o.permute(2, 0, 1)
         return out
 
-    def _vertex_major_buffers(self) -> tuple[torch.Tensor, torch.Tensor]:
-        """D as (N, 3, E) and the blend weights, cached until D or the weights change."""
-        key = (self.D.data_ptr(), self.D._version, self.weight_logits.data_ptr(), self.weight_logits._version)
-        if getattr(self, "_vm_key", None) != key:
-            n = self.rest.shape[0]
-            self._vm = (self.D.detach().t().contiguous().view(n, 3, -1), self.weights.detach().contiguous())
-            self._vm_key = key
-        return self._vm
+    def _d_vertex_major(self) -> torch.Tensor:
+        """D as (N, 3, E), cached until D changes (like ``weights``)."""
+        key = (self.D.data_ptr(), self.D._version)
+        if getattr(self, "_d_vm_key", None) != key:
+            self._d_vm = self.D.detach().t().contiguous().view(self.rest.shape[0], 3, -1)
+            self._d_vm_key = key
+        return self._d_vm
 
     # --- persistence ----------------------------------------------------------------------------
     def save(self, path: Path, extra: dict) -> None:
