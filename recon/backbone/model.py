@@ -186,7 +186,7 @@ def calibrate(weights: Path, out: Path | None = None, calibrate_on: int = 300) -
     (``DEPTH_METHOD``) on the first ``calibrate_on`` synth-val images; writes ``out`` (default:
     in place, atomically)."""
     weights = Path(weights)
-    ck = _calibrated(torch.load(weights, map_location="cpu", weights_only=True),
+    ck = _calibrated(paths.load_checkpoint(weights, "recon backbone train + export"),
                      weights.with_suffix(".uncalibrated.pt"), calibrate_on)
     out = Path(out or weights)
     paths.atomic_write(out, lambda t: torch.save(ck, t))
