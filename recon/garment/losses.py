@@ -94,6 +94,9 @@ class CollisionConfig:
     weight: float = 25.0e3  # lambda_c (thesis: 25 on summed squared metres; here on the mean x 1e3)
     eps: float = 0.004  # metres
     cloth_reach: float = 0.02  # cloth-to-cloth pairs farther apart than this are not in contact
+    # no body force where the nearest body vertex lies inside the body (the posed body passes
+    # through itself there: no side is "outside"; recon.garment.self_intersection)
+    skip_self_intersection: bool = False
 
 
 class CollisionLoss(nn.Module):
@@ -116,11 +119,14 @@ class CollisionLoss(nn.Module):
         layers = sorted(set(self.layer.tolist()))
         return [(torch.nonzero(self.layer < lay)[:, 0], torch.nonzero(self.layer == lay)[:, 0]) for lay in layers[1:]]
 
-    def forward(self, v, body_v, body_n, faces: torch.Tensor, body_cand=None, cloth_cand=None):
+    def forward(self, v, body_v, body_n, faces: torch.Tensor, body_cand=None, cloth_cand=None, body_inside=None):
         """body_cand (B, N, K) / cloth_cand [(B, N_outer, K) per outer layer]: candidate indices
-        for the nearest-neighbour search; exact KD-tree search when None."""
+        for the nearest-neighbour search; exact KD-tree search when None. body_inside (B, V) bool:
+        body vertices inside the body, whose neighbourhood exerts no force (skip_self_intersection)."""
         idx = nearest(body_v, v) if body_cand is None else nearest_among(body_v, v, body_cand)
         pen = self.penetration(v, body_v, body_n.detach(), idx, self.cfg.eps)
+        if body_inside is not None and self.cfg.skip_self_intersection:
+            pen = torch.where(torch.gather(body_inside, 1, idx), torch.zeros_like(pen), pen)
         total = (pen ** 2).mean(1)
         pairs = self.pairs()
         if pairs:

@@ -89,9 +89,9 @@ class Criterion(torch.nn.Module):
         self.pin = L.PinLoss(outfit.pinned, cfg.pin)
         self.register_buffer("faces", torch.from_numpy(np.ascontiguousarray(outfit.faces)).long())
 
-    def forward(self, v, dt, body_v, body_n, body_cand=None, cloth_cand=None, rest_len=None):
+    def forward(self, v, dt, body_v, body_n, body_cand=None, cloth_cand=None, rest_len=None, body_inside=None):
         self.terms = {"edge": self.edge(v, rest_len), "bend": self.bend(v),
-                      "collision": self.collision(v, body_v, body_n, self.faces, body_cand, cloth_cand),
+                      "collision": self.collision(v, body_v, body_n, self.faces, body_cand, cloth_cand, body_inside),
                       "gravity": self.gravity(v), "pin": self.pin(dt)}
         return sum(self.terms.values())
 
@@ -153,6 +153,11 @@ def train(body, cfg: GarmentTrainConfig = GarmentTrainConfig(), out: Path | None
     bv, bn, bt = posed_bodies(body, poses, shape)
     crit = Criterion(outfit, model.rest, cfg)
     body_c, cloth_c = candidates(model, crit, poses, bt, bv, cfg.candidates)
+    inside = None
+    if cfg.collision.skip_self_intersection:
+        from recon.garment.self_intersection import SkinSelfIntersection
+
+        inside = SkinSelfIntersection(body, shape)(bv)
     # Adam moves every entry of D by ~lr per step, and dT = X . D sums 32 of them: D gets a
     # smaller rate than the MLP or the cloth jumps by centimetres per step (measured: diverges).
     opt = torch.optim.Adam([{"params": [model.D], "lr": cfg.lr_psd},
@@ -170,7 +175,8 @@ def train(body, cfg: GarmentTrainConfig = GarmentTrainConfig(), out: Path | None
         for b in range(len(order) // cfg.batch):
             i = order[b * cfg.batch:(b + 1) * cfg.batch]
             v, dt = model(poses[i], bt[i])
-            loss = crit(v, dt, bv[i], bn[i], body_c[i], [c[i] for c in cloth_c]).mean()
+            loss = crit(v, dt, bv[i], bn[i], body_c[i], [c[i] for c in cloth_c],
+                        body_inside=None if inside is None else inside[i]).mean()
             opt.zero_grad()
             loss.backward()
             opt.step()
