@@ -41,7 +41,7 @@ SELF_INTERSECTION_BINS = ((0.0, 1.0), (1.0, 3.0), (3.0, 100.0))
 def physical_metrics(v: torch.Tensor, faces: np.ndarray, rest: torch.Tensor, body_v, body_n,
                      body_self: torch.Tensor | None = None) -> dict:
     """``rest``: (N, 3) template, or (B, N, 3) one rest garment per sample (resizing).
-    ``body_self`` (B,): the body's self-intersection % per pose; adds collision % per bin."""
+    ``body_self`` (B,): the body's self-intersection % per pose; adds collision % and edge error per bin."""
     e = torch.from_numpy(unique_edges(faces))
     l0 = (rest[..., e[:, 0], :] - rest[..., e[:, 1], :]).norm(dim=-1)
     strain = (v[:, e[:, 0]] - v[:, e[:, 1]]).norm(dim=-1) - l0
@@ -150,7 +150,7 @@ def evaluate_and_report(body, outfits: list[str], n_poses: int, out_dir: Path) -
                      for b in m["by_body_self_intersection"].values()]
             lines.append(f"| {r['outfit']} | {name} | " + " | ".join(cells) + " |")
     lines += ["", f"Body self-intersection on these poses: median {results[0]['body_self_intersection_pct']['median']:.2f} % "
-              "of the covered skin (anny at the outfit's shape, 2 mm probe along the normals, rest-pose contacts excluded)."]
+              "of the covered skin (the body at the outfit's shape, 2 mm probe along the normals, rest-pose contacts excluded)."]
     paths.atomic_write(stem.with_suffix(".md"), lambda t: Path(t).write_text("\n".join(lines) + "\n"))
     return stem.with_suffix(".md")
 
