@@ -48,13 +48,17 @@ def compact(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.nda
     return vertices[used], remap[faces]
 
 
-def largest_component(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def largest_component_faces(faces: np.ndarray) -> np.ndarray:
+    """The faces of the largest edge-connected component, vertex ids unchanged."""
     import trimesh
 
-    m = trimesh.Trimesh(vertices, faces, process=False)
-    labels = trimesh.graph.connected_component_labels(m.face_adjacency, node_count=len(faces))
-    keep = labels == np.bincount(labels).argmax()
-    return compact(vertices, faces[keep])
+    adjacency = trimesh.Trimesh(faces=faces, process=False).face_adjacency
+    labels = trimesh.graph.connected_component_labels(adjacency, node_count=len(faces))
+    return faces[labels == np.bincount(labels).argmax()]
+
+
+def largest_component(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    return compact(vertices, largest_component_faces(faces))
 
 
 def boundary_loops(faces: np.ndarray) -> list[np.ndarray]:

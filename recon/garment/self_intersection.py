@@ -18,7 +18,7 @@ import numpy as np
 import torch
 
 from recon.body.skeleton import JOINT_NAMES
-from recon.garment.mesh import vertex_normals
+from recon.garment.mesh import largest_component_faces, vertex_normals
 
 # skin that garments never cover: left out of the test (faces and fingers have many rest contacts)
 UNCOVERED = ("head", "neck", "wrist", "hand", "ankle", "foot")
@@ -51,15 +51,11 @@ class SkinSelfIntersection:
     """
 
     def __init__(self, body, shape: torch.Tensor | None = None, offset: float = 0.002):
-        import trimesh
-
-        faces = body.faces.cpu().numpy()
         # the outer skin only: anny also has eyes and a mouth inside the head (closed meshes of their own)
-        label = trimesh.graph.connected_component_labels(trimesh.Trimesh(faces=faces, process=False).face_adjacency, len(faces))
-        self.faces = np.ascontiguousarray(faces[label == np.bincount(label).argmax()]).astype(np.int32)
+        self.faces = np.ascontiguousarray(largest_component_faces(body.faces.cpu().numpy())).astype(np.int32)
         covered = [j for j, n in enumerate(JOINT_NAMES) if not any(s in n for s in UNCOVERED)]
         bone = body.weights.argmax(1).cpu().numpy()
-        self.n_vertices = int(body.faces.max()) + 1
+        self.n_vertices = body.num_vertices
         region = np.zeros(self.n_vertices, bool)
         region[np.unique(self.faces)] = True
         region &= np.isin(bone, covered)
