@@ -22,8 +22,10 @@ class HourglassConfig:
     points: int = skeleton.NUM_POINTS
     limbs: int = 0  # extra volumes (thesis: 4 limb heatmaps)
     input_size: int = 256
+    stem: str = "hourglass"  # or "efficientnet-lite0": ImageNet-initialisable (recon.backbone.efficientnet)
 
 
+STEMS = ("hourglass", "efficientnet-lite0")
 SIZES = {"cpu": HourglassConfig(stacks=2, width=64, depth_bins=16, input_size=128),
          "base": HourglassConfig(stacks=2, width=128, depth_bins=16, input_size=128),
          "gpu": HourglassConfig(stacks=5, width=256, depth_bins=16, input_size=256, limbs=4)}
@@ -57,12 +59,23 @@ class Hourglass(nn.Module):
 
 
 class StackedHourglass(nn.Module):
-    def __init__(self, cfg: HourglassConfig = HourglassConfig()):
+    def __init__(self, cfg: HourglassConfig = HourglassConfig(), imagenet: bool = False):
+        """``imagenet``: start an EfficientNet stem from its ImageNet weights (training only;
+        trained weights hold every parameter)."""
         super().__init__()
+        if cfg.stem not in STEMS:
+            raise ValueError(f"stem must be one of {STEMS}; got {cfg.stem!r}")
+        if imagenet and cfg.stem == "hourglass":
+            raise ValueError("ImageNet initialisation needs stem='efficientnet-lite0'")
         self.cfg = cfg
         w = cfg.width
-        self.stem = nn.Sequential(nn.Conv2d(3, 64, 7, stride=2, padding=3), nn.BatchNorm2d(64), nn.ReLU(inplace=True),
-                                  Residual(64, w // 2), nn.MaxPool2d(2), Residual(w // 2, w // 2), Residual(w // 2, w))
+        if cfg.stem == "hourglass":
+            self.stem = nn.Sequential(nn.Conv2d(3, 64, 7, stride=2, padding=3), nn.BatchNorm2d(64), nn.ReLU(inplace=True),
+                                      Residual(64, w // 2), nn.MaxPool2d(2), Residual(w // 2, w // 2), Residual(w // 2, w))
+        else:
+            from recon.backbone.efficientnet import ImageNetStem
+
+            self.stem = ImageNetStem(w, imagenet)
         self.volumes = cfg.points + cfg.limbs
         self.hgs = nn.ModuleList(Hourglass(cfg.levels, w) for _ in range(cfg.stacks))
         self.feats = nn.ModuleList(nn.Sequential(Residual(w, w), nn.Conv2d(w, w, 1), nn.BatchNorm2d(w), nn.ReLU(inplace=True))

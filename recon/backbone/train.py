@@ -56,6 +56,7 @@ class BackboneTrainConfig:
     model: dict = field(default_factory=dict)  # overrides of HourglassConfig
     init: str = ""  # start from these weights (e.g. the shipped ones; its architecture wins over size/model)
     smplr_weight: float = 0.0  # > 0: end-to-end through the frozen DAE + SMPLR (see module doc)
+    imagenet: bool = False  # start the stem from ImageNet weights (needs model={"stem": "efficientnet-lite0"})
 
 
 def make_crop(s: dict, size: int, augment: bool, rng: np.random.Generator):
@@ -215,7 +216,7 @@ def train(train_roots: list[Path] | None, val: Path | str, out_dir: Path,
     init = paths.load_checkpoint(cfg.init, "recon backbone train") if cfg.init else None
     mcfg = HourglassConfig(**(init["config"] if init else {**asdict(SIZES[cfg.size]), **cfg.model}))
     cuda = device.startswith("cuda")
-    net = StackedHourglass(mcfg)
+    net = StackedHourglass(mcfg, imagenet=cfg.imagenet and not init)
     if init:
         net.load_state_dict(init["net"])
     net = net.to(device).to(memory_format=torch.channels_last)
