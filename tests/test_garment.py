@@ -327,3 +327,36 @@ def test_error_to_cached_drapes_lines_up_poses(body, tmp_path, monkeypatch):
     assert r["pbns_height_mm"] == pytest.approx(10.0, abs=0.01)
     assert r["skinning_mm"] > 12.0
     assert E.error_to_drapes(model, "dress", ck["shape"], body) is None  # no drapes cached
+
+
+def test_rescoring_against_cached_drapes_rewrites_the_pbns_rows_and_checks_the_start(body, tmp_path, monkeypatch):
+    """After a retrain, `recon garment reference --rescore` scores the new weights against the
+    cached drapes, but only when the drapes' start (the skinned outfit) is still the same."""
+    import json
+
+    from recon.garment import evaluate as E
+    from recon.garment.train import WEIGHTS_DIR, posed_bodies
+
+    model, ck = PBNS.load(WEIGHTS_DIR / "pbns_top-shorts.pt")
+    idx = np.array([2])
+    rot = E.reference_poses(20, 0.5, idx)
+    with torch.no_grad():
+        bt = posed_bodies(body, rot, ck["shape"][None])[2]
+        v, start = model(rot, bt)[0], model.skin(model.rest, bt)
+    v[..., 1] -= 0.01  # a "drape" 10 mm under PBNS
+    monkeypatch.setattr(E, "drapes_path", lambda outfit: tmp_path / f"{outfit}.npz")
+    old_rows = {"newton VBD drape": {"seconds": 123.0}}
+    (tmp_path / "garment-reference-top-shorts.json").write_text(json.dumps(
+        {"outfit": "top-shorts", "poses": [{"pose": 2, "settled": False, "rows": old_rows}], "frames_cap": 60,
+         "settled": 0, "config": {}}))
+    np.savez(tmp_path / "top-shorts.npz", vertices=v.numpy(), start=start.numpy(), poses=idx, pool_size=20,
+             min_pose_distance=0.5)
+    md = E.rescore_reference("top-shorts", tmp_path).read_text()
+    r = json.loads((tmp_path / "garment-reference-top-shorts.json").read_text())
+    assert r["mean"]["PBNS"]["error_mm"] == pytest.approx(10.0, abs=0.01)
+    assert r["mean"]["newton VBD drape"]["error_mm"] == 0.0 and r["mean"]["newton VBD drape"]["seconds"] == 123.0
+    assert r["rescored_start_shift_mm"] == [pytest.approx(0.0, abs=1e-3)] and "re-scored" in md
+    np.savez(tmp_path / "top-shorts.npz", vertices=v.numpy(), start=start.numpy() + 0.005, poses=idx, pool_size=20,
+             min_pose_distance=0.5)
+    with pytest.raises(RuntimeError, match="start moved"):
+        E.rescore_reference("top-shorts", tmp_path)
