@@ -166,9 +166,10 @@ def reference_poses(pool_size: int, min_pose_distance: float, indices) -> torch.
 
 
 @torch.no_grad()
-def _score_rows(model: PBNS, ck: dict, body, rot: torch.Tensor, sim: torch.Tensor) -> tuple[dict, float]:
-    """Metrics and Euclidean error to the drape ``sim`` (1, N, 3) of skinning, PBNS and PBNS +
-    collision resolution on one pose; and PBNS's seconds for that pose (1 thread)."""
+def _score_rows(model: PBNS, ck: dict, body, rot: torch.Tensor, sim: torch.Tensor) -> tuple[dict, np.ndarray]:
+    """Per model (skinning, PBNS with its seconds for the pose, PBNS + collision resolution, the
+    drape ``sim`` (1, N, 3) itself): physical metrics and Euclidean error to ``sim``; and the
+    skinned outfit (N, 3), which is where a drape of this pose starts."""
     bv, bn, bt = posed_bodies(body, rot, ck["shape"][None])
     t = time.perf_counter()
     pv = model.pose(rot, bt)
