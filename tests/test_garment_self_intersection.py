@@ -52,3 +52,22 @@ def test_collision_is_binned_by_body_self_intersection():
     assert bins["3-100"]["poses"] == 1 and bins["3-100"]["collision_pct"] == 50.0
     assert bins["0-1"]["edge_mm"] == pytest.approx(0, abs=1e-4) and bins["3-100"]["edge_mm"] > 0
     assert m["collision_pct"] == pytest.approx(50.0 / 3)
+
+
+def test_eval_computes_the_body_self_intersection_once_per_shape_and_poses(body, monkeypatch):
+    from recon.garment import evaluate as E
+
+    calls = []
+    real = E.SkinSelfIntersection.percent
+    monkeypatch.setattr(E.SkinSelfIntersection, "percent", lambda self, v: calls.append(1) or real(self, v))
+    monkeypatch.setattr(E, "_self_cache", {})
+    rot = body.identity_pose(2).clone()
+    rot[1, JOINT_NAMES.index("left_hip")] = roma.rotvec_to_rotmat(torch.tensor([-2.3, 0.0, 0.0]))
+    shape = body.mean_shape[None]
+    with torch.no_grad():
+        bv = body(rot, shape.expand(2, -1)).vertices
+    a = E.body_self_intersection(body, shape, rot, bv)
+    b = E.body_self_intersection(body, shape, rot, bv)  # the next outfit: same shape and poses
+    assert len(calls) == 1 and b is a and a[0] == 0.0 and a[1] > 1.0
+    E.body_self_intersection(body, shape, rot[:1], bv[:1])  # other poses: computed again
+    assert len(calls) == 2

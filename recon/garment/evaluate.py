@@ -17,6 +17,7 @@ both, and the thesis trains and tests on poses without body self-collisions (5.4
 """
 from __future__ import annotations
 
+import hashlib
 import json
 import time
 from pathlib import Path
@@ -89,6 +90,19 @@ def speed(model: PBNS, body, rot: torch.Tensor, shape: torch.Tensor) -> dict:
     return out
 
 
+_self_cache: dict = {}
+
+
+def body_self_intersection(body, shape: torch.Tensor, rot: torch.Tensor, bv: torch.Tensor) -> torch.Tensor:
+    """(P,) % of the covered skin inside the posed body ``bv``. Outfits share a shape and the test
+    poses, so ``recon garment eval --outfit all`` computes it once (~9 s) instead of per outfit."""
+    key = (id(body), shape.numpy().tobytes(), hashlib.sha1(rot.numpy().tobytes()).hexdigest())
+    if key not in _self_cache:
+        _self_cache.clear()  # one entry: the body, shape and poses of the outfits being evaluated
+        _self_cache[key] = SkinSelfIntersection(body, shape).percent(bv)
+    return _self_cache[key]
+
+
 def evaluate(body, outfit: str, n_poses: int = 500, weights: Path | None = None) -> dict:
     torch.set_num_threads(1)
     path = Path(weights or WEIGHTS_DIR / f"pbns_{outfit}.pt")
@@ -99,7 +113,7 @@ def evaluate(body, outfit: str, n_poses: int = 500, weights: Path | None = None)
     shape = ck["shape"][None]
     rot = pose_set("test", n_poses, meta["config"]["min_pose_distance"], seed=123)
     bv, bn, bt = posed_bodies(body, rot, shape)
-    body_self = SkinSelfIntersection(body, shape).percent(bv)
+    body_self = body_self_intersection(body, shape, rot, bv)
     faces = model.faces.numpy()
     rows, posed = {}, {}
     for name, zero in (("skinning only (dT = 0)", True), ("PBNS", False)):
