@@ -180,16 +180,17 @@ def reference_poses(pool_size: int, min_pose_distance: float, indices) -> torch.
 
 
 @torch.no_grad()
-def _score_rows(model: PBNS, ck: dict, body, rot: torch.Tensor, sim: torch.Tensor) -> tuple[dict, np.ndarray]:
+def _score_rows(model: PBNS, ck: dict, body_faces, rot: torch.Tensor, posed: tuple, sim: torch.Tensor
+                ) -> tuple[dict, np.ndarray]:
     """Per model (skinning, PBNS with its seconds for the pose, PBNS + collision resolution, the
     drape ``sim`` (1, N, 3) itself): physical metrics and Euclidean error to ``sim``; and the
-    skinned outfit (N, 3), which is where a drape of this pose starts."""
-    bv, bn, bt = posed_bodies(body, rot, ck["shape"][None])
+    skinned outfit (N, 3), which is where a drape of this pose starts. ``posed``: posed_bodies()."""
+    bv, bn, bt = posed
     t = time.perf_counter()
     pv = model.pose(rot, bt)
     pbns_s = time.perf_counter() - t
     sk = model.skin(model.rest, bt)
-    pr = CollisionResolver(model.faces.numpy(), ck["layer"].numpy())(pv, bv, body.faces)
+    pr = CollisionResolver(model.faces.numpy(), ck["layer"].numpy())(pv, bv, body_faces)
     rows = {}
     for name, v in (("skinning only (dT = 0)", sk), ("PBNS", pv), ("PBNS + collision resolution", pr),
                     ("newton VBD drape", sim)):
@@ -212,13 +213,14 @@ def _drape_one(args) -> dict:
     body = default_body()
     model, ck = PBNS.load(WEIGHTS_DIR / f"pbns_{outfit}.pt")
     rot = reference_poses(n_poses, min_dist, [index])
-    bv, _, bt = posed_bodies(body, rot, ck["shape"][None])
+    posed = posed_bodies(body, rot, ck["shape"][None])
+    bv, _, bt = posed
     sk = model.skin(model.rest, bt)
     pinned = make_outfit(body, outfit, ck["shape"][None]).pinned
     r = reference.drape(bv[0].numpy(), body.faces.numpy(), model.rest.numpy(), sk[0].numpy(), model.faces.numpy(),
                         pinned, reference.DrapeConfig(frames=frames))
     sim = torch.from_numpy(r["vertices"]).float()[None]
-    rows, _ = _score_rows(model, ck, body, rot, sim)
+    rows, _ = _score_rows(model, ck, body.faces, rot, posed, sim)
     rows["newton VBD drape"]["seconds"] = r["seconds"]
     return {"pose": index, "frames": r["frames"], "settled": r["settled"], "last_move_mm": r["last_move_mm"],
             "rows": rows, "vertices": r["vertices"].astype(np.float32), "start": sk[0].numpy().astype(np.float32)}
@@ -305,7 +307,8 @@ def rescore_reference(outfit: str, out_dir: Path, max_start_shift_mm: float = 2.
     shift = []
     for p, sim, start in zip(old["poses"], d["vertices"], d["start"]):
         rot = reference_poses(int(d["pool_size"]), float(d["min_pose_distance"]), [p["pose"]])
-        rows, sk = _score_rows(model, ck, body, rot, torch.from_numpy(sim)[None])
+        posed = posed_bodies(body, rot, ck["shape"][None])
+        rows, sk = _score_rows(model, ck, body.faces, rot, posed, torch.from_numpy(sim)[None])
         shift.append(float(np.linalg.norm(sk - start, axis=-1).mean()) * 1000)
         rows["newton VBD drape"]["seconds"] = p["rows"]["newton VBD drape"]["seconds"]
         p["rows"] = rows
