@@ -122,6 +122,20 @@ def test_energies():
     assert torch.equal(L.nearest_among(body_v, cloth, cand), L.nearest(body_v, cloth))
 
 
+def test_stiffness_continuation_scales_only_the_edge_energy():
+    from recon.garment.train import edge_scale
+
+    v, f = _grid(5)
+    rest = torch.tensor(v).float()
+    edge = L.EdgeLoss(rest, f)
+    full = float(edge(rest[None] * 1.1))
+    edge.scale = edge_scale(0.1, 0, 100)
+    assert float(edge(rest[None] * 1.1)) == pytest.approx(0.1 * full)
+    assert edge_scale(0.1, 25, 100) == pytest.approx(0.1 ** 0.5)  # geometric rise...
+    assert edge_scale(0.1, 50, 100) == edge_scale(0.1, 99, 100) == 1.0  # ...to full by mid-training
+    assert edge_scale(1.0, 0, 100) == 1.0
+
+
 @pytest.fixture(scope="module")
 def outfits(body):
     from recon.garment.templates import PRESETS, make_outfit

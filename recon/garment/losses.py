@@ -50,6 +50,7 @@ class EdgeLoss(nn.Module):
         self.register_buffer("rest_len", (rest[e[:, 0]] - rest[e[:, 1]]).norm(dim=-1))
         w = torch.ones(len(e)) if fabric is None else 0.5 * (fabric[e[:, 0]] + fabric[e[:, 1]])
         self.register_buffer("w", w)
+        self.scale = 1.0  # set by a training schedule (stiffness continuation)
 
     def strain(self, v: torch.Tensor, rest_len: torch.Tensor | None = None) -> torch.Tensor:
         """Signed edge-length error (B, E), metres; ``rest_len`` (B, E) overrides the template's
@@ -58,7 +59,7 @@ class EdgeLoss(nn.Module):
         return (v[:, self.edges[:, 0]] - v[:, self.edges[:, 1]]).norm(dim=-1) - l0
 
     def forward(self, v, rest_len: torch.Tensor | None = None):
-        return self.cfg.weight * (self.w * self.strain(v, rest_len) ** 2).mean(1)
+        return self.scale * self.cfg.weight * (self.w * self.strain(v, rest_len) ** 2).mean(1)
 
 
 @dataclass
