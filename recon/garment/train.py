@@ -171,19 +171,20 @@ def train(body, cfg: GarmentTrainConfig = GarmentTrainConfig(), out: Path | None
     # smaller rate than the MLP or the cloth jumps by centimetres per step (measured: diverges).
     opt = torch.optim.Adam([{"params": [model.D], "lr": cfg.lr_psd},
                             {"params": [p for n, p in model.named_parameters() if n != "D"], "lr": cfg.lr}])
-    steps = cfg.epochs * (len(tr_idx) // cfg.batch)
+    per_epoch = len(tr_idx) // cfg.batch
+    steps = cfg.epochs * per_epoch
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, steps)
     curve, t_setup = [], time.time() - t0
     log(f"outfit {cfg.outfit}: {len(outfit.vertices)} vertices, {len(outfit.faces)} faces; "
         f"{len(tr_idx)} train / {len(val_idx)} val poses; set-up {t_setup:.1f} s")
-    bar, step = tqdm(total=steps, desc=f"pbns {cfg.outfit}", unit="step"), 0
+    bar = tqdm(total=steps, desc=f"pbns {cfg.outfit}", unit="step")
     for ep in range(cfg.epochs):
         model.train()
         order = tr_idx[torch.randperm(len(tr_idx))]
         sums: dict[str, float] = {}
-        for b in range(len(order) // cfg.batch):
+        for b in range(per_epoch):
             i = order[b * cfg.batch:(b + 1) * cfg.batch]
-            crit.edge.scale = edge_scale(cfg.edge_warmup, step, steps)
+            crit.edge.scale = edge_scale(cfg.edge_warmup, ep * per_epoch + b, steps)
             v, dt = model(poses[i], bt[i])
             loss = crit(v, dt, bv[i], bn[i], body_c[i], [c[i] for c in cloth_c],
                         body_inside=None if inside is None else inside[i]).mean()
@@ -194,9 +195,7 @@ def train(body, cfg: GarmentTrainConfig = GarmentTrainConfig(), out: Path | None
             for k, t in crit.terms.items():
                 sums[k] = sums.get(k, 0.0) + float(t.detach().mean())
             bar.update(1)
-            step += 1
-        n_b = len(order) // cfg.batch
-        row = {"epoch": ep + 1, "seconds": round(time.time() - t0, 1)} | {k: s / n_b for k, s in sums.items()}
+        row = {"epoch": ep + 1, "seconds": round(time.time() - t0, 1)} | {k: s / per_epoch for k, s in sums.items()}
         row |= {f"val_{k}": v for k, v in validate(model, crit, poses[val_idx], bt[val_idx], bv[val_idx], bn[val_idx]).items()}
         curve.append(row)
         bar.set_postfix(coll=f"{row['val_collision_pct']:.2f}%", edge=f"{row['val_edge_mm']:.2f}mm")
