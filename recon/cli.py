@@ -182,7 +182,8 @@ def cmd_run(args) -> int:
 
     inputs = args.inputs or [str(p) for p in example_photos()]
     s = run(inputs, Path(args.out), batch_size=args.batch_size, device=args.device, focal_factor=args.focal,
-            overlay=not args.no_overlay, refine_steps=args.refine_steps, outfit=args.outfit, source=args.source)
+            overlay=not args.no_overlay, refine_steps=args.refine_steps, outfit=args.outfit, source=args.source,
+            tightness=args.tightness)
     return 130 if s.interrupted else (1 if s.failed and not s.done else 0)
 
 
@@ -329,6 +330,9 @@ def main(argv: list[str] | None = None) -> int:
     r.add_argument("--focal", type=float, default=1.0, help="focal length in units of the longer image side")
     r.add_argument("--no-overlay", action="store_true", help="skip overlay.png / side.png rendering")
     r.add_argument("--outfit", default=None, help="dress the body with a trained PBNS outfit (e.g. tshirt-trousers)")
+    r.add_argument("--tightness", type=float, nargs=2, default=None, metavar=("WEIGHT", "HEIGHT"),
+                   help="with --outfit: looser (> 0) or tighter (< 0) outfit, offsets of the body's weight and height "
+                        "phenotypes (trained range: -0.1..0.3, -0.05..0.1; needs `recon garment resize`)")
     r.add_argument("--refine-steps", type=int, default=30, help="2D keypoint fitting steps after SMPLR (0: off)")
     r.add_argument("--source", choices=["mediapipe", "backbone"], default="mediapipe",
                    help="keypoints: MediaPipe + adapter (default) or our volumetric hourglass alone")

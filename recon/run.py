@@ -56,7 +56,8 @@ def check_writable(out: Path) -> None:
 
 def run(inputs: list[str | Path], out: str | Path, batch_size: int = 4, device: str = "cpu",
         focal_factor: float = 1.0, overlay: bool = True, reconstructor=None, progress: bool = True,
-        log=print, refine_steps: int = 30, outfit: str | None = None, source: str = "mediapipe") -> RunSummary:
+        log=print, refine_steps: int = 30, outfit: str | None = None, source: str = "mediapipe",
+        tightness: tuple[float, float] | None = None) -> RunSummary:
     from tqdm import tqdm
 
     out = Path(out)
@@ -73,6 +74,10 @@ def run(inputs: list[str | Path], out: str | Path, batch_size: int = 4, device: 
         from recon.garment.dress import Dresser
 
         dresser = Dresser(outfit)  # fails early (clear message) if the outfit is not trained
+        if tightness is not None and dresser._resizer_path is None:
+            raise ValueError(f"--tightness needs a trained resizer for {outfit}: run `recon garment resize --outfit {outfit}`")
+    elif tightness is not None:
+        raise ValueError("--tightness needs --outfit")
     bar = tqdm(total=len(todo), desc="recon run", unit="img", disable=not progress)
     try:
         for b in range(0, len(todo), batch_size):
@@ -98,7 +103,7 @@ def run(inputs: list[str | Path], out: str | Path, batch_size: int = 4, device: 
                     log(f"failed: {p}: {r}")
                 else:
                     try:
-                        _write(out / key, p, img, im, s, k, r, rec, overlay, dresser)
+                        _write(out / key, p, img, im, s, k, r, rec, overlay, dresser, tightness)
                         summary.done.append(key)
                     except OSError as e:
                         summary.failed[key] = f"{p}: cannot write outputs ({e})"
@@ -140,7 +145,8 @@ def _downscale(img: np.ndarray) -> tuple[np.ndarray, float]:
     return cv2.resize(img, size, interpolation=cv2.INTER_AREA), s
 
 
-def _write(folder: Path, src: Path, img, small, s: float, k_small, r, rec, overlay: bool, dresser=None) -> None:
+def _write(folder: Path, src: Path, img, small, s: float, k_small, r, rec, overlay: bool, dresser=None,
+           tightness=None) -> None:
     """Outputs of one image; result.json last (it marks the folder complete)."""
     import torch
     import trimesh
@@ -156,7 +162,7 @@ def _write(folder: Path, src: Path, img, small, s: float, k_small, r, rec, overl
     if dresser is not None:
         d = dresser(rec.body, torch.tensor(r.rotmats[None], dtype=torch.float32),
                     torch.tensor(r.shape, dtype=torch.float32), torch.tensor(r.translation[None], dtype=torch.float32),
-                    up=torch.tensor(np.diag(OPENCV_TO_VIEW), dtype=torch.float32))
+                    up=torch.tensor(np.diag(OPENCV_TO_VIEW), dtype=torch.float32), tightness=tightness)
         cloth = trimesh.Trimesh(d.vertices[0], d.faces, process=False)
         paths.atomic_write(folder / "outfit.obj", lambda t: cloth.export(t, file_type="obj"))
         scene = trimesh.Scene({"body": mesh, "outfit": cloth})
@@ -182,5 +188,7 @@ def _write(folder: Path, src: Path, img, small, s: float, k_small, r, rec, overl
     js["image_size"] = list(img.shape[:2])
     js["source"] = str(src)
     js["keypoint_source"] = getattr(getattr(rec, "source", None), "name", None)
+    if dresser is not None:
+        js["outfit"] = {"garments": dresser.names, "tightness": None if tightness is None else [float(t) for t in tightness]}
     js["files"] = sorted(p.name for p in folder.iterdir() if not p.name.startswith("."))
     paths.atomic_write(folder / "result.json", lambda t: Path(t).write_text(json.dumps(js, indent=1)))

@@ -50,3 +50,14 @@ def test_resizer_trains_and_feeds_the_dresser(body, tmp_path, monkeypatch):
     rot = torch.eye(3).expand(1, 24, 3, 3).clone()
     dressed = d(body, rot, shape[None], tightness=(0.1, 0.0))
     assert dressed.vertices.shape == (1, len(outfit.vertices), 3) and np.isfinite(dressed.vertices).all()
+
+
+def test_every_shipped_outfit_has_a_resizer_for_its_template():
+    from recon.garment import resize
+    from recon.garment.templates import PRESETS
+    from recon.paths import load_checkpoint
+
+    for name in PRESETS:
+        rest = load_checkpoint(WEIGHTS_DIR / f"pbns_{name}.pt", "recon garment train")["state"]["rest"]
+        ck = load_checkpoint(resize.RESIZE_WEIGHTS.format(outfit=name), "recon garment resize")
+        assert ck["num_vertices"] == len(rest) and ck["state"]["D"].shape[1] == len(rest), name

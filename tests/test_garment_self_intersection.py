@@ -71,3 +71,19 @@ def test_eval_computes_the_body_self_intersection_once_per_shape_and_poses(body,
     assert len(calls) == 1 and b is a and a[0] == 0.0 and a[1] > 1.0
     E.body_self_intersection(body, shape, rot[:1], bv[:1])  # other poses: computed again
     assert len(calls) == 2
+
+
+def test_valid_test_poses_drop_the_poses_where_the_body_passes_through_itself(body, monkeypatch):
+    from recon.garment import evaluate as E
+
+    rot = body.identity_pose(3).clone()
+    rot[1, JOINT_NAMES.index("left_hip")] = roma.rotvec_to_rotmat(torch.tensor([-2.3, 0.0, 0.0]))  # thigh in belly
+    rot[2, JOINT_NAMES.index("left_elbow")] = roma.rotvec_to_rotmat(torch.tensor([0.0, 0.3, 0.0]))  # harmless
+    monkeypatch.setattr(E, "pose_set", lambda split, n, d, seed: rot)
+    monkeypatch.setattr(E, "_self_cache", {})
+    shape = body.mean_shape[None]
+    kept, (bv, bn, bt) = E.valid_test_poses(body, shape)
+    assert torch.equal(kept, rot[[0, 2]])
+    assert bv.shape == (2, body.num_vertices, 3) and bn.shape == bv.shape and len(bt) == 2
+    with torch.no_grad():
+        assert torch.allclose(bv, body(kept, shape.expand(2, -1)).vertices)

@@ -159,3 +159,16 @@ def test_run_robust_batch_and_resume(tmp_path, reconstructor):
     summary = json.loads((out / "summary.json").read_text())
     assert summary["done"] == 1 and summary["skipped"] == 2 and summary["failed"] == 3
     assert not (out / "c_corrupt").exists()  # nothing written for failures
+
+
+def test_run_tightness_needs_an_outfit_with_a_resizer(tmp_path, monkeypatch):
+    from recon.garment import resize
+    from recon.run import run
+
+    quiet = dict(progress=False, log=lambda m: None)
+    with pytest.raises(ValueError, match="needs --outfit"):
+        run([EXAMPLES], tmp_path / "a", tightness=(0.1, 0.0), **quiet)
+    monkeypatch.setattr(resize, "RESIZE_WEIGHTS", str(tmp_path / "resize_{outfit}.pt"))  # no resizer there
+    with pytest.raises(ValueError, match="trained resizer for top-shorts"):
+        run([EXAMPLES], tmp_path / "b", outfit="top-shorts", tightness=(0.1, 0.0), **quiet)
+    assert not (tmp_path / "b" / "summary.json").exists()  # refused before any image

@@ -190,6 +190,7 @@ def train(body, pbns_path: Path, out: Path, cfg: ResizeConfig = ResizeConfig(), 
         bar.set_postfix(coll=f"{row['val_collision_pct']:.2f}%", edge=f"{row['val_edge_mm']:.2f}mm")
     bar.close()
     meta = {"outfit": name, "pbns": Path(pbns_path).name, "config": asdict(cfg), "train_seconds": round(time.time() - t0, 1),
+            "threads": torch.get_num_threads(),
             "tightness_phenotypes": TIGHTNESS_PHENOTYPES, "tightness_range": TIGHTNESS_RANGE,
             "val_transfer_only": base_val, "curve": curve}
     state = {"state": net.state_dict(), "shape0": shape0, "num_inputs": body.num_shape_params + 2,
@@ -247,7 +248,8 @@ def evaluate(body, outfit: str, n: int = 200, seed: int = 1234, out_dir: Path = 
              "body; edge = mean |edge length - E_T edge length|. `recon garment resize` then `recon garment eval`.",
              "", "| method | collision % | edge error mm |", "|---|---|---|"]
     lines += [f"| {k} | {r['collision_pct']:.2f} | {r['edge_mm']:.2f} |" for k, r in rows.items()]
-    lines += ["", f"Resizer: trained in {meta['train_seconds'] / 60:.1f} min on 2 CPU cores; "
+    threads = meta.get("threads", 2)  # files from before it was recorded: 2 threads
+    lines += ["", f"Resizer: trained in {meta['train_seconds'] / 60:.1f} min on {threads} CPU thread{'s' * (threads > 1)}; "
               f"{ms:.3f} ms per outfit (network only, batched)."]
     paths.atomic_write(out_dir / f"garment-resize-{outfit}.md", lambda f: Path(f).write_text("\n".join(lines) + "\n"))
     return out_dir / f"garment-resize-{outfit}.md"
