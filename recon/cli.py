@@ -24,6 +24,20 @@ def cmd_body(args) -> int:
     import recon.body
 
     body = recon.body.create(args.model)
+    if args.action == "export":  # the rest body that garments are modelled on (body frame, metres, +Y up)
+        import torch
+        import trimesh
+
+        from recon import paths
+
+        if not args.out:
+            raise ValueError("export needs --out FILE (.obj, .ply, .glb)")
+        with torch.no_grad():
+            v = body.rest_geometry(body.mean_shape[None])[0][0].numpy()
+        mesh = trimesh.Trimesh(v, body.faces.numpy(), process=False)
+        paths.atomic_write(Path(args.out), lambda t: mesh.export(t, file_type=Path(args.out).suffix[1:].lower()))
+        print(args.out)
+        return 0
     out = body()
     info = {
         "model": args.model, "vertices": body.num_vertices, "faces": int(body.faces.shape[0]),
@@ -189,7 +203,8 @@ def cmd_run(args) -> int:
 
 def cmd_garment(args) -> int:
     from recon.body import default_body
-    from recon.garment.templates import PRESETS
+    from recon.garment.templates import PRESETS, outfit_name
+    from recon.garment.train import weights_path
 
     outfits = list(PRESETS) if args.outfit == ["all"] else args.outfit
     if args.action == "train":
@@ -200,21 +215,22 @@ def cmd_garment(args) -> int:
             cfg.epochs = cfg.epochs if args.epochs is None else args.epochs
             meta = train(default_body(), cfg)
             last = meta["curve"][-1]
-            print(json.dumps({"outfit": o, "train_seconds": meta["train_seconds"],
+            print(json.dumps({"outfit": meta["outfit"], "weights": str(weights_path(o)), "train_seconds": meta["train_seconds"],
                               "val_collision_pct": last["val_collision_pct"], "val_edge_mm": last["val_edge_mm"]}))
         return 0
     if args.action == "resize":
-        from recon.garment.resize import RESIZE_WEIGHTS, ResizeConfig
+        from recon.garment.resize import ResizeConfig, resize_weights_path
         from recon.garment.resize import train as train_resizer
-        from recon.garment.train import WEIGHTS_DIR
 
         for o in outfits:
             cfg = ResizeConfig() if args.epochs is None else ResizeConfig(epochs=args.epochs)
-            meta = train_resizer(default_body(), WEIGHTS_DIR / f"pbns_{o}.pt", RESIZE_WEIGHTS.format(outfit=o), cfg)
-            print(json.dumps({"outfit": o, "train_seconds": meta["train_seconds"], "transfer_only": meta["val_transfer_only"],
-                              "resized": meta["curve"][-1]}))
+            meta = train_resizer(default_body(), weights_path(o), resize_weights_path(outfit_name(o), weights_path(o)), cfg)
+            print(json.dumps({"outfit": meta["outfit"], "train_seconds": meta["train_seconds"],
+                              "transfer_only": meta["val_transfer_only"], "resized": meta["curve"][-1]}))
         return 0
     if args.action == "reference":
+        if not set(outfits) <= set(PRESETS):
+            raise ValueError("reference drapes are for the preset outfits: " + ", ".join(PRESETS))
         from recon.garment.evaluate import reference_and_report, rescore_reference
 
         for o in outfits:
@@ -228,7 +244,7 @@ def cmd_garment(args) -> int:
     body = default_body()
     print(evaluate_and_report(body, outfits, args.n or 500, Path(args.out)))
     for o in outfits:  # the resizing table, for outfits with a trained resizer
-        if Path(resize.RESIZE_WEIGHTS.format(outfit=o)).exists():
+        if resize.resize_weights_path(outfit_name(o), weights_path(o)).exists():
             print(Path(resize.evaluate(body, o, out_dir=Path(args.out))).read_text())
     return 0
 
@@ -253,9 +269,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--threads", type=int, default=None, help="torch threads (default $RECON_THREADS or 1)")
     sub = ap.add_subparsers(dest="cmd", required=True)
     b = sub.add_parser("body", help="body model: build the anny cache or print model facts")
-    b.add_argument("action", choices=["build-cache", "info"])
+    b.add_argument("action", choices=["build-cache", "info", "export"],
+                   help="export: the rest body (mean shape) to model your own garments on, --out FILE")
     b.add_argument("--model", default="anny", help="'anny' or an SMPL-family .npz/.pkl")
     b.add_argument("--force", action="store_true")
+    b.add_argument("--out", default=None, help="export: the mesh file to write")
     b.set_defaults(func=cmd_body)
     p = sub.add_parser("poses", help="retargeted mocap: build the cache or print split statistics")
     p.add_argument("action", choices=["build", "stats"])
@@ -341,7 +359,9 @@ def main(argv: list[str] | None = None) -> int:
     g.add_argument("action", choices=["train", "eval", "resize", "reference"],
                    help="resize: train the shape + tightness resizer of a trained outfit (thesis 5.5.6); "
                         "reference: PBNS against a newton cloth drape (needs newton, slow: minutes per pose)")
-    g.add_argument("--outfit", nargs="+", default=["tshirt-trousers"], help="preset names or 'all'")
+    g.add_argument("--outfit", nargs="+", default=["tshirt-trousers"],
+                   help="preset names, 'all', or your own garment meshes (.obj, .ply, .glb, ...: body frame, metres, +Y up; "
+                        "train writes them to ~/.cache/recon/garments, then `recon run --outfit NAME`)")
     g.add_argument("--epochs", type=int, default=None, help="default: 6 (train), 2 (resize)")
     g.add_argument("--poses", type=int, default=3000)
     g.add_argument("--n", type=int, default=None, help="held-out test poses (default: 500 for eval, 4 for reference)")

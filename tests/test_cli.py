@@ -13,6 +13,16 @@ def test_body_info(capsys):
     assert 1.4 < info["height_m"] < 2.1
 
 
+def test_body_export_is_the_rest_body_garments_are_modelled_on(body, tmp_path):
+    import numpy as np
+
+    from recon.garment.templates import RestBody
+
+    assert main(["body", "export", "--out", str(tmp_path / "rest.obj")]) == 0
+    m = trimesh.load(tmp_path / "rest.obj", process=False)
+    assert np.abs(m.vertices - RestBody(body).v).max() < 1e-6 and len(m.faces) == len(body.faces)
+
+
 def test_poses_stats(capsys, mocap):
     assert main(["poses", "stats"]) == 0
     stats = json.loads(capsys.readouterr().out)

@@ -277,6 +277,48 @@ def test_user_obj_garment(body, outfits, tmp_path):
         make_outfit(body, [GarmentSpec("obj", "far", path=str(tmp_path / "far.obj"))])
 
 
+def test_skirt_like_garments_and_waist_pins_are_found_from_the_geometry(body, outfits, tmp_path):
+    """hangs_free (more blend-weight smoothing) picks the skirt and the dress among the presets;
+    a user mesh is pinned at the waist when it is a lower garment."""
+    import trimesh
+
+    from recon.garment.templates import GarmentSpec, RestBody, hangs_free, make_outfit
+
+    rb = RestBody(body)
+    free = {(name, g.name) for name, o in outfits.items() for g in o.garments if hangs_free(rb, g)}
+    assert free == {("tshirt-skirt", "skirt"), ("dress", "dress")}
+    shorts, top = outfits["top-shorts"].garments
+    for g in (shorts, top):
+        trimesh.Trimesh(g.vertices, g.faces).export(tmp_path / f"{g.name}.obj")
+    mine = make_outfit(body, [GarmentSpec("obj", "s", path=str(tmp_path / "shorts.obj")),
+                              GarmentSpec("obj", "t", path=str(tmp_path / "top.obj"), layer=1)])
+    assert mine.garments[0].pinned.sum() > 100 and not mine.garments[1].pinned.any()
+
+
+def test_train_and_dress_your_own_garment_mesh(body, outfits, tmp_path, monkeypatch):
+    """`recon garment train --outfit my_shorts.obj`, then `Dresser("my_shorts")`: a tiny run."""
+    import trimesh
+
+    from recon.garment import train as T
+    from recon.garment.dress import Dresser
+
+    shorts = outfits["top-shorts"].garments[0]
+    mesh = tmp_path / "my_shorts.obj"
+    trimesh.Trimesh(shorts.vertices, shorts.faces).export(mesh)
+    monkeypatch.setattr(T, "user_weights_dir", lambda: tmp_path / "garments")
+    cfg = T.GarmentTrainConfig(outfit=str(mesh), poses=24, epochs=1, batch=8)
+    meta = T.train(body, cfg, log=lambda *_: None)
+    assert meta["outfit"] == "my_shorts" and meta["garments"] == ["my_shorts"]
+    assert T.weights_path(str(mesh)) == T.weights_path("my_shorts") == tmp_path / "garments" / "pbns_my_shorts.pt"
+    assert (tmp_path / "garments" / "pbns_my_shorts.pt").exists()
+    d = Dresser("my_shorts")
+    rot = torch.eye(3).expand(2, 24, 3, 3).clone()
+    v = d(body, rot, body.mean_shape[None].expand(2, -1)).vertices
+    assert v.shape == (2, len(shorts.vertices), 3) and np.isfinite(v).all()
+    with pytest.raises(KeyError, match="or a garment mesh"):
+        T.build(body, T.GarmentTrainConfig(outfit="no-such-outfit"))
+
+
 def test_physical_metrics_count_inside_vertices():
     from recon.garment.evaluate import physical_metrics
 

@@ -16,7 +16,7 @@ import numpy as np
 import torch
 
 from recon.garment.pbns import PBNS
-from recon.garment.train import WEIGHTS_DIR
+from recon.garment.train import weights_path
 
 
 @dataclass
@@ -38,7 +38,7 @@ class Dresser:
 
         if path is None and outfit.endswith(".pt"):  # a weights file instead of a preset name
             path = outfit
-        path = Path(path or WEIGHTS_DIR / f"pbns_{outfit}.pt")
+        path = Path(path or weights_path(outfit))
         if not path.exists():
             raise FileNotFoundError(f"no trained outfit {path}: run `recon garment train --outfit {outfit}`")
         self.model, ck = PBNS.load(path)
@@ -54,9 +54,9 @@ class Dresser:
         self.resizer, self._resizer_path, self.transfer = None, None, None
         name = json.loads(ck["meta_json"]).get("outfit")
         if resizer and name:
-            from recon.garment.resize import RESIZE_WEIGHTS
+            from recon.garment.resize import resize_weights_path
 
-            p = Path(RESIZE_WEIGHTS.format(outfit=name))
+            p = resize_weights_path(name, path)
             self._resizer_path = p if p.exists() else None
 
     def rest_for(self, body, shape: torch.Tensor, smooth: int = 10, tightness=None) -> torch.Tensor:

@@ -31,7 +31,8 @@ from recon.garment.collide import CollisionResolver
 from recon.garment.mesh import unique_edges
 from recon.garment.pbns import PBNS, remove_yaw
 from recon.garment.self_intersection import SkinSelfIntersection
-from recon.garment.train import WEIGHTS_DIR, pose_set, posed_bodies
+from recon.garment.templates import PRESETS
+from recon.garment.train import WEIGHTS_DIR, pose_set, posed_bodies, weights_path
 
 
 # (low, high] % of the covered skin inside the body; the first bin includes 0
@@ -120,7 +121,7 @@ def valid_test_poses(body, shape: torch.Tensor) -> tuple[torch.Tensor, tuple]:
 
 def evaluate(body, outfit: str, n_poses: int = 500, weights: Path | None = None) -> dict:
     torch.set_num_threads(1)
-    path = Path(weights or WEIGHTS_DIR / f"pbns_{outfit}.pt")
+    path = Path(weights or weights_path(outfit))
     if not path.exists():
         raise FileNotFoundError(f"{path} not found: train it with `recon garment train --outfit {outfit}`")
     model, ck = PBNS.load(path)
@@ -149,7 +150,7 @@ def evaluate(body, outfit: str, n_poses: int = 500, weights: Path | None = None)
     valid = {"skinning only (dT = 0)": torch.cat([model.skin(model.rest, vbt[i:i + 64]) for i in range(0, len(vrot), 64)]),
              "PBNS": vp, "PBNS + collision resolution": res(vp, vbv, body.faces)}
     valid = {k: physical_metrics(v, faces, model.rest, vbv, vbn) for k, v in valid.items()}
-    return {"outfit": outfit, "vertices": int(model.rest.shape[0]), "faces": int(len(faces)),
+    return {"outfit": meta.get("outfit", outfit), "vertices": int(model.rest.shape[0]), "faces": int(len(faces)),
             "test_poses": int(len(rot)), "train_seconds": meta["train_seconds"], "rows": rows,
             "valid_poses": int(len(vrot)), "valid_rows": valid,
             "body_self_intersection_pct": {"median": float(body_self.median()), "mean": float(body_self.mean())}}
@@ -158,7 +159,8 @@ def evaluate(body, outfit: str, n_poses: int = 500, weights: Path | None = None)
 def evaluate_and_report(body, outfits: list[str], n_poses: int, out_dir: Path) -> Path:
     results = [evaluate(body, o, n_poses) for o in outfits]
     out_dir.mkdir(parents=True, exist_ok=True)
-    stem = out_dir / "garment-pbns"
+    names = [r["outfit"] for r in results]  # your own garments get a file of their own
+    stem = out_dir / ("garment-pbns" if set(names) <= set(PRESETS) else "garment-pbns-" + "-".join(names))
     paths.atomic_write(stem.with_suffix(".json"), lambda t: Path(t).write_text(json.dumps(results, indent=1)))
     lines = ["# PBNS on held-out mocap poses (CMU test subjects)", "",
              "| outfit | vertices | model | collision % | edge mm | edge % | bend | train min | "

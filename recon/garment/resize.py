@@ -32,6 +32,13 @@ from recon.garment.mesh import smooth_vertex_values, vertex_normals
 from recon.garment.train import Criterion
 
 RESIZE_WEIGHTS = str(Path(__file__).resolve().parent / "weights" / "resize_{outfit}.pt")
+
+
+def resize_weights_path(name: str, pbns_path: Path) -> Path:
+    """The resizer of an outfit: shipped beside the presets, else beside its PBNS weights."""
+    from recon.garment.templates import PRESETS
+
+    return Path(RESIZE_WEIGHTS.format(outfit=name)) if name in PRESETS else Path(pbns_path).parent / f"resize_{name}.pt"
 TIGHTNESS_PHENOTYPES = ("weight", "height")  # what gamma offsets (anny), like CLOTH3D's beta_0, beta_1
 TIGHTNESS_RANGE = ((-0.1, 0.3), (-0.05, 0.1))  # sampling range per component, biased to loose (CLOTH3D)
 
@@ -143,7 +150,7 @@ def _outfit_for(body, pbns_path: Path):
 
     model, ck = PBNS.load(pbns_path)
     meta = json.loads(ck["meta_json"])
-    outfit = make_outfit(body, meta["outfit"], ck["shape"][None])
+    outfit = make_outfit(body, meta.get("source", meta["outfit"]), ck["shape"][None])  # source: a preset or a mesh
     if not np.allclose(outfit.vertices, model.rest.numpy(), atol=1e-5):
         raise RuntimeError(f"the {meta['outfit']} template changed since {pbns_path} was trained: retrain it")
     return outfit, ck["shape"], meta["outfit"]
@@ -222,10 +229,10 @@ class OutfitResizer:
 def evaluate(body, outfit: str, n: int = 200, seed: int = 1234, out_dir: Path = Path("eval/results")) -> Path:
     """Held-out (shape, tightness) conditions: E_T alone vs E_T + resizer, rest pose on the
     body of that shape. Writes ``garment-resize-<outfit>.md``/``.json``."""
-    from recon.garment.train import WEIGHTS_DIR
+    from recon.garment.train import weights_path
 
-    o, _, _ = _outfit_for(body, WEIGHTS_DIR / f"pbns_{outfit}.pt")
-    path = Path(RESIZE_WEIGHTS.format(outfit=outfit))
+    o, _, outfit = _outfit_for(body, weights_path(outfit))
+    path = resize_weights_path(outfit, weights_path(outfit))
     rz = OutfitResizer(body, path, o.vertices, o.faces)
     data = _Data(body, rz.transfer, *sample_conditions(body, n, seed), torch.from_numpy(gm.unique_edges(o.faces)), 1)
     t = time.perf_counter()

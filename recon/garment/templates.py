@@ -14,6 +14,7 @@ cut as one piece. Frames: body frame (+Y up, +Z forward, +X the subject's left),
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -44,7 +45,8 @@ class GarmentSpec:
     """One garment. kind: "top" (t-shirt/top), "trousers", "skirt", "dress", "jumpsuit", or
     "obj": a user mesh at ``path`` (any format trimesh reads), modelled on the rest body in the
     body frame (metres, +Y up); it is cleaned (merged vertices, largest piece) and pushed out of
-    the body, and vertices within 3 cm below its top are pinned when ``pin_waist`` is True.
+    the body, and vertices within 3 cm below its top are pinned when ``pin_waist`` is True
+    (None: when its top is below the chest, i.e. a lower garment held up at the waist).
 
     sleeve / leg: length as a fraction of the arm (shoulder -> wrist) / leg (hip -> ankle);
     hem: top's hem height relative to the pelvis joint (m); skirt_length: metres below the waist.
@@ -150,12 +152,31 @@ class RestBody:
         return float(sum(np.linalg.norm(self.j[b] - self.j[a]) for a, b in zip(chain[:-1], chain[1:])))
 
 
+MESH_SUFFIXES = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf")
+
+
+def outfit_specs(outfit: str) -> list[GarmentSpec]:
+    """A preset name, or the path of your own garment mesh (one garment of kind "obj")."""
+    if outfit in PRESETS:
+        return PRESETS[outfit]
+    p = Path(outfit)
+    if p.suffix.lower() in MESH_SUFFIXES:
+        if not p.is_file():
+            raise FileNotFoundError(f"garment mesh {outfit} not found")
+        return [GarmentSpec("obj", outfit_name(outfit), path=str(p.resolve()))]
+    raise KeyError(f"unknown outfit {outfit!r}; presets: {', '.join(PRESETS)}, or a garment mesh "
+                   f"({', '.join(MESH_SUFFIXES)}) in the body frame")
+
+
+def outfit_name(outfit: str) -> str:
+    """The name weights are stored under: the preset, or the mesh file's stem."""
+    return outfit if outfit in PRESETS else Path(outfit).stem
+
+
 def make_outfit(body, specs: list[GarmentSpec] | str, shape: torch.Tensor | None = None) -> Outfit:
     rb = RestBody(body, shape)
     if isinstance(specs, str):
-        if specs not in PRESETS:
-            raise KeyError(f"unknown outfit {specs!r}; presets: {', '.join(PRESETS)}")
-        specs = PRESETS[specs]
+        specs = outfit_specs(specs)
     garments = sorted((make_garment(rb, s) for s in specs), key=lambda g: g.layer)
     for i, g in enumerate(garments):  # outer layers clear the inner ones by 4 mm per layer step
         for inner in garments[:i]:
@@ -340,8 +361,17 @@ def _from_file(rb: RestBody, spec: GarmentSpec) -> Garment:
     body_box = (rb.v.min(0) - 0.3, rb.v.max(0) + 0.3)
     if (v < body_box[0]).any() or (v > body_box[1]).any():
         raise ValueError(f"{spec.path}: the garment is not around the rest body (body frame, metres, +Y up?)")
-    pinned = v[:, 1] > v[:, 1].max() - 0.03 if spec.pin_waist else np.zeros(len(v), bool)
+    pin = v[:, 1].max() < rb.j[J["spine3"]][1] if spec.pin_waist is None else spec.pin_waist
+    pinned = v[:, 1] > v[:, 1].max() - 0.03 if pin else np.zeros(len(v), bool)
     return _finish(rb, spec, v, f, pinned)
+
+
+def hangs_free(rb: RestBody, g: Garment) -> bool:
+    """Skirt-like: one open hem well below the hips (skirts, dresses), not one per leg
+    (trousers, shorts, jumpsuits) and none (tops). Such cloth hangs between the legs, so
+    its blend weights need more smoothing (thesis 5.3.2)."""
+    pelvis_y = rb.j[J["pelvis"]][1]
+    return sum(g.vertices[lp, 1].mean() < pelvis_y - 0.15 for lp in gm.boundary_loops(g.faces)) == 1
 
 
 def _nearest(points: np.ndarray, query: np.ndarray):

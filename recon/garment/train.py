@@ -19,9 +19,22 @@ from recon import paths
 from recon.garment import losses as L
 from recon.garment.mesh import vertex_normals
 from recon.garment.pbns import PBNS, PBNSConfig, initial_weights
-from recon.garment.templates import PRESETS, RestBody, make_outfit
+from recon.garment.templates import PRESETS, RestBody, hangs_free, make_outfit, outfit_name
 
 WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
+
+
+def user_weights_dir() -> Path:
+    """Where outfits trained from your own garment meshes go (the shipped ones: WEIGHTS_DIR)."""
+    return paths.cache_dir() / "garments"
+
+
+def weights_path(outfit: str) -> Path:
+    """PBNS weights of a preset (shipped), of your own garment (by name or mesh path), or a .pt path."""
+    if outfit.endswith(".pt"):
+        return Path(outfit)
+    name = outfit_name(outfit)
+    return (WEIGHTS_DIR if name in PRESETS else user_weights_dir()) / f"pbns_{name}.pt"
 
 
 @dataclass
@@ -48,9 +61,6 @@ class GarmentTrainConfig:
     collision: L.CollisionConfig = field(default_factory=lambda: L.CollisionConfig(weight=1e5))
     gravity: L.GravityConfig = field(default_factory=lambda: L.GravityConfig(weight=5.0))
     pin: L.PinConfig = field(default_factory=L.PinConfig)
-
-
-SKIRTED = ("skirt", "dress")
 
 
 def edge_scale(warmup: float, step: int, steps: int) -> float:
@@ -110,7 +120,7 @@ def build(body, cfg: GarmentTrainConfig, shape: torch.Tensor | None = None):
     shape = body.mean_shape[None] if shape is None else shape.reshape(1, -1)
     outfit = make_outfit(body, cfg.outfit, shape)
     rb = RestBody(body, shape)
-    skirted = any(g.name in SKIRTED for g in outfit.garments) or any(s.kind in SKIRTED for s in PRESETS[cfg.outfit])
+    skirted = any(hangs_free(rb, g) for g in outfit.garments)
     # skirts hang between the legs: their weights need more smoothing (thesis 5.3.2)
     mcfg = PBNSConfig(**{**asdict(cfg.model), "optimise_weights": skirted or cfg.model.optimise_weights,
                          "weight_diffusion": max(cfg.model.weight_diffusion, 20) if skirted else cfg.model.weight_diffusion})
@@ -152,7 +162,7 @@ def train(body, cfg: GarmentTrainConfig = GarmentTrainConfig(), out: Path | None
     from tqdm import tqdm
 
     torch.manual_seed(cfg.seed)
-    out = Path(out or WEIGHTS_DIR / f"pbns_{cfg.outfit}.pt")
+    out = Path(out or weights_path(cfg.outfit))
     t0 = time.time()
     outfit, model, shape = build(body, cfg)
     poses = pose_set("train", cfg.poses, cfg.min_pose_distance, cfg.seed)
@@ -201,7 +211,7 @@ def train(body, cfg: GarmentTrainConfig = GarmentTrainConfig(), out: Path | None
         bar.set_postfix(coll=f"{row['val_collision_pct']:.2f}%", edge=f"{row['val_edge_mm']:.2f}mm")
     bar.close()
     # "model": the PBNS config in effect (skirted outfits override weight diffusion/optimisation)
-    meta = {"outfit": cfg.outfit, "config": asdict(cfg), "model": asdict(model.cfg), "vertices": int(len(outfit.vertices)),
+    meta = {"outfit": outfit_name(cfg.outfit), "source": cfg.outfit, "config": asdict(cfg), "model": asdict(model.cfg), "vertices": int(len(outfit.vertices)),
             "faces": int(len(outfit.faces)), "train_seconds": round(time.time() - t0, 1),
             "shape": shape[0].tolist(), "garments": [g.name for g in outfit.garments], "curve": curve}
     model.save(out, {"meta_json": json.dumps(meta), "layer": torch.from_numpy(outfit.layer),
