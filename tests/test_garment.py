@@ -317,6 +317,13 @@ def test_train_and_dress_your_own_garment_mesh(body, outfits, tmp_path, monkeypa
     assert v.shape == (2, len(shorts.vertices), 3) and np.isfinite(v).all()
     with pytest.raises(KeyError, match="or a garment mesh"):
         T.build(body, T.GarmentTrainConfig(outfit="no-such-outfit"))
+    logs = []  # valid poses only (thesis 5.4.3): fewer training poses, or a clear error when none is left
+    T.train(body, T.GarmentTrainConfig(outfit=str(mesh), poses=96, epochs=1, batch=4, valid_max_self=1.0),
+            out=tmp_path / "v.pt", log=logs.append)
+    n_train = int(logs[0].split(";")[1].split()[0])
+    assert 4 <= n_train < 0.85 * 96 / 2  # about an eighth of the poses are valid
+    with pytest.raises(ValueError, match="body self-intersection"):
+        T.train(body, T.GarmentTrainConfig(outfit=str(mesh), poses=24, batch=8, valid_max_self=-1.0), out=tmp_path / "w.pt")
 
 
 def test_physical_metrics_count_inside_vertices():

@@ -49,6 +49,9 @@ class GarmentTrainConfig:
     lr_psd: float = 3e-4  # learning rate of the PSD matrix D
     seed: int = 0
     candidates: int = 8  # nearest-neighbour candidates per vertex and pose (collision search)
+    # keep only "valid" training poses (thesis 5.4.3): at most this % of the covered skin inside the
+    # posed body (recon.garment.self_intersection); None keeps all (ablation: valid-only)
+    valid_max_self: float | None = None
     # stiffness continuation: the edge weight starts at this fraction and rises geometrically to
     # its full value by mid-training (1.0: constant). Soft edges first let the cloth sag under
     # gravity; the stiff edges then remove the strain of the sag (ablation, fifth round)
@@ -166,10 +169,17 @@ def train(body, cfg: GarmentTrainConfig = GarmentTrainConfig(), out: Path | None
     t0 = time.time()
     outfit, model, shape = build(body, cfg)
     poses = pose_set("train", cfg.poses, cfg.min_pose_distance, cfg.seed)
+    bv, bn, bt = posed_bodies(body, poses, shape)
+    if cfg.valid_max_self is not None:
+        from recon.garment.self_intersection import SkinSelfIntersection
+
+        keep = SkinSelfIntersection(body, shape).percent(bv) <= cfg.valid_max_self
+        poses, bv, bn, bt = poses[keep], bv[keep], bn[keep], bt[keep]
+        if len(poses) < 2 * cfg.batch:
+            raise ValueError(f"only {len(poses)} training poses have <= {cfg.valid_max_self} % body self-intersection")
     n_val = int(round(cfg.val_fraction * len(poses)))
     perm = torch.randperm(len(poses), generator=torch.Generator().manual_seed(cfg.seed))
     val_idx, tr_idx = perm[:n_val], perm[n_val:]
-    bv, bn, bt = posed_bodies(body, poses, shape)
     crit = Criterion(outfit, model.rest, cfg)
     body_c, cloth_c = candidates(model, crit, poses, bt, bv, cfg.candidates)
     inside = None
