@@ -32,6 +32,8 @@ from recon.garment.mesh import smooth_vertex_values, vertex_normals
 from recon.garment.train import Criterion
 
 RESIZE_WEIGHTS = str(Path(__file__).resolve().parent / "weights" / "resize_{outfit}.pt")
+TIGHTNESS_PHENOTYPES = ("weight", "height")  # what gamma offsets (anny), like CLOTH3D's beta_0, beta_1
+TIGHTNESS_RANGE = ((-0.1, 0.3), (-0.05, 0.1))  # sampling range per component, biased to loose (CLOTH3D)
 
 
 def resize_weights_path(name: str, pbns_path: Path) -> Path:
@@ -39,8 +41,6 @@ def resize_weights_path(name: str, pbns_path: Path) -> Path:
     from recon.garment.templates import PRESETS
 
     return Path(RESIZE_WEIGHTS.format(outfit=name)) if name in PRESETS else Path(pbns_path).parent / f"resize_{name}.pt"
-TIGHTNESS_PHENOTYPES = ("weight", "height")  # what gamma offsets (anny), like CLOTH3D's beta_0, beta_1
-TIGHTNESS_RANGE = ((-0.1, 0.3), (-0.05, 0.1))  # sampling range per component, biased to loose (CLOTH3D)
 
 
 @dataclass
