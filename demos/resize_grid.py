@@ -27,7 +27,7 @@ def main() -> None:
     torch.set_num_threads(1)
     body = default_body()
     d = Dresser(a.outfit)
-    if d._resizer_path is None:
+    if not d.has_resizer:
         raise SystemExit(f"no resizer for {a.outfit}: run `recon garment resize --outfit {a.outfit}`")
     names = list(body.shape_names)
     shapes = []

@@ -74,7 +74,7 @@ def run(inputs: list[str | Path], out: str | Path, batch_size: int = 4, device: 
         from recon.garment.dress import Dresser
 
         dresser = Dresser(outfit)  # fails early (clear message) if the outfit is not trained
-        if tightness is not None and dresser._resizer_path is None:
+        if tightness is not None and not dresser.has_resizer:
             raise ValueError(f"--tightness needs a trained resizer for {outfit}: run `recon garment resize --outfit {outfit}`")
     elif tightness is not None:
         raise ValueError("--tightness needs --outfit")

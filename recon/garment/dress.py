@@ -36,9 +36,7 @@ class Dresser:
         (recon.garment.collide; ~1 % of the vertices, about 30-70 ms a frame on one core)."""
         import json
 
-        if path is None and outfit.endswith(".pt"):  # a weights file instead of a preset name
-            path = outfit
-        path = Path(path or weights_path(outfit))
+        path = Path(path or weights_path(outfit))  # a preset, your own garment's name, or a .pt file
         if not path.exists():
             raise FileNotFoundError(f"no trained outfit {path}: run `recon garment train --outfit {outfit}`")
         self.model, ck = PBNS.load(path)
@@ -58,6 +56,11 @@ class Dresser:
 
             p = resize_weights_path(name, path)
             self._resizer_path = p if p.exists() else None
+
+    @property
+    def has_resizer(self) -> bool:
+        """Whether the outfit has a trained resizer (needed for a ``tightness``)."""
+        return self._resizer_path is not None
 
     def rest_for(self, body, shape: torch.Tensor, smooth: int = 10, tightness=None) -> torch.Tensor:
         """Outfit rest vertices resized to ``shape`` (1-D tensor); ``tightness`` (2,) needs a

@@ -122,6 +122,16 @@ def valid_test_poses(body, shape: torch.Tensor) -> tuple[torch.Tensor, tuple]:
     return rot[keep], tuple(p[keep] for p in posed)
 
 
+@torch.no_grad()
+def _posed_outfits(model: PBNS, res: CollisionResolver, rot, bt, bv, body_faces) -> dict:
+    """The rows of the tables for every pose: the skinned template (dT = 0), PBNS, and PBNS
+    followed by the collision resolution the Dresser applies by default (not part of the network)."""
+    chunks = range(0, len(rot), 64)
+    pv = torch.cat([model.pose(rot[i:i + 64], bt[i:i + 64]) for i in chunks])
+    return {"skinning only (dT = 0)": torch.cat([model.skin(model.rest, bt[i:i + 64]) for i in chunks]),
+            "PBNS": pv, "PBNS + collision resolution": res(pv, bv, body_faces)}
+
+
 def evaluate(body, outfit: str, n_poses: int = 500, weights: Path | None = None) -> dict:
     torch.set_num_threads(1)
     path = Path(weights or weights_path(outfit))
@@ -134,25 +144,15 @@ def evaluate(body, outfit: str, n_poses: int = 500, weights: Path | None = None)
     bv, bn, bt = posed_bodies(body, rot, shape)
     body_self = body_self_intersection(body, shape, rot, bv)
     faces = model.faces.numpy()
-    rows, posed = {}, {}
-    for name, zero in (("skinning only (dT = 0)", True), ("PBNS", False)):
-        vs = []
-        for i in range(0, len(rot), 64):
-            vs.append(model.skin(model.rest, bt[i:i + 64]) if zero else model.pose(rot[i:i + 64], bt[i:i + 64]))
-        posed[name] = torch.cat(vs)
-        rows[name] = physical_metrics(posed[name], faces, model.rest, bv, bn, body_self)
-    rows["PBNS"] |= speed(model, body, rot, shape)
-    # the post-process the Dresser applies by default (not part of the network)
     res = CollisionResolver(faces, ck["layer"].numpy())
-    rows["PBNS + collision resolution"] = physical_metrics(res(posed["PBNS"], bv, body.faces), faces, model.rest, bv, bn,
-                                                          body_self)
+    rows = {k: physical_metrics(v, faces, model.rest, bv, bn, body_self)
+            for k, v in _posed_outfits(model, res, rot, bt, bv, body.faces).items()}
+    rows["PBNS"] |= speed(model, body, rot, shape)
     rows["PBNS + collision resolution"]["fps_batch1"] = _fps(
         lambda: res(model.pose(rot[:1], bt[:1]), bv[:1], body.faces), 1, 50)
     vrot, (vbv, vbn, vbt) = valid_test_poses(body, shape)
-    vp = torch.cat([model.pose(vrot[i:i + 64], vbt[i:i + 64]) for i in range(0, len(vrot), 64)])
-    valid = {"skinning only (dT = 0)": torch.cat([model.skin(model.rest, vbt[i:i + 64]) for i in range(0, len(vrot), 64)]),
-             "PBNS": vp, "PBNS + collision resolution": res(vp, vbv, body.faces)}
-    valid = {k: physical_metrics(v, faces, model.rest, vbv, vbn) for k, v in valid.items()}
+    valid = {k: physical_metrics(v, faces, model.rest, vbv, vbn)
+             for k, v in _posed_outfits(model, res, vrot, vbt, vbv, body.faces).items()}
     return {"outfit": meta.get("outfit", outfit), "vertices": int(model.rest.shape[0]), "faces": int(len(faces)),
             "test_poses": int(len(rot)), "train_seconds": meta["train_seconds"], "rows": rows,
             "valid_poses": int(len(vrot)), "valid_rows": valid,
@@ -303,7 +303,7 @@ def reference_and_report(outfit: str, poses: int, out_dir: Path, frames: int = 6
 
     if not reference.available():
         raise RuntimeError('the reference simulation needs newton: pip install "newton==1.8.0" (see README)')
-    min_dist = json.loads(PBNS.load(WEIGHTS_DIR / f"pbns_{outfit}.pt")[1]["meta_json"])["config"]["min_pose_distance"]
+    min_dist = TEST_POSE_DISTANCE  # the drapes are picks of the held-out test pool
     jobs = [(outfit, i, pool_size, min_dist, frames) for i in range(poses)]
     if workers > 1:
         with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as ex:
