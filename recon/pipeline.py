@@ -68,13 +68,14 @@ class BackboneSource:
     """The volumetric stacked hourglass (recon.backbone) without any other detector: a first
     pass over the whole image (first hourglass only) locates the person, then ``passes - 1``
     metric crops centred on the predicted joints at the bone-length depth (bones foreshortened
-    as the previous pass predicted them in 3D). ``None`` when the mean peak confidence is under
+    as the previous pass predicted them in 3D), the last one optionally averaged with its
+    mirror image (``flip``). ``None`` when the mean peak confidence is under
     ``min_confidence`` (the network saw no person in training, so this is a weak test)."""
 
     name = "backbone"
 
     def __init__(self, body=None, weights=None, passes: int = 3, min_confidence: float = 0.05, device: str = "cpu",
-                 jit: bool = True, quick_locate: bool = True):
+                 jit: bool = True, quick_locate: bool = True, flip: bool = False):
         from recon.backbone.model import Backbone
         from recon.body import default_body
         from recon.smplr.features import template_distances
@@ -82,6 +83,8 @@ class BackboneSource:
         self.net = Backbone.load(weights, device, jit)
         self.template = template_distances(body or default_body()).cpu().numpy()
         self.passes, self.min_confidence = passes, min_confidence
+        self.flip = flip  # last pass averaged with its mirror image (Backbone.grids): ~2.5 mm of P1 for
+        # ~30 ms (off by default: with it the pipeline misses the 100 ms latency goal on this CPU)
         self.quick_locate = quick_locate  # False: whole network in the first pass (benchmark; the
         # shipped crop factors are calibrated for the first stack)
 
@@ -94,8 +97,10 @@ class BackboneSource:
         crop = whole_image_crop(rgb.shape, k)
         passes = self.passes if passes is None else passes
         for p in range(passes):
-            pts, uv, conf = self.net.predict([rgb], [crop], locate=self.quick_locate and p == 0 and passes > 1)
-            if p < passes - 1:  # bone-length depth, times the factor calibrated on synth-val
+            last = p == passes - 1
+            pts, uv, conf = self.net.predict([rgb], [crop], locate=self.quick_locate and p == 0 and passes > 1,
+                                             flip=self.flip and last)
+            if not last:  # bone-length depth, times the factor calibrated on synth-val
                 crop = crop_from_keypoints(uv[0], k, self.template, scale[min(p, len(scale) - 1)],
                                            self.depth_points(pts[0]))
         return pts[0], uv[0], conf[0], crop
@@ -116,12 +121,12 @@ class BackboneSource:
         return Keypoints(pts - pts[:1], uv, c, (float(x0), float(y0), float(x1), float(y1)))
 
 
-def make_source(name: str, body=None, device: str = "cpu"):
-    """Keypoint source by name: "mediapipe" (default) or "backbone"."""
+def make_source(name: str, body=None, device: str = "cpu", flip: bool = False):
+    """Keypoint source by name: "mediapipe" (default) or "backbone" (``flip``: see BackboneSource)."""
     if name == "mediapipe":
         return MediaPipeSource()
     if name == "backbone":
-        return BackboneSource(body, device=device)
+        return BackboneSource(body, device=device, flip=flip)
     raise ValueError(f"unknown keypoint source {name!r}; choose 'mediapipe' or 'backbone'")
 
 
@@ -187,10 +192,16 @@ class Reconstructor:
         source: keypoint source object, or "mediapipe" (default) / "backbone".
         focal_factor: focal length in units of the longer image side when K is not given.
         device: torch device for SMPLR and the body model.
+        refine_steps: Adam steps fitting the body to the detected keypoints after SMPLR (0: off).
+        silhouette: weight of the person-mask term in that fit (sources with a mask: MediaPipe's
+            segmentation), which also fits the body shape; 0 = keypoints only.
+        silhouette_cover: weight of its "reach the mask's contour" half against its "stay inside
+            the mask" half; < 1 because clothes, hair and hats widen a photo's mask beyond the body.
     """
 
     def __init__(self, body=None, source=None, focal_factor: float = 1.0, device: str = "cpu", smplr_path=None,
-                 refine_steps: int = 0):
+                 refine_steps: int = 0, silhouette: float = 10.0, shape_lr: float = 0.01, shape_prior: float = 1e-3,
+                 silhouette_stride: int = 7, silhouette_cover: float = 0.3):
         from recon.body import default_body
         from recon.smplr import SMPLR
 
@@ -201,6 +212,8 @@ class Reconstructor:
             else source
         self.focal_factor = focal_factor
         self.refine_steps = refine_steps
+        self.silhouette, self.shape_lr, self.shape_prior, self.silhouette_stride = silhouette, shape_lr, shape_prior, silhouette_stride
+        self.silhouette_cover = silhouette_cover
 
     @property
     def faces(self) -> np.ndarray:
@@ -250,22 +263,24 @@ class Reconstructor:
             rot[0] = flip @ rot[0]  # root orientation: view frame -> OpenCV camera frame
             v, j, lm = v - j[:1] + t, j - j[:1] + t, lm - j[:1] + t  # placed in the camera
             timings = {"keypoints": t_kp[i], "smplr": t_smplr}
+            shape = o.shape[n]
             if self.refine_steps:
                 t1 = time.perf_counter()
-                rot, t, (v, j, lm) = self.refine(rot, o.shape[n], t, kps[n], kmats[n], images[i].shape)
+                rot, shape, t, (v, j, lm) = self.refine(rot, o.shape[n], t, kps[n], kmats[n], images[i].shape)
                 timings["refine"] = (time.perf_counter() - t1) * 1000
             results[i] = Reconstruction(
                 image_size=tuple(images[i].shape[:2]), K=kmats[n], vertices=v, joints=j, landmarks=lm,
-                rotmats=rot.cpu().numpy(), shape=o.shape[n].cpu().numpy(), translation=t, keypoints=kps[n],
+                rotmats=rot.cpu().numpy(), shape=shape.cpu().numpy(), translation=t, keypoints=kps[n],
                 shape_names=tuple(getattr(self.body, "shape_names", ())), timings_ms=timings)
         return results
 
     def refine(self, rot: torch.Tensor, shape: torch.Tensor, t: np.ndarray, kp: Keypoints, k: np.ndarray, image_shape,
-               prior: float = 0.05, depth_prior: float = 1.0):
-        """Fit the body to the detected 2D J+ (inside the image): Adam on root/joint rotation
-        offsets and translation, with priors keeping the pose near SMPLR's and the 3D J+ near
-        the detected ones (depth is what 2D cannot fix). Returns (rotmats, t, camera-frame
-        (vertices, joints, landmarks))."""
+               prior: float = 0.05, depth_prior: float = 20.0):
+        """Fit the body to the detected 2D J+ (inside the image) and, when the source gives a
+        person mask and ``silhouette`` > 0, to the mask (``SilhouetteTarget``): Adam on
+        root/joint rotation offsets, translation and (silhouette only) shape, with priors
+        keeping pose and shape near SMPLR's and the 3D J+ near the detected ones (depth is what
+        2D cannot fix). Returns (rotmats, shape, t, camera-frame (vertices, joints, landmarks))."""
         import roma
 
         dev = self.device
@@ -275,24 +290,49 @@ class Reconstructor:
         p3 = torch.tensor(kp.points3d, dtype=torch.float32, device=dev)
         delta = torch.zeros(24, 3, device=dev, requires_grad=True)
         tt = torch.tensor(t, dtype=torch.float32, device=dev).requires_grad_(True)
-        opt = torch.optim.Adam([{"params": [delta], "lr": 0.02}, {"params": [tt], "lr": 0.01}])
-        shape = shape[None].to(dev)
+        shape0 = shape[None].to(dev)
+        dshape = torch.zeros_like(shape0, requires_grad=True)
+        params = [{"params": [delta], "lr": 0.02}, {"params": [tt], "lr": 0.01}]
+        sil, ids = None, None
+        if self.silhouette > 0 and kp.mask is not None:
+            sil = SilhouetteTarget(kp.mask, kp.box, dev, cover=self.silhouette_cover)
+            params.append({"params": [dshape], "lr": self.shape_lr})
+            ids = torch.arange(0, self.body.num_vertices, self.silhouette_stride, device=dev)
+        rest0, rest_jac = _linear_rest_geometry(self.body, shape0, ids, with_jacobian=sil is not None)
+        opt = torch.optim.Adam(params)
+        lo_hi = self.body.shape_range
+
+        def project(x):
+            p = x @ kk.T
+            return p[..., :2] / p[..., 2:].clamp_min(1e-3)
+
+        def shaped(d):  # shape offset inside the model's range
+            return d if lo_hi is None else (shape0 + d).clamp(*lo_hi) - shape0
+
         for _ in range(self.refine_steps):
             r = rot.to(dev) @ roma.rotvec_to_rotmat(delta)
-            o = self.body(r[None], shape, transl=tt[None], points_only=True)
-            pts = o.points[0]
-            proj = pts @ kk.T
-            proj = proj[:, :2] / proj[:, 2:].clamp_min(1e-3)
-            e2d = (((proj - uv) / kk[0, 0]) ** 2).sum(-1)
+            rest = rest0 if rest_jac is None else tuple(x + torch.einsum("bnks,bs->bnk", jx, shaped(dshape))
+                                                       for x, jx in zip(rest0, rest_jac))
+            if sil is None:
+                o = self.body(r[None], transl=tt[None], points_only=True, rest=rest)
+                pts = o.points[0]
+            else:
+                o = self.body(r[None], transl=tt[None], vertex_ids=ids, rest=rest)
+                pts = torch.cat([o.joints[0], o.landmarks[0]])
+            e2d = (((project(pts) - uv) / kk[0, 0]) ** 2).sum(-1)
             e3d = ((pts - pts[:1]) - p3).pow(2).sum(-1)
             loss = (w * e2d).sum() / w.sum().clamp_min(1) + depth_prior * 1e-3 * e3d.mean() + prior * 1e-3 * delta.pow(2).sum()
+            if sil is not None:
+                loss = loss + self.silhouette * sil(project(o.vertices[0])) * (kk[0, 0] / sil.size) ** -2 \
+                    + self.shape_prior * dshape.pow(2).sum()
             opt.zero_grad()
             loss.backward()
             opt.step()
         with torch.no_grad():
             r = rot.to(dev) @ roma.rotvec_to_rotmat(delta)
-            o = self.body(r[None], shape, transl=tt[None])
-        return (r.cpu(), tt.detach().cpu().numpy().astype(np.float64),
+            shp = shape0 + shaped(dshape)
+            o = self.body(r[None], shp, transl=tt[None])
+        return (r.cpu(), shp[0].cpu(), tt.detach().cpu().numpy().astype(np.float64),
                 tuple(x[0].cpu().numpy().astype(np.float64) for x in (o.vertices, o.joints, o.landmarks)))
 
     def posed_body(self, rec: Reconstruction):
@@ -301,6 +341,81 @@ class Reconstructor:
         shape = torch.tensor(rec.shape, dtype=torch.float32)[None]
         with torch.no_grad():
             return self.body(rot, shape, transl=torch.tensor(rec.translation, dtype=torch.float32)[None])
+
+
+class SilhouetteTarget:
+    """Differentiable silhouette terms against a person mask, for projected body vertices uv
+    (N, 2) pixels: mean robust distance of the vertices outside the mask (every surface point
+    projects inside the silhouette) + ``cover`` x mean robust distance from the mask's contour
+    to the nearest vertex (the body should reach the contour). Distances are in units of the
+    person box' longer side (``size``); the robust kernel d^2 / (d^2 + s^2) caps what a wrong
+    mask (an occluder, a missed limb) can pull. Contour points on the image border are skipped
+    (the body continues outside)."""
+
+    def __init__(self, mask: np.ndarray, box, device="cpu", contour_points: int = 256, scale: float = 0.05,
+                 cover: float = 1.0):
+        import cv2
+
+        m = np.ascontiguousarray(mask, dtype=np.uint8)
+        h, w = m.shape
+        self.size = float(max(box[2] - box[0], box[3] - box[1], 1.0))
+        self.scale, self.cover = scale, cover
+        dist = cv2.distanceTransform(1 - m, cv2.DIST_L2, 5) / self.size
+        self.dist = torch.tensor(dist, dtype=torch.float32, device=device)[None, None]
+        contours, _ = cv2.findContours(m, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+        c = np.concatenate([x[:, 0] for x in contours]) if contours else np.zeros((0, 2))
+        c = c[(c[:, 0] > 0) & (c[:, 0] < w - 1) & (c[:, 1] > 0) & (c[:, 1] < h - 1)]
+        if len(c) > contour_points:
+            c = c[np.linspace(0, len(c) - 1, contour_points).astype(int)]
+        self.contour = torch.tensor(c, dtype=torch.float32, device=device)
+        self.contour_np = c.astype(np.float64)
+        self.hw = (h, w)
+
+    def rho(self, d2: torch.Tensor) -> torch.Tensor:
+        return d2 / (d2 + self.scale ** 2)
+
+    def outside(self, uv: torch.Tensor) -> torch.Tensor:
+        """(N,) robust cost of each point's distance to the mask (0 inside it or off the image)."""
+        h, w = self.hw
+        grid = torch.stack([(uv[:, 0] + 0.5) / w * 2 - 1, (uv[:, 1] + 0.5) / h * 2 - 1], -1)
+        d = torch.nn.functional.grid_sample(self.dist, grid[None, None], align_corners=False, padding_mode="zeros")
+        return self.rho(d[0, 0, 0] ** 2)
+
+    def uncovered(self, uv: torch.Tensor) -> torch.Tensor:
+        """(C,) robust cost of each contour point's distance to its nearest point of uv."""
+        from scipy.spatial import cKDTree
+
+        if not len(self.contour):
+            return uv.new_zeros(0)
+        # the nearest point of each contour point (no gradient through the choice)
+        nearest = torch.as_tensor(cKDTree(uv.detach().cpu().numpy()).query(self.contour_np)[1], device=uv.device)
+        return self.rho((self.contour - uv[nearest]).pow(2).sum(-1) / self.size ** 2)  # no sqrt: finite gradient at 0
+
+    def __call__(self, uv: torch.Tensor) -> torch.Tensor:
+        loss = self.outside(uv).mean()
+        if len(self.contour):
+            loss = loss + self.cover * self.uncovered(uv).mean()
+        return loss * self.scale ** 2  # ~ squared distance for small errors
+
+
+def _linear_rest_geometry(body, shape: torch.Tensor, ids: torch.Tensor | None, with_jacobian: bool, eps: float = 1e-2):
+    """The body's rest geometry (landmarks, then ``ids``) at ``shape`` (1, S) and, if asked, its
+    Jacobian in the shape parameters by central differences in one batched call: a fitting
+    loop then skips the shape blendshapes (most of a body call) and stays exact for the
+    piecewise-linear anny phenotypes. Returns ((rest_v, rest_j), (jac_v, jac_j) | None)."""
+    sel = body.landmark_indices if ids is None else torch.cat([body.landmark_indices, ids])
+    with torch.no_grad():
+        if not with_jacobian:
+            return body.rest_geometry(shape, sel), None
+        s = shape.shape[1]
+        step = eps * torch.eye(s, dtype=shape.dtype, device=shape.device)
+        batch = torch.cat([shape, shape + step, shape - step])
+        if body.shape_range is not None:
+            batch = batch.clamp(*body.shape_range)
+        v, j = body.rest_geometry(batch, sel)
+        h = (batch[1:s + 1] - batch[s + 1:]).diagonal().clamp_min(1e-6)  # actual steps after clamping
+        jac = tuple(((x[1:s + 1] - x[s + 1:]) / h[:, None, None]).permute(1, 2, 0)[None] for x in (v, j))
+        return (v[:1], j[:1]), jac
 
 
 def place(points: np.ndarray, uv: np.ndarray, k: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:

@@ -57,7 +57,7 @@ def check_writable(out: Path) -> None:
 def run(inputs: list[str | Path], out: str | Path, batch_size: int = 4, device: str = "cpu",
         focal_factor: float = 1.0, overlay: bool = True, reconstructor=None, progress: bool = True,
         log=print, refine_steps: int = 30, outfit: str | None = None, source: str = "mediapipe",
-        tightness: tuple[float, float] | None = None) -> RunSummary:
+        tightness: tuple[float, float] | None = None, silhouette: float = 10.0, flip: bool = False) -> RunSummary:
     from tqdm import tqdm
 
     out = Path(out)
@@ -93,7 +93,7 @@ def run(inputs: list[str | Path], out: str | Path, batch_size: int = 4, device: 
             if not loaded:
                 continue
             if rec is None:
-                rec = reconstructor or _make_reconstructor(device, focal_factor, refine_steps, source)
+                rec = reconstructor or _make_reconstructor(device, focal_factor, refine_steps, source, silhouette, flip)
             small = [_downscale(img) for _, _, img in loaded]
             ks = [np.diag([s, s, 1.0]) @ _intrinsics(img, focal_factor) for (_, _, img), (_, s) in zip(loaded, small)]
             results = rec.batch([im for im, _ in small], ks)
@@ -123,10 +123,13 @@ def run(inputs: list[str | Path], out: str | Path, batch_size: int = 4, device: 
     return summary
 
 
-def _make_reconstructor(device: str, focal_factor: float, refine_steps: int, source: str = "mediapipe"):
-    from recon.pipeline import Reconstructor
+def _make_reconstructor(device: str, focal_factor: float, refine_steps: int, source: str = "mediapipe",
+                        silhouette: float = 10.0, flip: bool = False):
+    from recon.pipeline import Reconstructor, make_source
 
-    return Reconstructor(source=source, device=device, focal_factor=focal_factor, refine_steps=refine_steps)
+    src = make_source(source, device=device, flip=flip) if source == "backbone" else source
+    return Reconstructor(source=src, device=device, focal_factor=focal_factor, refine_steps=refine_steps,
+                         silhouette=silhouette)
 
 
 def _intrinsics(img: np.ndarray, focal_factor: float) -> np.ndarray:
@@ -188,6 +191,8 @@ def _write(folder: Path, src: Path, img, small, s: float, k_small, r, rec, overl
     js["image_size"] = list(img.shape[:2])
     js["source"] = str(src)
     js["keypoint_source"] = getattr(getattr(rec, "source", None), "name", None)
+    steps = getattr(rec, "refine_steps", 0)  # the fit after SMPLR; the mask term only where the source gave a mask
+    js["fit"] = {"steps": steps, "silhouette": getattr(rec, "silhouette", 0.0) if steps and r.keypoints.mask is not None else 0.0}
     if dresser is not None:
         js["outfit"] = {"garments": dresser.names, "tightness": None if tightness is None else [float(t) for t in tightness]}
     js["files"] = sorted(p.name for p in folder.iterdir() if not p.name.startswith("."))

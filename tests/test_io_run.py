@@ -151,6 +151,7 @@ def test_run_robust_batch_and_resume(tmp_path, reconstructor):
     assert s.done == ["f_huge"]
     huge = json.loads((out / "f_huge" / "result.json").read_text())
     assert huge["image_size"] == [4096, 4096]
+    assert huge["fit"] == {"steps": 30, "silhouette": 10.0}  # MediaPipe gives a mask: the fit used it
     assert huge["camera"]["K"][0][2] == pytest.approx(2048)  # original pixels, not the downscaled ones
     assert max(max(p) for p in huge["joints2d"]) > 1920
     for key in ("f_huge",):

@@ -91,19 +91,30 @@ class Backbone:
         # files calibrated before the foreshortened estimate keep the plain bone-length one
         return cls(net, device, ck.get("crop_depth_scale", (1.0, 1.0)), jit, ck.get("crop_depth_method", "bones"))
 
-    def grids(self, crops_rgb: np.ndarray, locate: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
+    def grids(self, crops_rgb: np.ndarray, locate: bool = False, flip: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
         """(B, S, S, 3) uint8 crops -> grid coordinates (B, 42, 3) and confidences (B, 42): the
-        probability mass within one voxel of the expected position. ``locate``: first stack only."""
+        probability mass within one voxel of the expected position. ``locate``: first stack only.
+        ``flip``: average with the prediction on the mirrored crop (mirrored back, left/right
+        points swapped; the training flip undone), at twice the cost."""
         # (B, S, S, 3) uint8 is already channels-last: permuting gives the layout the fast net wants
         x = torch.from_numpy(np.ascontiguousarray(crops_rgb)).to(self.device).permute(0, 3, 1, 2).float() / 255.0
+        b = len(x)
+        if flip:
+            x = torch.cat([x, x.flip(-1).contiguous(memory_format=torch.channels_last)])
         with torch.no_grad():
             logits = (self.locator if locate else self.fast)(x)[-1][:, :skeleton.NUM_POINTS].float().contiguous()
             g = soft_argmax_3d(logits)
-            return g.cpu(), local_mass(logits, g).cpu()
+            conf = local_mass(logits, g)
+            if flip:
+                mirror = list(skeleton.POINT_MIRROR)
+                gf, cf = g[b:, mirror].clone(), conf[b:, mirror]
+                gf[..., 0] = 1.0 - gf[..., 0]
+                g, conf = 0.5 * (g[:b] + gf), 0.5 * (conf[:b] + cf)
+            return g.cpu(), conf.cpu()
 
-    def predict(self, images: list[np.ndarray], crops: list[Crop], locate: bool = False):
+    def predict(self, images: list[np.ndarray], crops: list[Crop], locate: bool = False, flip: bool = False):
         batch = np.stack([c.image(im, self.size) for im, c in zip(images, crops)])
-        g, conf = self.grids(batch, locate)
+        g, conf = self.grids(batch, locate, flip)
         pts = np.stack([c.from_grid(gi.double().numpy()) for c, gi in zip(crops, g)])
         uv = np.stack([np.stack([c.u0 + gi[:, 0].double().numpy() * c.side, c.v0 + gi[:, 1].double().numpy() * c.side], 1)
                        for c, gi in zip(crops, g)])

@@ -128,12 +128,12 @@ class MediaPipeSMPLR:
     name = "mediapipe-smplr"
     description = "recon.Reconstructor: MediaPipe -> adapter -> DAE -> SMPLR"
 
-    refine_steps = 0
+    refine_steps, silhouette = 0, 0.0
 
     def __init__(self, body):
         from recon.pipeline import Reconstructor
 
-        self.rec = Reconstructor(body, refine_steps=self.refine_steps)
+        self.rec = Reconstructor(body, refine_steps=self.refine_steps, silhouette=self.silhouette)
 
     def __call__(self, rgb: np.ndarray, k: np.ndarray) -> Prediction | None:
         r = self.rec.batch([rgb], [k])[0]
@@ -142,10 +142,16 @@ class MediaPipeSMPLR:
         return Prediction(r.joints, r.landmarks, r.vertices)  # IoU from our mesh, not MediaPipe's mask
 
 
+class MediaPipeSMPLRFitKeypoints(MediaPipeSMPLR):
+    name = "mediapipe-smplr-fit-kp"
+    description = "recon.Reconstructor + 30-step fit to the keypoints only (`recon run --silhouette 0`)"
+    refine_steps = 30
+
+
 class MediaPipeSMPLRFit(MediaPipeSMPLR):
     name = "mediapipe-smplr-fit"
-    description = "recon.Reconstructor with the 30-step 2D keypoint fit (`recon run` default)"
-    refine_steps = 30
+    description = "recon.Reconstructor + 30-step fit to the keypoints and MediaPipe's person mask (`recon run` default)"
+    refine_steps, silhouette = 30, 10.0
 
 
 class BackboneMethod:
@@ -153,15 +159,16 @@ class BackboneMethod:
     rows): ``stage`` "net" = decoded J+ alone, "dae" = after the 3D DAE, "smplr" = DAE + SMPLR
     mesh placed by reprojection of the predicted 2D. ``crop`` "gt" = the metric crop around the
     ground-truth mean joint (the thesis protocol; uses GT), "self" = found by the network
-    itself (``recon.pipeline.BackboneSource``; no GT)."""
+    itself (``recon.pipeline.BackboneSource``; no GT). ``flip``: the final prediction averaged
+    with that of the mirrored crop (``BackboneSource(flip=True)``)."""
 
-    crop, stage = "gt", "net"
+    crop, stage, flip = "gt", "net", False
 
     def __init__(self, body):
         from recon.pipeline import BackboneSource
         from recon.smplr import SMPLR
 
-        self.source = BackboneSource(body)
+        self.source = BackboneSource(body, flip=self.flip)
         self.smplr = SMPLR.load(body) if self.stage != "net" else None
         self.needs_gt = self.crop == "gt"
 
@@ -169,7 +176,8 @@ class BackboneMethod:
         from recon.backbone.crop import Crop
 
         if self.crop == "gt":
-            pts, uv, _conf = self.source.net.predict([rgb], [Crop.around(points3d[:24].astype(np.float64).mean(0), k)])
+            crop = Crop.around(points3d[:24].astype(np.float64).mean(0), k)
+            pts, uv, _conf = self.source.net.predict([rgb], [crop], flip=self.source.flip)
             pts, uv = pts[0], uv[0]
         else:
             kp = self.source(rgb, k)
@@ -191,14 +199,17 @@ class BackboneMethod:
         return Prediction(j - j[:1] + t, lm - j[:1] + t, v - j[:1] + t)
 
 
-def _backbone(crop: str, stage: str) -> type:
+def _backbone(crop: str, stage: str, flip: bool = False) -> type:
     what = {"net": "J+ decoded from the volumes", "dae": "+ 3D DAE", "smplr": "+ DAE + SMPLR mesh"}[stage]
     where = {"gt": "GT metric crop (thesis protocol)", "self": "crop found by the network (no GT)"}[crop]
-    name = "backbone" + ("-gtcrop" if crop == "gt" else "") + ("" if stage == "net" else "-" + stage)
-    return type(name, (BackboneMethod,), {"name": name, "crop": crop, "stage": stage,
-                                          "description": f"our hourglass, {where}: {what}"})
+    name = "backbone" + ("-gtcrop" if crop == "gt" else "") + ("" if stage == "net" else "-" + stage) + ("-flip" if flip else "")
+    how = ", final pass averaged with the mirrored crop" if flip else ""
+    return type(name, (BackboneMethod,), {"name": name, "crop": crop, "stage": stage, "flip": flip,
+                                          "description": f"our hourglass{how}, {where}: {what}"})
 
 
 METHODS = {"mean": MeanBaseline, "mediapipe": MediaPipeBaseline, "smplr-gt2d": SMPLROracle2D,
-           "mediapipe-smplr": MediaPipeSMPLR, "mediapipe-smplr-fit": MediaPipeSMPLRFit}
-METHODS.update({c.name: c for c in (_backbone(crop, stage) for crop in ("gt", "self") for stage in ("net", "dae", "smplr"))})
+           "mediapipe-smplr": MediaPipeSMPLR, "mediapipe-smplr-fit-kp": MediaPipeSMPLRFitKeypoints,
+           "mediapipe-smplr-fit": MediaPipeSMPLRFit}
+METHODS.update({c.name: c for c in (_backbone(crop, stage, flip) for flip in (False, True) for crop in ("gt", "self")
+                                     for stage in ("net", "dae", "smplr"))})

@@ -81,13 +81,20 @@ def evaluate(bench: str, methods: list[str], n: int | None = None, out_dir: Path
     new = [run_method(m, ds, body, n) for m in methods]
     out_dir.mkdir(parents=True, exist_ok=True)
     stem = out_dir / f"{bench}"
-    # merge with earlier runs: one table for all methods, re-run methods replaced
+    # merge with earlier runs: one table for all methods, re-run methods replaced in place
     old = json.loads(stem.with_suffix(".json").read_text()) if stem.with_suffix(".json").exists() else []
-    results = [r for r in old if r["method"] not in methods] + new
+    fresh = {r["method"]: r for r in new}
+    results = [fresh.pop(r["method"], r) for r in old] + list(fresh.values())
     paths.atomic_write(stem.with_suffix(".json"), lambda t: Path(t).write_text(json.dumps(results, indent=1)))
+    return write_tables(bench, results, len(ds), out_dir)
+
+
+def write_tables(bench: str, results: list[dict], images: int, out_dir: Path = Path("eval/results")) -> Path:
+    """The Markdown tables of ``results`` (the benchmark's JSON rows) -> ``out_dir/<bench>.md``."""
+    stem = Path(out_dir) / bench
     cols = ["MPJPE-P1", "MPJPE-P2 (PA)", "Lm", "PVE", "IoU"]
     fmt = lambda v, c: "-" if v is None else (f"{v:.3f}" if c == "IoU" else f"{v:.1f}")  # noqa: E731
-    lines = [f"Benchmark {bench} ({len(ds)} images; a method may be run on the first N). Errors in mm; "
+    lines = [f"Benchmark {bench} ({images} images; a method may be run on the first N). Errors in mm; "
              "failures = images where the method found no person (not scored).", "",
              "| method | " + " | ".join(cols) + " | images | failures | s/img |", "|---|" + "---|" * (len(cols) + 3)]
     for r in results:

@@ -92,6 +92,7 @@ def build_cache(force: bool = False) -> Path:
 
 class AnnyBody(BodyModel):
     shape_names = ("gender", "age", "muscle", "weight", "height", "proportions")
+    shape_range = (0.0, 1.0)  # phenotype sliders
 
     def __init__(self, path: str | Path | None = None, build: bool = True) -> None:
         super().__init__()

@@ -41,6 +41,7 @@ class BodyModel(nn.Module):
     parents = skeleton.JOINT_PARENTS
     landmark_names = skeleton.LANDMARK_NAMES
     shape_names: tuple[str, ...] = ()
+    shape_range: tuple[float, float] | None = None  # valid interval of every shape parameter, if bounded
 
     faces: torch.Tensor
     weights: torch.Tensor
@@ -108,6 +109,8 @@ class BodyModel(nn.Module):
         shape: torch.Tensor | None = None,
         transl: torch.Tensor | None = None,
         points_only: bool = False,
+        vertex_ids: torch.Tensor | None = None,
+        rest: tuple[torch.Tensor, torch.Tensor] | None = None,
     ) -> BodyOutput:
         """Pose and shape the body.
 
@@ -117,6 +120,10 @@ class BodyModel(nn.Module):
             transl: (B, 3) position of the pelvis joint; None = origin.
         A batch of 1 in pose or shape broadcasts against the other. ``points_only`` skins
         only the landmark vertices (``vertices`` then holds those 18): the cheap path for J+.
+        ``vertex_ids`` skins only those vertices (``vertices`` then holds them, in that order;
+        landmarks are still computed): e.g. a subset for silhouette fitting. ``rest`` = the
+        ``rest_geometry`` of this call's vertices (landmarks first when ``vertex_ids`` is given),
+        precomputed or linearised by a fitting loop; ``shape`` is then ignored.
         """
         dtype = self.mean_shape.dtype
         rot = None if pose is None else lbs.as_rotmats(pose, skeleton.NUM_JOINTS).to(dtype)
@@ -129,7 +136,9 @@ class BodyModel(nn.Module):
         shp = self._check_shape(shp, b).expand(b, -1)
 
         ids = self.landmark_indices if points_only else None
-        rest_v, rest_j = self.rest_geometry(shp, ids)
+        if vertex_ids is not None and not points_only:
+            ids = torch.cat([self.landmark_indices, torch.as_tensor(vertex_ids, device=self.landmark_indices.device)])
+        rest_v, rest_j = self.rest_geometry(shp, ids) if rest is None else rest
         offsets = self.pose_offsets(rot, ids)
         posed_rest_v = rest_v if offsets is None else rest_v + offsets
         g_rot, joints, transforms = lbs.forward_kinematics(rot, rest_j, self.parents)
@@ -146,10 +155,17 @@ class BodyModel(nn.Module):
         transforms = torch.cat([transforms[..., :3], transforms[..., 3:] + shift.unsqueeze(-1)], dim=-1)
         weights = self.weights if ids is None else self.weights[ids]
         vertices = lbs.skin(posed_rest_v, weights, transforms)
+        if points_only:
+            landmarks = vertices
+        elif ids is None:
+            landmarks = vertices[:, self.landmark_indices]
+        else:  # the landmarks were skinned first
+            n = len(self.landmark_indices)
+            landmarks, vertices, rest_v = vertices[:, :n], vertices[:, n:], rest_v[:, n:]
         return BodyOutput(
             vertices=vertices,
             joints=joints + shift,
-            landmarks=vertices if points_only else vertices[:, self.landmark_indices],
+            landmarks=landmarks,
             transforms=transforms,
             global_rotmats=g_rot,
             rest_vertices=rest_v,

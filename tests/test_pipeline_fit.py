@@ -1,0 +1,95 @@
+"""The fit after SMPLR (recon.pipeline.Reconstructor.refine): the body-model shortcuts it relies
+on, the silhouette term's geometry, and a fit that must recover a body's width from its mask."""
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from recon.pipeline import Keypoints, Reconstructor, SilhouetteTarget, _linear_rest_geometry, place
+from recon.synth.scene import BODY_TO_CAMERA_FRONT
+
+
+def test_vertex_subset_and_precomputed_rest_match_full_forward(body):
+    torch.manual_seed(0)
+    pose, shape = 0.3 * torch.randn(2, 24, 3), torch.rand(2, 6)
+    full = body(pose, shape)
+    ids = torch.tensor([5, 700, 13000, 42])
+    sub = body(pose, shape, vertex_ids=ids)
+    assert sub.vertices.shape == (2, 4, 3)
+    assert torch.allclose(sub.vertices, full.vertices[:, ids], atol=1e-5)
+    assert torch.allclose(sub.landmarks, full.landmarks, atol=1e-5)
+    rest = body.rest_geometry(shape, torch.cat([body.landmark_indices, ids]))
+    pre = body(pose, None, vertex_ids=ids, rest=rest)
+    assert torch.allclose(pre.vertices, sub.vertices) and torch.allclose(pre.joints, full.joints, atol=1e-5)
+
+
+def test_linearised_rest_geometry_predicts_a_shape_change(body):
+    shape = torch.tensor([[0.5, 0.6, 0.4, 0.5, 0.5, 0.5]])
+    ids = torch.arange(0, body.num_vertices, 50)
+    (v0, j0), (jv, jj) = _linear_rest_geometry(body, shape, ids, with_jacobian=True)
+    d = torch.tensor([[0.0, 0.0, 0.05, -0.04, 0.03, 0.0]])
+    v1, j1 = body.rest_geometry(shape + d, torch.cat([body.landmark_indices, ids]))
+    pred_v = v0 + torch.einsum("bnks,bs->bnk", jv, d)
+    moved = (v1 - v0).abs().max()
+    assert moved > 5e-3  # the change is not negligible ...
+    assert (pred_v - v1).abs().max() < 0.05 * moved  # ... and the linear model predicts it
+    assert (j0 + torch.einsum("bnks,bs->bnk", jj, d) - j1).abs().max() < 0.05 * moved
+
+
+def test_silhouette_term_pulls_points_into_the_mask():
+    mask = np.zeros((100, 120), bool)
+    mask[20:80, 30:70] = True
+    target = SilhouetteTarget(mask, (30, 20, 70, 80))
+    ys, xs = np.mgrid[20:80, 30:70]
+    inside = torch.tensor(np.stack([xs.ravel(), ys.ravel()], 1), dtype=torch.float32)
+    shifted = (inside + torch.tensor([5.0, 0.0])).requires_grad_(True)  # ~ the kernel scale (0.05 x 60 px)
+    assert target(inside) < 0.1 * target(shifted).detach()
+    target(shifted).backward()
+    assert shifted.grad[:, 0].sum() > 0 and shifted.grad[:, 0].sum() > 3 * shifted.grad[:, 1].abs().sum()
+    # points beyond the image border cost nothing (the body continues outside)
+    assert target.outside(torch.tensor([[-50.0, 50.0], [500.0, 10.0]])).abs().max() == 0.0
+    assert target.outside(torch.tensor([[50.0, 50.0]])) == 0.0 and target.outside(torch.tensor([[90.0, 50.0]])) > 0.5
+
+
+def _mask(vertices, faces, k, hw):
+    uv = vertices @ k.T
+    uv = (uv[:, :2] / uv[:, 2:]).round().astype(np.int32)
+    m = np.zeros(hw, np.uint8)
+    cv2.fillPoly(m, list(uv[faces]), 1)
+    return m.astype(bool)
+
+
+def _iou(a, b):
+    return (a & b).sum() / (a | b).sum()
+
+
+def test_fit_to_a_mask_corrects_biased_keypoints(body):
+    """A person seen by the camera whose detected 2D keypoints are all 8 px to the right (a
+    detector bias; the mask is right). Fitting the keypoints alone keeps the body where they
+    are; with the mask term the body moves onto the person."""
+    hw, k = (256, 256), np.array([[300.0, 0, 128], [0, 300.0, 128], [0, 0, 1]])
+    rot = body.identity_pose(1)
+    rot[0, 0] = torch.tensor(BODY_TO_CAMERA_FRONT, dtype=torch.float32)
+    shape = torch.tensor([0.5, 0.5, 0.5, 0.9, 0.5, 0.5])
+    with torch.no_grad():
+        gt = body(rot, shape[None], transl=torch.tensor([[0.0, 0.1, 2.6]]))
+    faces = body.faces.numpy()
+    gt_mask = _mask(gt.vertices[0].numpy(), faces, k, hw)
+    pts = gt.points[0].numpy().astype(np.float64)
+    uv = pts @ k.T
+    uv = uv[:, :2] / uv[:, 2:] + np.array([8.0, 0.0])
+    ys, xs = np.nonzero(gt_mask)
+    kp = Keypoints(pts - pts[:1], uv, 1.0, (xs.min(), ys.min(), xs.max(), ys.max()), gt_mask)
+    t0 = place(pts - pts[:1], uv, k)
+    start_iou = _iou(_mask(gt.vertices[0].numpy() - pts[:1] + t0, faces, k, hw), gt_mask)
+    fits = {}
+    for silhouette in (0.0, 10.0):
+        rec = Reconstructor(body, source=lambda rgb, k: None, refine_steps=30, silhouette=silhouette)
+        r, s, t, (v, j, lm) = rec.refine(rot[0], shape, t0, kp, k, hw)
+        fits[silhouette] = _iou(_mask(v, faces, k, hw), gt_mask), s
+        with torch.no_grad():  # the returned mesh is the body at the returned parameters
+            again = body(r[None], s[None], transl=torch.tensor(t[None], dtype=torch.float32))
+        assert np.abs(again.vertices[0].numpy() - v).max() < 1e-5
+    assert torch.equal(fits[0.0][1], shape)  # keypoints alone do not touch the shape
+    assert abs(fits[0.0][0] - start_iou) < 0.05
+    assert fits[10.0][0] > start_iou + 0.2 and fits[10.0][0] > fits[0.0][0] + 0.2
