@@ -145,6 +145,7 @@ class Reconstruction:
     keypoints: Keypoints
     shape_names: tuple[str, ...] = ()
     timings_ms: dict = field(default_factory=dict)
+    fit: dict = field(default_factory=dict)  # the fit after SMPLR: steps, silhouette weight used
 
     def project(self, x: np.ndarray) -> np.ndarray:
         p = x @ self.K.T
@@ -181,6 +182,7 @@ class Reconstruction:
             "shape": dict(zip(self.shape_names or [f"s{i}" for i in range(len(self.shape))], r(self.shape, 4))),
             "translation": r(self.translation),
             "timings_ms": {k: round(v, 2) for k, v in self.timings_ms.items()},
+            "fit": self.fit,
         }
 
 
@@ -264,6 +266,7 @@ class Reconstructor:
             v, j, lm = v - j[:1] + t, j - j[:1] + t, lm - j[:1] + t  # placed in the camera
             timings = {"keypoints": t_kp[i], "smplr": t_smplr}
             shape = o.shape[n]
+            fit = {"steps": self.refine_steps, "silhouette": self.mask_weight(kps[n]) if self.refine_steps else 0.0}
             if self.refine_steps:
                 t1 = time.perf_counter()
                 rot, shape, t, (v, j, lm) = self.refine(rot, o.shape[n], t, kps[n], kmats[n], images[i].shape)
@@ -271,7 +274,7 @@ class Reconstructor:
             results[i] = Reconstruction(
                 image_size=tuple(images[i].shape[:2]), K=kmats[n], vertices=v, joints=j, landmarks=lm,
                 rotmats=rot.cpu().numpy(), shape=shape.cpu().numpy(), translation=t, keypoints=kps[n],
-                shape_names=tuple(getattr(self.body, "shape_names", ())), timings_ms=timings)
+                shape_names=tuple(getattr(self.body, "shape_names", ())), timings_ms=timings, fit=fit)
         return results
 
     def refine(self, rot: torch.Tensor, shape: torch.Tensor, t: np.ndarray, kp: Keypoints, k: np.ndarray, image_shape,
@@ -294,7 +297,7 @@ class Reconstructor:
         dshape = torch.zeros_like(shape0, requires_grad=True)
         params = [{"params": [delta], "lr": 0.02}, {"params": [tt], "lr": 0.01}]
         sil, ids = None, None
-        if self.silhouette > 0 and kp.mask is not None:
+        if self.mask_weight(kp) > 0:
             sil = SilhouetteTarget(kp.mask, kp.box, dev, cover=self.silhouette_cover)
             params.append({"params": [dshape], "lr": self.shape_lr})
             ids = torch.arange(0, self.body.num_vertices, self.silhouette_stride, device=dev)
@@ -334,6 +337,17 @@ class Reconstructor:
             o = self.body(r[None], shp, transl=tt[None])
         return (r.cpu(), shp[0].cpu(), tt.detach().cpu().numpy().astype(np.float64),
                 tuple(x[0].cpu().numpy().astype(np.float64) for x in (o.vertices, o.joints, o.landmarks)))
+
+    def mask_weight(self, kp: Keypoints) -> float:
+        """The silhouette weight the fit uses for these keypoints: 0 without a mask, or when the
+        mask covers under 10 % of the keypoints' box (a failed segmentation)."""
+        if self.silhouette <= 0 or kp.mask is None:
+            return 0.0
+        h, w = kp.mask.shape
+        x0, y0, x1, y1 = (int(round(v)) for v in kp.box)
+        x0, x1, y0, y1 = max(x0, 0), min(max(x1, x0 + 1), w), max(y0, 0), min(max(y1, y0 + 1), h)
+        area = max((x1 - x0) * (y1 - y0), 1)
+        return self.silhouette if kp.mask[y0:y1, x0:x1].sum() >= 0.1 * area else 0.0
 
     def posed_body(self, rec: Reconstruction):
         """Re-run the body model from the reconstruction's parameters (camera frame)."""

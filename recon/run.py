@@ -191,8 +191,6 @@ def _write(folder: Path, src: Path, img, small, s: float, k_small, r, rec, overl
     js["image_size"] = list(img.shape[:2])
     js["source"] = str(src)
     js["keypoint_source"] = getattr(getattr(rec, "source", None), "name", None)
-    steps = getattr(rec, "refine_steps", 0)  # the fit after SMPLR; the mask term only where the source gave a mask
-    js["fit"] = {"steps": steps, "silhouette": getattr(rec, "silhouette", 0.0) if steps and r.keypoints.mask is not None else 0.0}
     if dresser is not None:
         js["outfit"] = {"garments": dresser.names, "tightness": None if tightness is None else [float(t) for t in tightness]}
     js["files"] = sorted(p.name for p in folder.iterdir() if not p.name.startswith("."))

@@ -156,3 +156,10 @@ def test_recon_run_with_the_backbone_source(tmp_path, val_samples):
     assert s.done == ["synthetic"]
     js = json.loads((tmp_path / "out" / "synthetic" / "result.json").read_text())
     assert js["keypoint_source"] == "backbone" and len(js["joints3d"]) == 24
+
+
+def test_run_passes_flip_to_the_backbone_source():
+    from recon.run import _make_reconstructor
+
+    assert _make_reconstructor("cpu", 1.0, 0, "backbone", flip=True).source.flip
+    assert not _make_reconstructor("cpu", 1.0, 0, "backbone").source.flip

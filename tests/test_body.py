@@ -119,3 +119,13 @@ def test_points_only_path_matches_full_forward(body):
     full, fast = body(pose, shape), body(pose, shape, points_only=True)
     assert fast.vertices.shape == (4, 18, 3)
     assert torch.allclose(full.points, fast.points, atol=1e-5)
+
+
+def test_level_by_level_kinematics_equals_the_joint_by_joint_recursion():
+    torch.manual_seed(5)
+    for parents in (skeleton.JOINT_PARENTS, (-1, 0, 1, 0, 3, 4, 2, 6)):  # ours and a small unbalanced tree
+        j = len(parents)
+        rot, rest = roma.rotvec_to_rotmat(torch.randn(3, j, 3)), torch.randn(3, j, 3)
+        for a, b in zip(lbs.forward_kinematics(rot, rest, tuple(parents)),
+                        lbs.forward_kinematics_sequential(rot, rest, tuple(parents))):
+            torch.testing.assert_close(a, b, atol=1e-6, rtol=0)

@@ -93,3 +93,16 @@ def test_fit_to_a_mask_corrects_biased_keypoints(body):
     assert torch.equal(fits[0.0][1], shape)  # keypoints alone do not touch the shape
     assert abs(fits[0.0][0] - start_iou) < 0.05
     assert fits[10.0][0] > start_iou + 0.2 and fits[10.0][0] > fits[0.0][0] + 0.2
+
+
+def test_mask_weight_skips_missing_or_failed_masks(body):
+    rec = Reconstructor(body, source=lambda rgb, k: None, refine_steps=30, silhouette=10.0)
+    pts, uv = np.zeros((42, 3)), np.zeros((42, 2))
+    mask = np.zeros((100, 100), bool)
+    box = (20.0, 10.0, 60.0, 90.0)
+    assert rec.mask_weight(Keypoints(pts, uv, 1.0, box, None)) == 0.0
+    assert rec.mask_weight(Keypoints(pts, uv, 1.0, box, mask)) == 0.0  # empty: segmentation failed
+    mask[10:90, 30:50] = True  # a person-like strip: half of the box
+    assert rec.mask_weight(Keypoints(pts, uv, 1.0, box, mask)) == 10.0
+    rec.silhouette = 0.0
+    assert rec.mask_weight(Keypoints(pts, uv, 1.0, box, mask)) == 0.0

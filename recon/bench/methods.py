@@ -154,6 +154,20 @@ class MediaPipeSMPLRFit(MediaPipeSMPLR):
     refine_steps, silhouette = 30, 10.0
 
 
+class BackboneSMPLRFit(MediaPipeSMPLR):
+    """``recon run --source backbone`` as shipped: recon.Reconstructor with our hourglass as the
+    keypoint source (no mask) and the 30-step fit to its keypoints."""
+
+    name = "backbone-smplr-fit"
+    description = "recon.Reconstructor: our hourglass (crop found by the network) -> DAE -> SMPLR + 30-step " \
+                  "keypoint fit (`recon run --source backbone`)"
+
+    def __init__(self, body):
+        from recon.pipeline import BackboneSource, Reconstructor
+
+        self.rec = Reconstructor(body, source=BackboneSource(body), refine_steps=30)
+
+
 class BackboneMethod:
     """Our volumetric hourglass (shipped weights) and the stages on top of it (thesis Table 2.x
     rows): ``stage`` "net" = decoded J+ alone, "dae" = after the 3D DAE, "smplr" = DAE + SMPLR
@@ -210,6 +224,6 @@ def _backbone(crop: str, stage: str, flip: bool = False) -> type:
 
 METHODS = {"mean": MeanBaseline, "mediapipe": MediaPipeBaseline, "smplr-gt2d": SMPLROracle2D,
            "mediapipe-smplr": MediaPipeSMPLR, "mediapipe-smplr-fit-kp": MediaPipeSMPLRFitKeypoints,
-           "mediapipe-smplr-fit": MediaPipeSMPLRFit}
+           "mediapipe-smplr-fit": MediaPipeSMPLRFit, "backbone-smplr-fit": BackboneSMPLRFit}
 METHODS.update({c.name: c for c in (_backbone(crop, stage, flip) for flip in (False, True) for crop in ("gt", "self")
                                      for stage in ("net", "dae", "smplr"))})

@@ -1,6 +1,8 @@
 """Forward kinematics and linear blend skinning shared by every body model backend."""
 from __future__ import annotations
 
+import functools
+
 import roma
 import torch
 
@@ -40,7 +42,49 @@ def forward_kinematics(
     Returns:
         global_rotmats (B, J, 3, 3), posed joints (B, J, 3) with the root at its rest place,
         skinning transforms (B, J, 3, 4) mapping rest-pose points to posed points.
+
+    Joints are posed one tree level at a time (all joints at the same depth in one batched
+    matmul): 9 steps instead of 24 for the body skeleton, which is what a fitting loop pays for
+    at batch 1. ``forward_kinematics_sequential`` is the joint-by-joint reference.
     """
+    levels, slot, order = _levels(tuple(parents))
+    offsets = rest_joints - rest_joints[:, [max(p, 0) for p in parents]]
+    rot_l: list[torch.Tensor] = [rotmats[:, levels[0]]]
+    pos_l: list[torch.Tensor] = [rest_joints[:, levels[0]]]
+    for lv in range(1, len(levels)):
+        js = levels[lv]
+        up = [slot[parents[j]] for j in js]  # the parents' places in the previous level
+        prot = rot_l[-1][:, up]
+        rot_l.append(prot @ rotmats[:, js])
+        pos_l.append(pos_l[-1][:, up] + (prot @ offsets[:, js].unsqueeze(-1)).squeeze(-1))
+    g_rot = torch.cat(rot_l, dim=1)[:, order]
+    g_pos = torch.cat(pos_l, dim=1)[:, order]
+    trans = g_pos - (g_rot @ rest_joints.unsqueeze(-1)).squeeze(-1)
+    transforms = torch.cat([g_rot, trans.unsqueeze(-1)], dim=-1)
+    return g_rot, g_pos, transforms
+
+
+@functools.lru_cache(maxsize=16)
+def _levels(parents: tuple[int, ...]) -> tuple[list[list[int]], list[int], list[int]]:
+    """Joints grouped by depth; each joint's index within its level; and the permutation from
+    the levels' concatenation back to joint order."""
+    depth: list[int] = []
+    for p in parents:
+        depth.append(0 if p < 0 else depth[p] + 1)
+    levels = [[j for j, d in enumerate(depth) if d == lv] for lv in range(max(depth) + 1)]
+    slot = [0] * len(parents)
+    for js in levels:
+        for i, j in enumerate(js):
+            slot[j] = i
+    flat = [j for js in levels for j in js]
+    order = [flat.index(j) for j in range(len(parents))]
+    return levels, slot, order
+
+
+def forward_kinematics_sequential(
+    rotmats: torch.Tensor, rest_joints: torch.Tensor, parents: tuple[int, ...]
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``forward_kinematics`` one joint at a time (the textbook recursion; reference for tests)."""
     rots: list[torch.Tensor] = []
     pos: list[torch.Tensor] = []
     for j, p in enumerate(parents):
