@@ -3,7 +3,7 @@
 
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_pipeline.py [--repeats 10]
 
-Stages: keypoints (MediaPipe Pose + adapter, or our hourglass: 3 passes = whole image with the
+Stages: keypoints (MediaPipe Pose + adapter, with and without the mirror averaging, or our hourglass: 3 passes = whole image with the
 first hourglass only, then two metric crops, the last averaged with its mirror image; also
 without that flip, with 2 passes, with the whole network in the first pass, and eager instead of
 the TorchScript trace), SMPLR (DAE + Omega + Psi + full anny mesh) + placement, and the optional
@@ -22,7 +22,7 @@ import torch
 from recon import io
 from recon.body import default_body
 from recon.demo import example_photos
-from recon.pipeline import BackboneSource, Reconstructor, default_intrinsics
+from recon.pipeline import BackboneSource, MediaPipeSource, Reconstructor, default_intrinsics
 
 
 def main() -> None:
@@ -33,6 +33,7 @@ def main() -> None:
     body = default_body()
     images = [io.load_image(p) for p in example_photos()]
     sources = {"mediapipe": "mediapipe",
+               "mediapipe, no mirror averaging (`--no-flip`)": MediaPipeSource(flip=False),
                "backbone, 3 passes (default)": BackboneSource(body),
                "backbone, 3 passes, flip on the last (`--flip`)": BackboneSource(body, flip=True),
                "backbone, 2 passes": BackboneSource(body, passes=2),
@@ -56,7 +57,7 @@ def main() -> None:
                 rec.silhouette = 0.0
                 t[source]["fit, keypoints only"].append(rec.batch([img], [k])[0].timings_ms["refine"])
                 rec.silhouette = 10.0
-                if source != "mediapipe":
+                if isinstance(rec.source, BackboneSource):
                     from recon.backbone.model import whole_image_crop
 
                     t1 = time.perf_counter()

@@ -357,9 +357,9 @@ def main(argv: list[str] | None = None) -> int:
                         "the body shape (0: keypoints only)")
     r.add_argument("--source", choices=["mediapipe", "backbone"], default="mediapipe",
                    help="keypoints: MediaPipe + adapter (default) or our volumetric hourglass alone")
-    r.add_argument("--flip", action="store_true",
-                   help="with --source backbone: average the last pass with its mirror image (~2.5 mm better on "
-                        "synth-test, ~30 ms slower)")
+    r.add_argument("--flip", action=argparse.BooleanOptionalAction, default=None,
+                   help="test-time mirror averaging of the keypoints: default on for MediaPipe (~4 mm better on "
+                        "synth-val, one more MediaPipe call), off for the backbone (~2.5 mm, ~30 ms: its latency goal)")
     r.set_defaults(func=cmd_run)
     g = sub.add_parser("garment", help="PBNS outfits: train (unsupervised, physics energies) or evaluate")
     g.add_argument("action", choices=["train", "eval", "resize", "reference"],

@@ -57,7 +57,7 @@ def check_writable(out: Path) -> None:
 def run(inputs: list[str | Path], out: str | Path, batch_size: int = 4, device: str = "cpu",
         focal_factor: float = 1.0, overlay: bool = True, reconstructor=None, progress: bool = True,
         log=print, refine_steps: int = 30, outfit: str | None = None, source: str = "mediapipe",
-        tightness: tuple[float, float] | None = None, silhouette: float = 10.0, flip: bool = False) -> RunSummary:
+        tightness: tuple[float, float] | None = None, silhouette: float = 10.0, flip: bool | None = None) -> RunSummary:
     from tqdm import tqdm
 
     out = Path(out)
@@ -124,10 +124,10 @@ def run(inputs: list[str | Path], out: str | Path, batch_size: int = 4, device: 
 
 
 def _make_reconstructor(device: str, focal_factor: float, refine_steps: int, source: str = "mediapipe",
-                        silhouette: float = 10.0, flip: bool = False):
+                        silhouette: float = 10.0, flip: bool | None = None):
     from recon.pipeline import Reconstructor, make_source
 
-    src = make_source(source, device=device, flip=flip) if source == "backbone" else source
+    src = make_source(source, device=device, flip=flip)
     return Reconstructor(source=src, device=device, focal_factor=focal_factor, refine_steps=refine_steps,
                          silhouette=silhouette)
 

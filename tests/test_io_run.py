@@ -173,3 +173,20 @@ def test_run_tightness_needs_an_outfit_with_a_resizer(tmp_path, monkeypatch):
     with pytest.raises(ValueError, match="trained resizer for top-shorts"):
         run([EXAMPLES], tmp_path / "b", outfit="top-shorts", tightness=(0.1, 0.0), **quiet)
     assert not (tmp_path / "b" / "summary.json").exists()  # refused before any image
+
+
+@needs_pipeline
+def test_mediapipe_flip_is_mirror_equivariant():
+    """avg(f(x), M f(Mx)) gives the mirrored answer on the mirrored photo (left/right swapped)."""
+    from recon.body import skeleton
+    from recon.pipeline import MediaPipeSource, default_intrinsics
+
+    src = MediaPipeSource(flip=True)
+    img = io.load_image(ASTRONAUT)
+    k = default_intrinsics(*img.shape[:2])
+    a, b = src(img, k), src(np.ascontiguousarray(img[:, ::-1]), k)
+    mirror = list(skeleton.POINT_MIRROR)
+    np.testing.assert_allclose(b.points3d[mirror] * [-1, 1, 1], a.points3d, atol=1e-4)
+    np.testing.assert_allclose(img.shape[1] - b.points2d[mirror][:, 0], a.points2d[:, 0], atol=1e-2)
+    plain = MediaPipeSource(flip=False)(img, k)
+    assert np.abs(plain.points3d - a.points3d).max() > 1e-3  # the averaging did something

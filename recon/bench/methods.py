@@ -126,7 +126,7 @@ class MediaPipeSMPLR:
     DAE -> SMPLR -> mesh placed by reprojection. Uses the benchmark's K, like every method."""
 
     name = "mediapipe-smplr"
-    description = "recon.Reconstructor: MediaPipe -> adapter -> DAE -> SMPLR"
+    description = "recon.Reconstructor: MediaPipe (+ its mirror image) -> adapter -> DAE -> SMPLR, no fit"
 
     refine_steps, silhouette = 0, 0.0
 
