@@ -54,9 +54,9 @@ def main() -> None:
                 t[source]["smplr+mesh+place"].append(total - r0.timings_ms["keypoints"])
                 rec.refine_steps = 30
                 t[source]["fit"].append(rec.batch([img], [k])[0].timings_ms["refine"])
-                rec.silhouette = 0.0
+                sil, rec.silhouette = rec.silhouette, 0.0
                 t[source]["fit, keypoints only"].append(rec.batch([img], [k])[0].timings_ms["refine"])
-                rec.silhouette = 10.0
+                rec.silhouette = sil
                 if isinstance(rec.source, BackboneSource):
                     from recon.backbone.model import whole_image_crop
 

@@ -224,7 +224,7 @@ def cmd_garment(args) -> int:
 
         for o in outfits:
             cfg = ResizeConfig() if args.epochs is None else ResizeConfig(epochs=args.epochs)
-            meta = train_resizer(default_body(), weights_path(o), resize_weights_path(outfit_name(o), weights_path(o)), cfg)
+            meta = train_resizer(default_body(), weights_path(o), resize_weights_path(outfit_name(o)), cfg)
             print(json.dumps({"outfit": meta["outfit"], "train_seconds": meta["train_seconds"],
                               "transfer_only": meta["val_transfer_only"], "resized": meta["curve"][-1]}))
         return 0
@@ -244,7 +244,7 @@ def cmd_garment(args) -> int:
     body = default_body()
     print(evaluate_and_report(body, outfits, args.n or 500, Path(args.out)))
     for o in outfits:  # the resizing table, for outfits with a trained resizer
-        if resize.resize_weights_path(outfit_name(o), weights_path(o)).exists():
+        if resize.resize_weights_path(outfit_name(o)).exists():
             print(Path(resize.evaluate(body, o, out_dir=Path(args.out))).read_text())
     return 0
 

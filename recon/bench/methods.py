@@ -123,17 +123,18 @@ class SMPLROracle2D:
 
 class MediaPipeSMPLR:
     """The shipped image pipeline (recon.Reconstructor): MediaPipe Pose -> adapter -> J+ ->
-    DAE -> SMPLR -> mesh placed by reprojection. Uses the benchmark's K, like every method."""
+    DAE -> SMPLR -> mesh placed by reprojection. Uses the benchmark's K, like every method.
+    Subclasses change the keypoint ``source`` and the fit after SMPLR."""
 
     name = "mediapipe-smplr"
     description = "recon.Reconstructor: MediaPipe (+ its mirror image) -> adapter -> DAE -> SMPLR, no fit"
 
-    refine_steps, silhouette = 0, 0.0
+    source, refine_steps, silhouette = "mediapipe", 0, 0.0
 
     def __init__(self, body):
         from recon.pipeline import Reconstructor
 
-        self.rec = Reconstructor(body, refine_steps=self.refine_steps, silhouette=self.silhouette)
+        self.rec = Reconstructor(body, source=self.source, refine_steps=self.refine_steps, silhouette=self.silhouette)
 
     def __call__(self, rgb: np.ndarray, k: np.ndarray) -> Prediction | None:
         r = self.rec.batch([rgb], [k])[0]
@@ -161,11 +162,7 @@ class BackboneSMPLRFit(MediaPipeSMPLR):
     name = "backbone-smplr-fit"
     description = "recon.Reconstructor: our hourglass (crop found by the network) -> DAE -> SMPLR + 30-step " \
                   "keypoint fit (`recon run --source backbone`)"
-
-    def __init__(self, body):
-        from recon.pipeline import BackboneSource, Reconstructor
-
-        self.rec = Reconstructor(body, source=BackboneSource(body), refine_steps=30)
+    source, refine_steps = "backbone", 30
 
 
 class BackboneMethod:

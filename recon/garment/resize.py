@@ -29,18 +29,20 @@ from recon import paths
 from recon.garment import losses as L
 from recon.garment import mesh as gm
 from recon.garment.mesh import smooth_vertex_values, vertex_normals
-from recon.garment.train import Criterion
+from recon.garment.templates import PRESETS
+from recon.garment.train import Criterion, weights_path
 
 RESIZE_WEIGHTS = str(Path(__file__).resolve().parent / "weights" / "resize_{outfit}.pt")
 TIGHTNESS_PHENOTYPES = ("weight", "height")  # what gamma offsets (anny), like CLOTH3D's beta_0, beta_1
 TIGHTNESS_RANGE = ((-0.1, 0.3), (-0.05, 0.1))  # sampling range per component, biased to loose (CLOTH3D)
 
 
-def resize_weights_path(name: str, pbns_path: Path) -> Path:
-    """The resizer of an outfit: shipped beside the presets, else beside its PBNS weights."""
-    from recon.garment.templates import PRESETS
-
-    return Path(RESIZE_WEIGHTS.format(outfit=name)) if name in PRESETS else Path(pbns_path).parent / f"resize_{name}.pt"
+def resize_weights_path(name: str, pbns_path: Path | None = None) -> Path:
+    """The resizer of an outfit: shipped beside the presets, else beside its PBNS weights
+    (default: where ``recon garment train`` wrote them)."""
+    if name in PRESETS:
+        return Path(RESIZE_WEIGHTS.format(outfit=name))
+    return Path(pbns_path or weights_path(name)).parent / f"resize_{name}.pt"
 
 
 @dataclass
@@ -229,10 +231,8 @@ class OutfitResizer:
 def evaluate(body, outfit: str, n: int = 200, seed: int = 1234, out_dir: Path = Path("eval/results")) -> Path:
     """Held-out (shape, tightness) conditions: E_T alone vs E_T + resizer, rest pose on the
     body of that shape. Writes ``garment-resize-<outfit>.md``/``.json``."""
-    from recon.garment.train import weights_path
-
     o, _, outfit = _outfit_for(body, weights_path(outfit))
-    path = resize_weights_path(outfit, weights_path(outfit))
+    path = resize_weights_path(outfit)
     rz = OutfitResizer(body, path, o.vertices, o.faces)
     data = _Data(body, rz.transfer, *sample_conditions(body, n, seed), torch.from_numpy(gm.unique_edges(o.faces)), 1)
     t = time.perf_counter()
