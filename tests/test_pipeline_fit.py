@@ -2,7 +2,6 @@
 on, the silhouette term's geometry, and a fit that must recover a body's width from its mask."""
 import cv2
 import numpy as np
-import pytest
 import torch
 
 from recon.pipeline import Keypoints, Reconstructor, SilhouetteTarget, _linear_rest_geometry, place
