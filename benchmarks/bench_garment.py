@@ -1,23 +1,33 @@
 """PBNS inference speed, side by side in one run for every trained outfit: the shipped inference
 (``PBNS.pose``: vertex-major in chunks of vertices for batches >= 12, else batch-major) against
-three earlier forms: the batch-major forward (the einsum path, the inference before ``pose``),
-the blend-weight softmax recomputed every call, and the broadcast-and-sum skinning.
+three earlier forms: the batch-major forward (the einsum path), the blend-weight softmax
+recomputed every call, and the broadcast-and-sum skinning; then the collision resolution the
+Dresser applies (recon.garment.collide), and its body normals (a sparse incidence matmul)
+against the index_add of recon.garment.mesh.vertex_normals.
 
-    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_garment.py [--threads 1] [--repeats 10]
+    .venv/bin/python benchmarks/bench_garment.py [--threads 1] [--batch 1 64 256]
 
-Prints frames per second (median over repeats, float32, CPU) of the garment model alone given
-the body's joint transforms (pose -> MLP -> PSD -> skinning), and the ratios shipped / earlier;
-then the cost of the collision resolution the Dresser applies (recon.garment.collide) per
-frame, and its body normals (sparse incidence matmul) against the index_add of
-recon.garment.mesh.vertex_normals, side by side.
+Frames per second of the garment model alone given the body's joint transforms (pose -> MLP ->
+PSD -> skinning). -> eval/results/bench-garment-<threads>t.{json,md}
 """
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
+import numpy as np
 import torch
 
-from recon.bench.timing import median_ms
+from recon import report
+from recon.body import default_body
+from recon.garment import store
+from recon.garment.collide import CollisionResolver
+from recon.garment.data import pose_set
+from recon.garment.mesh import vertex_normals
+from recon.garment.pbns import PBNS
+from recon.timing import compare
+
+OUT = Path(__file__).resolve().parent.parent / "eval" / "results"
 
 
 def blend_uncached(model, transforms):
@@ -39,67 +49,63 @@ def skin_softmax(model, x, transforms):
     return torch.einsum("bnij,bnj->bni", t[..., :3], x.expand(b, -1, -1)) + t[..., 3]
 
 
+def forms(m, rot, t) -> dict:
+    """The shipped inference and the three earlier forms, each a function of nothing."""
+    return {"shipped": lambda: m.pose(rot, t), "batch-major": lambda: m(rot, t),
+            "softmax per call": lambda: skin_softmax(m, m.rest + m.deformation(rot), t),
+            "broadcast": lambda: skin_broadcast(m, m.rest + m.deformation(rot), t)}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--batch", type=int, nargs="+", default=[1, 64, 256])
-    ap.add_argument("--repeats", type=int, default=10)
+    ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--threads", type=int, default=1)
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
-    from recon.body import default_body
-    from recon.garment.pbns import PBNS
-    from recon.garment.train import WEIGHTS_DIR, pose_set
-
     body = default_body()
     rot_all = pose_set("test", max(args.batch), 0.5, seed=123)
-    print(f"threads={args.threads}; FPS = frames per second, garment model given joint transforms\n")
-    print("| outfit | vertices | batch | FPS shipped | FPS batch-major | ratio | FPS softmax per call | ratio | "
-          "FPS broadcast | ratio |\n|---|---|---|---|---|---|---|---|---|---|")
-    for path in sorted(WEIGHTS_DIR.glob("pbns_*.pt")):
-        model, ck = PBNS.load(path)
+    speed, resolution = [], []
+    for name in store.trained_outfits():
+        model, ck = PBNS.load(store.pbns_path(name))
         shape = ck["shape"][None]
         for b in args.batch:
             rot = rot_all[torch.arange(b) % len(rot_all)]
             with torch.no_grad():
                 t = body(rot, shape.expand(b, -1), points_only=True).transforms
-                reps = args.repeats if b > 1 else 20 * args.repeats
-                new = median_ms(lambda: model.pose(rot, t), reps)  # noqa: B023
-                major = median_ms(lambda: model(rot, t), reps)  # noqa: B023
-                soft = median_ms(lambda: skin_softmax(model, model.rest + model.deformation(rot), t), reps)  # noqa: B023
-                old = median_ms(lambda: skin_broadcast(model, model.rest + model.deformation(rot), t), reps)  # noqa: B023
-            print(f"| {path.stem[5:]} | {model.rest.shape[0]} | {b} | {1000 * b / new:.0f} | "
-                  f"{1000 * b / major:.0f} | {major / new:.2f} | {1000 * b / soft:.0f} | {soft / new:.2f} | "
-                  f"{1000 * b / old:.0f} | {old / new:.2f} |")
-    bench_resolution(body, rot_all, args.repeats)
-
-
-def bench_resolution(body, rot_all, repeats: int) -> None:
-    import numpy as np
-
-    from recon.garment.collide import CollisionResolver
-    from recon.garment.mesh import vertex_normals
-    from recon.garment.pbns import PBNS
-    from recon.garment.train import WEIGHTS_DIR
-
-    print("\n| outfit | PBNS ms/frame | + collision resolution ms/frame | body normals: incidence ms | "
-          "index_add ms | ratio |\n|---|---|---|---|---|---|")
-    bf = body.faces.numpy()
-    for path in sorted(WEIGHTS_DIR.glob("pbns_*.pt")):
-        model, ck = PBNS.load(path)
+                ms = compare(forms(model, rot, t), rounds=args.rounds)
+            fps = {k: 1000 * b / v for k, v in ms.items()}
+            speed.append([name, int(model.rest.shape[0]), b, fps["shipped"]]
+                         + [x for k in list(ms)[1:] for x in (fps[k], ms[k] / ms["shipped"])])
         res = CollisionResolver(model.faces.numpy(), ck["layer"].numpy())
         rot = rot_all[:1]
         with torch.no_grad():
-            out = body(rot, ck["shape"][None])
-            t = out.transforms
-            pbns = median_ms(lambda: model.pose(rot, t), 20 * repeats)  # noqa: B023
-        bv = out.vertices
-        both = median_ms(lambda: res(model.pose(rot, t), bv, bf), 2 * repeats)  # noqa: B023
+            out = body(rot, shape)
+        bv, bf = out.vertices, body.faces.numpy()
         inc = CollisionResolver.incidence(bf, bv.shape[1])
         bv0 = bv[0].numpy()
-        n_inc = median_ms(lambda: CollisionResolver.normals(bv0, bf, inc), 5 * repeats)  # noqa: B023
-        n_add = median_ms(lambda: vertex_normals(bv, body.faces), 5 * repeats)  # noqa: B023
-        assert np.allclose(CollisionResolver.normals(bv0, bf, inc), vertex_normals(bv, body.faces)[0].numpy(), atol=1e-4)
-        print(f"| {path.stem[5:]} | {pbns:.2f} | {both:.1f} | {n_inc:.2f} | {n_add:.2f} | {n_add / n_inc:.2f} |")
+        same = vertex_normals(bv, body.faces)[0].numpy()
+        assert np.allclose(CollisionResolver.normals(bv0, bf, inc), same, atol=1e-4)
+        ms = compare({"pbns": lambda: model.pose(rot, out.transforms),  # noqa: B023
+                      "pbns + resolution": lambda: res(model.pose(rot, out.transforms), bv, bf),  # noqa: B023
+                      "normals, incidence": lambda: CollisionResolver.normals(bv0, bf, inc),  # noqa: B023
+                      "normals, index_add": lambda: vertex_normals(bv, body.faces)}, rounds=args.rounds)  # noqa: B023
+        resolution.append([name, ms["pbns"], ms["pbns + resolution"], ms["normals, incidence"],
+                           ms["normals, index_add"], ms["normals, index_add"] / ms["normals, incidence"]])
+    data = {"machine": report.machine(), "speed": speed, "resolution": resolution}
+    where = report.describe(data["machine"])
+    md = "\n".join([
+        f"# PBNS inference speed, {args.threads} thread(s)", "",
+        f"`benchmarks/bench_garment.py --threads {args.threads}`; {where}. Frames per second of the garment "
+        "model given joint transforms, and each form's time relative to the shipped `PBNS.pose` (> 1: slower).", "",
+        report.table(speed, ["outfit", "vertices", "batch", "FPS shipped", "FPS batch-major", "ratio",
+                             "FPS softmax per call", "ratio", "FPS broadcast", "ratio"],
+                     ["", "", "", ".0f", ".0f", ".2f", ".0f", ".2f", ".0f", ".2f"]),
+        "", "## Collision resolution (batch 1)", "",
+        report.table(resolution, ["outfit", "PBNS ms/frame", "+ collision resolution ms/frame",
+                                  "body normals: incidence ms", "index_add ms", "ratio"],
+                     ["", ".2f", ".1f", ".2f", ".2f", ".2f"])])
+    print(Path(report.write(OUT / f"bench-garment-{args.threads}t", data, md)).read_text())
 
 
 if __name__ == "__main__":

@@ -1,78 +1,85 @@
-"""Latency of the image pipeline, batch 1, per stage, both keypoint sources side by side
-(median over repeats on the bundled photos).
+"""Latency of the image pipeline, batch 1, per stage, for both keypoint sources side by side
+(median over repeats on the bundled photos, sources interleaved: this machine's speed drifts).
 
-    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_pipeline.py [--repeats 10]
+    .venv/bin/python benchmarks/bench_pipeline.py [--repeats 5] [--threads 1]
 
-Stages: keypoints (MediaPipe Pose + adapter, with and without the mirror averaging, or our hourglass: 3 passes = whole image with the
-first hourglass only, then two metric crops, the last averaged with its mirror image; also
-without that flip, with 2 passes, with the whole network in the first pass, and eager instead of
-the TorchScript trace), SMPLR (DAE + Omega + Psi + full anny mesh) + placement, and the optional
-fit (`recon run` default: 30 steps, to the keypoints and, with MediaPipe, its person mask; also
-to the keypoints only).
-Prints ms and each total relative to the MediaPipe pipeline.
+Stages: keypoints (MediaPipe Pose + adapter, with and without the mirror averaging; or our
+hourglass: 3 passes = the whole image through the first hourglass, then two metric crops; also
+with a flip on the last, 2 passes, the whole network in the first pass, and eager instead of the
+TorchScript trace), SMPLR (DAE + Omega + Psi + the full mesh) + placement, and the fit
+(``recon run``'s default: 30 steps to the keypoints and, with MediaPipe, its person mask; also
+to the keypoints only). -> eval/results/bench-pipeline.{json,md}
 """
 from __future__ import annotations
 
 import argparse
 import statistics
 import time
+from pathlib import Path
 
 import torch
 
-from recon import io
+from recon import camera, io, report
+from recon.backbone.search import whole_image_crop
 from recon.body import default_body
 from recon.demo import example_photos
-from recon.pipeline import BackboneSource, MediaPipeSource, Reconstructor, default_intrinsics
+from recon.fit import FitConfig
+from recon.keypoints import BackboneSource, MediaPipeSource
+from recon.pipeline import Reconstructor
+
+OUT = Path(__file__).resolve().parent.parent / "eval" / "results" / "bench-pipeline"
 
 
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--repeats", type=int, default=10)
+    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--threads", type=int, default=1)
     a = ap.parse_args()
-    torch.set_num_threads(1)
+    torch.set_num_threads(a.threads)
     body = default_body()
     images = [io.load_image(p) for p in example_photos()]
-    sources = {"mediapipe": "mediapipe",
+    sources = {"mediapipe (`recon run` default: + mirror averaging)": MediaPipeSource(),
                "mediapipe, no mirror averaging (`--no-flip`)": MediaPipeSource(flip=False),
-               "backbone, 3 passes (default)": BackboneSource(body),
+               "backbone, 3 passes (`--source backbone`)": BackboneSource(body),
                "backbone, 3 passes, flip on the last (`--flip`)": BackboneSource(body, flip=True),
                "backbone, 2 passes": BackboneSource(body, passes=2),
                "backbone, 3 passes, whole network in the first": BackboneSource(body, quick_locate=False),
                "backbone, 3 passes, eager (no TorchScript)": BackboneSource(body, jit=False)}
-    recs = {s: Reconstructor(body, source=src, refine_steps=30) for s, src in sources.items()}
-    t = {s: {"keypoints": [], "backbone, one pass": [], "smplr+mesh+place": [], "fit": [], "fit, keypoints only": []}
-         for s in sources}
-    for _ in range(a.repeats):  # sources interleaved: this machine's speed drifts over minutes
+    recs = {s: Reconstructor(body, source=src) for s, src in sources.items()}
+    fits = {"none": FitConfig(steps=0), "fit": FitConfig(), "fit, keypoints only": FitConfig(silhouette=0.0)}
+    t = {s: {k: [] for k in ("keypoints", "one backbone pass", "smplr", "fit", "fit, keypoints only")} for s in sources}
+    for _ in range(a.repeats):  # sources interleaved
         for source, rec in recs.items():
             for img in images:
-                k = default_intrinsics(*img.shape[:2])
-                rec.refine_steps = 0
+                k = camera.default_intrinsics(*img.shape[:2])
+                rec.fit = fits["none"]
                 t0 = time.perf_counter()
                 r0 = rec.batch([img], [k])[0]
                 total = (time.perf_counter() - t0) * 1000
                 t[source]["keypoints"].append(r0.timings_ms["keypoints"])
-                t[source]["smplr+mesh+place"].append(total - r0.timings_ms["keypoints"])
-                rec.refine_steps = 30
-                t[source]["fit"].append(rec.batch([img], [k])[0].timings_ms["refine"])
-                sil, rec.silhouette = rec.silhouette, 0.0
-                t[source]["fit, keypoints only"].append(rec.batch([img], [k])[0].timings_ms["refine"])
-                rec.silhouette = sil
+                t[source]["smplr"].append(total - r0.timings_ms["keypoints"])
+                for name in ("fit", "fit, keypoints only"):
+                    rec.fit = fits[name]
+                    t[source][name].append(rec.batch([img], [k])[0].timings_ms["refine"])
                 if isinstance(rec.source, BackboneSource):
-                    from recon.backbone.model import whole_image_crop
-
                     t1 = time.perf_counter()
-                    rec.source.net.predict([img], [whole_image_crop(img.shape, k)])
-                    t[source]["backbone, one pass"].append((time.perf_counter() - t1) * 1000)
-    rows = {s: {k: statistics.median(v) for k, v in ts.items() if v} for s, ts in t.items()}
-    print(f"{len(images)} photos x {a.repeats} repeats, 1 thread, batch 1 (median ms)\n")
-    print("| source | keypoints | of which one backbone pass | SMPLR + mesh + place | **total without fit** | "
-          "x MediaPipe pipeline | fit (30 steps; MediaPipe: + mask) | fit, keypoints only |\n|---|---|---|---|---|---|---|---|")
-    base = rows["mediapipe"]["keypoints"] + rows["mediapipe"]["smplr+mesh+place"]
-    for s, m in rows.items():
-        tot = m["keypoints"] + m["smplr+mesh+place"]
-        one = f"{m['backbone, one pass']:.1f}" if "backbone, one pass" in m else "-"
-        print(f"| {s} | {m['keypoints']:.1f} | {one} | {m['smplr+mesh+place']:.1f} | **{tot:.1f}** | {tot / base:.2f} | "
-              f"{m['fit']:.1f} | {m['fit, keypoints only']:.1f} |")
+                    rec.source.search.net.predict([img], [whole_image_crop(img.shape, k)])
+                    t[source]["one backbone pass"].append((time.perf_counter() - t1) * 1000)
+    med = {s: {k: statistics.median(v) if v else None for k, v in ts.items()} for s, ts in t.items()}
+    base = next(iter(med.values()))
+    base = base["keypoints"] + base["smplr"]
+    rows = [[s, m["keypoints"], m["one backbone pass"], m["smplr"], m["keypoints"] + m["smplr"],
+             (m["keypoints"] + m["smplr"]) / base, m["fit"], m["fit, keypoints only"]] for s, m in med.items()]
+    data = {"machine": report.machine(), "photos": len(images), "repeats": a.repeats, "median_ms": med}
+    where = report.describe(data["machine"])
+    md = "\n".join([
+        "# Image pipeline latency, batch 1 (median ms over the bundled photos)", "",
+        f"`benchmarks/bench_pipeline.py --repeats {a.repeats} --threads {a.threads}`; {where}. "
+        "x MediaPipe: the total without the fit, relative to the first row.", "",
+        report.table(rows, ["source", "keypoints", "of which one backbone pass", "SMPLR + mesh + place",
+                            "total without fit", "x MediaPipe", "fit (30 steps; MediaPipe: + mask)",
+                            "fit, keypoints only"], ["", ".1f", ".1f", ".1f", ".1f", ".2f", ".1f", ".1f"])])
+    print(Path(report.write(OUT, data, md)).read_text())
 
 
 if __name__ == "__main__":

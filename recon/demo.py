@@ -1,28 +1,36 @@
-"""Body demo (the README's main command until the image pipeline lands).
+"""``recon demo``: the README's main command on the bundled example photos.
 
-Samples body shapes (anny prior, both genders) in poses from the held-out test mocap,
-renders them with pyrender, exports one posed body as .obj and .glb, and shows SMPLR
-reconstructions of the same bodies from their joints + landmarks with 40 mm noise.
+``photo_demo``: the bundled photos through ``recon run`` (dressed when the outfit is trained)
+and a contact sheet (photo | overlay | side view). ``body_demo``: sampled bodies in held-out
+mocap poses, one exported as .obj/.glb, and SMPLR's reconstructions of them from noisy joints +
+landmarks. ``dressed_gif``: the outfit on a held-out mocap clip.
 """
 from __future__ import annotations
 
 from pathlib import Path
 
+import cv2
 import numpy as np
+import roma
 import torch
+import trimesh
+from PIL import Image
 
 from recon import paths
+from recon.body import default_body
+from recon.garment.dress import Dresser
+from recon.poses.mocap import MocapPoses
+from recon.poses.sampler import PoseSampler, ShapeSampler
+from recon.run import run
+from recon.smplr import SMPLR
+from recon.smplr.model import WEIGHTS as SMPLR_WEIGHTS
+from recon.smplr.noise import fixed_gaussian
+from recon.viz import render_meshes
 
-EXAMPLES = Path(__file__).resolve().parent / "data" / "examples"
+EXAMPLES = paths.DATA_DIR / "examples"
 
 
 def body_demo(out: Path, seed: int = 0, n: int = 4) -> list[Path]:
-    import trimesh
-
-    from recon.body import default_body
-    from recon.poses.sampler import PoseSampler, ShapeSampler
-    from recon.viz import render_meshes
-
     body = default_body()
     poses = PoseSampler(body, split="test", noise_deg=0.0, mirror=False, seed=seed).sample(n)
     shapes = ShapeSampler(body, seed=seed).sample(n)
@@ -44,12 +52,7 @@ def body_demo(out: Path, seed: int = 0, n: int = 4) -> list[Path]:
     paths.atomic_write(obj, lambda t: mesh.export(t, file_type="obj"))
     paths.atomic_write(glb, lambda t: mesh.export(t, file_type="glb"))
     written = [png, obj, glb]
-
-    from recon.smplr import SMPLR
-    from recon.smplr.model import WEIGHTS
-    from recon.smplr.noise import fixed_gaussian
-
-    if WEIGHTS.exists():  # ground truth (grey) next to SMPLR from noisy J+ (blue)
+    if SMPLR_WEIGHTS.exists():  # ground truth (grey) next to SMPLR from noisy J+ (blue)
         model = SMPLR.load(body)
         noisy = fixed_gaussian(o.points, 0.04, torch.Generator().manual_seed(seed))
         with torch.no_grad():
@@ -72,10 +75,6 @@ def example_photos() -> list[Path]:
 
 def photo_demo(out: Path, outfit: str | None = None) -> list[Path]:
     """``recon run`` on the bundled example photos + one contact sheet (photo | overlay | side)."""
-    import cv2
-
-    from recon.run import run
-
     photos = example_photos()
     summary = run(photos, out / "photos", outfit=outfit, progress=False, log=lambda m: None)
     rows = []
@@ -87,7 +86,7 @@ def photo_demo(out: Path, outfit: str | None = None) -> list[Path]:
         h = 320
         rows.append(np.concatenate([cv2.resize(t, (round(t.shape[1] * h / t.shape[0]), h)) for t in tiles], 1))
     if not rows:
-        raise RuntimeError(f"no example photo was reconstructed: {summary.failed}")
+        raise RuntimeError(f"no example photo was reconstructed: {summary.failed}")  # a bug: they all have a person
     w = max(r.shape[1] for r in rows)
     sheet = np.concatenate([np.pad(r, ((0, 0), (0, w - r.shape[1]), (0, 0)), constant_values=255) for r in rows], 0)
     path = out / "examples.png"
@@ -97,14 +96,6 @@ def photo_demo(out: Path, outfit: str | None = None) -> list[Path]:
 
 def dressed_gif(out: Path, outfit: str, frames: int = 60, size=(360, 480)) -> Path:
     """The outfit on a held-out mocap clip (first test clip), rendered with pyrender as a GIF."""
-    import roma
-    from PIL import Image
-
-    from recon.body import default_body
-    from recon.garment.dress import Dresser
-    from recon.poses.mocap import MocapPoses
-    from recon.viz import render_meshes
-
     body = default_body()
     m = MocapPoses.load("test")
     clip = m.clip[0]

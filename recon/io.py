@@ -9,19 +9,21 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+from PIL import Image, ImageOps, UnidentifiedImageError
+
+from recon.errors import MissingFile, ReconError
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp", ".gif", ".ppm", ".pgm")
 MIN_SIDE = 32
 MAX_PIXELS = 100_000_000  # larger images are refused before decoding (decompression bombs)
 
 
-class ImageError(ValueError):
+class ImageError(ReconError):
     """The file is not a usable image; the message says why."""
 
 
 def load_image(path: str | Path) -> np.ndarray:
-    from PIL import Image, ImageOps, UnidentifiedImageError
-
+    """Any file Pillow reads -> (H, W, 3) uint8 RGB, upright (EXIF); ImageError otherwise."""
     path = Path(path)
     if not path.is_file():
         raise ImageError(f"{path}: not a file")
@@ -76,7 +78,7 @@ def list_images(inputs: list[str | Path]) -> list[tuple[Path, str]]:
         elif inp.is_file():
             found.append((inp, Path(inp.name)))  # any suffix: load_image decides
         else:
-            raise FileNotFoundError(f"{inp}: no such file or folder")
+            raise MissingFile(f"{inp}: no such file or folder")
     stems: dict[str, int] = {}
     for _, rel in found:
         k = str(rel.with_suffix(""))

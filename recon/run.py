@@ -2,10 +2,11 @@
 
 Per image ``<out>/<key>/``: ``result.json`` (2D/3D joints and landmarks, pose, shape, camera,
 confidence), ``body.obj`` + ``body.glb`` (mesh in the camera frame), ``overlay.png`` (mesh over
-the photo) and ``side.png`` (side view). Every file is written atomically and ``result.json``
-last, so a folder with a result.json is complete: a re-run skips it (resume after Ctrl-C or a
-crash). Images that fail (unreadable, no person, ...) are reported with the reason and the
-batch goes on; ``<out>/summary.json`` lists done / skipped / failed.
+the photo) and ``side.png`` (side view); with an outfit also ``outfit.obj`` and ``dressed.glb``.
+Every file is written atomically and ``result.json`` last, so a folder with a result.json is
+complete: a re-run skips it (resume after Ctrl-C or a crash). Images that fail (unreadable, no
+person, ...) are reported with the reason and the batch goes on; ``<out>/summary.json`` lists
+done / skipped / failed.
 """
 from __future__ import annotations
 
@@ -16,13 +17,22 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import cv2
 import numpy as np
+import torch
+import trimesh
+from tqdm import tqdm
 
-from recon import paths
+from recon import camera, paths
+from recon.errors import ReconError
+from recon.garment.dress import Dresser
 from recon.io import ImageError, list_images, load_image
+from recon.pipeline import Reconstruction, Reconstructor
+from recon.viz import render_meshes, render_overlay
 
 MAX_SIDE = 1920  # longer side used for detection/rendering; results are in original pixels
 BODY_RGBA = (0.45, 0.62, 0.92, 1.0)
+DRESSED_BODY_RGBA = (0.85, 0.75, 0.68, 1.0)
 OUTFIT_RGBA = (0.35, 0.45, 0.8, 1.0)
 
 
@@ -51,15 +61,17 @@ def check_writable(out: Path) -> None:
         os.close(fd)
         os.unlink(tmp)
     except OSError as e:
-        raise PermissionError(f"output folder {out} is not writable: {e.strerror or e}") from e
+        raise ReconError(f"output folder {out} is not writable: {e.strerror or e}") from e
 
 
-def run(inputs: list[str | Path], out: str | Path, batch_size: int = 4, device: str = "cpu",
-        focal_factor: float = 1.0, overlay: bool = True, reconstructor=None, progress: bool = True,
-        log=print, refine_steps: int = 30, outfit: str | None = None, source: str = "mediapipe",
-        tightness: tuple[float, float] | None = None, silhouette: float = 10.0, flip: bool | None = None) -> RunSummary:
-    from tqdm import tqdm
-
+def run(inputs: list[str | Path], out: str | Path, reconstructor: Reconstructor | None = None, batch_size: int = 4,
+        overlay: bool = True, outfit: str | None = None, tightness: tuple[float, float] | None = None,
+        progress: bool = True, log=print) -> RunSummary:
+    """Reconstruct every image of ``inputs`` into ``out`` (see the module doc). ``reconstructor``:
+    default ``Reconstructor()`` (``recon run``'s defaults), built when the first image loads;
+    ``focal_factor`` and the fit come from it. ``outfit``: dress the bodies with a trained PBNS
+    outfit, resized to each body and, with ``tightness`` (2,) and a trained resizer, looser or
+    tighter."""
     out = Path(out)
     check_writable(out)
     items = list_images(inputs)
@@ -68,22 +80,20 @@ def run(inputs: list[str | Path], out: str | Path, batch_size: int = 4, device: 
     todo = [(p, k) for p, k in items if k not in set(summary.skipped)]
     if not items:
         log(f"no images found in {', '.join(map(str, inputs))}")
-    rec = None
     dresser = None
     if outfit:
-        from recon.garment.dress import Dresser
-
         dresser = Dresser(outfit)  # fails early (clear message) if the outfit is not trained
         if tightness is not None and not dresser.has_resizer:
-            raise ValueError(f"--tightness needs a trained resizer for {outfit}: run `recon garment resize --outfit {outfit}`")
+            raise ReconError(f"--tightness needs a trained resizer for {outfit}: "
+                             f"run `recon garment resize --outfit {outfit}`")
     elif tightness is not None:
-        raise ValueError("--tightness needs --outfit")
+        raise ReconError("--tightness needs --outfit")
+    rec = reconstructor
     bar = tqdm(total=len(todo), desc="recon run", unit="img", disable=not progress)
     try:
         for b in range(0, len(todo), batch_size):
-            chunk = todo[b:b + batch_size]
             loaded = []
-            for p, key in chunk:
+            for p, key in todo[b:b + batch_size]:
                 try:
                     loaded.append((p, key, load_image(p)))
                 except ImageError as e:
@@ -92,12 +102,12 @@ def run(inputs: list[str | Path], out: str | Path, batch_size: int = 4, device: 
                     bar.update(1)
             if not loaded:
                 continue
-            if rec is None:
-                rec = reconstructor or _make_reconstructor(device, focal_factor, refine_steps, source, silhouette, flip)
+            rec = rec or Reconstructor()
             small = [_downscale(img) for _, _, img in loaded]
-            ks = [np.diag([s, s, 1.0]) @ _intrinsics(img, focal_factor) for (_, _, img), (_, s) in zip(loaded, small)]
+            ks = [np.diag([s, s, 1.0]) @ camera.default_intrinsics(*img.shape[:2], rec.focal_factor)
+                  for (_, _, img), (_, s) in zip(loaded, small, strict=True)]
             results = rec.batch([im for im, _ in small], ks)
-            for (p, key, img), (im, s), k, r in zip(loaded, small, ks, results):
+            for (p, key, img), (im, s), k, r in zip(loaded, small, ks, results, strict=True):
                 if isinstance(r, Exception):
                     summary.failed[key] = f"{p}: {r}"
                     log(f"failed: {p}: {r}")
@@ -115,32 +125,14 @@ def run(inputs: list[str | Path], out: str | Path, batch_size: int = 4, device: 
         bar.close()
         summary.seconds = time.time() - t0
         try:
-            paths.atomic_write(out / "summary.json",
-                               lambda t: Path(t).write_text(json.dumps(summary.to_json(), indent=1)))
+            paths.write_text(out / "summary.json", json.dumps(summary.to_json(), indent=1))
         except OSError:
             pass
     log(summary.line())
     return summary
 
 
-def _make_reconstructor(device: str, focal_factor: float, refine_steps: int, source: str = "mediapipe",
-                        silhouette: float = 10.0, flip: bool | None = None):
-    from recon.pipeline import Reconstructor, make_source
-
-    src = make_source(source, device=device, flip=flip)
-    return Reconstructor(source=src, device=device, focal_factor=focal_factor, refine_steps=refine_steps,
-                         silhouette=silhouette)
-
-
-def _intrinsics(img: np.ndarray, focal_factor: float) -> np.ndarray:
-    from recon.pipeline import default_intrinsics
-
-    return default_intrinsics(*img.shape[:2], focal_factor)
-
-
 def _downscale(img: np.ndarray) -> tuple[np.ndarray, float]:
-    import cv2
-
     s = min(1.0, MAX_SIDE / max(img.shape[:2]))
     if s == 1.0:
         return img, 1.0
@@ -148,14 +140,9 @@ def _downscale(img: np.ndarray) -> tuple[np.ndarray, float]:
     return cv2.resize(img, size, interpolation=cv2.INTER_AREA), s
 
 
-def _write(folder: Path, src: Path, img, small, s: float, k_small, r, rec, overlay: bool, dresser=None,
-           tightness=None) -> None:
+def _write(folder: Path, src: Path, img, small, s: float, k_small, r: Reconstruction, rec: Reconstructor,
+           overlay: bool, dresser=None, tightness=None) -> None:
     """Outputs of one image; result.json last (it marks the folder complete)."""
-    import torch
-    import trimesh
-
-    from recon.pipeline import OPENCV_TO_VIEW
-
     folder.mkdir(parents=True, exist_ok=True)
     faces = rec.faces
     mesh = trimesh.Trimesh(r.vertices, faces, process=False)
@@ -163,21 +150,21 @@ def _write(folder: Path, src: Path, img, small, s: float, k_small, r, rec, overl
     paths.atomic_write(folder / "body.glb", lambda t: mesh.export(t, file_type="glb"))
     meshes = [(r.vertices, faces, BODY_RGBA)]
     if dresser is not None:
+        # the body's root rotation is into the camera frame; the outfit's network needs gravity
+        # (+Y up of the body frame), i.e. an upright camera: the view frame
         d = dresser(rec.body, torch.tensor(r.rotmats[None], dtype=torch.float32),
                     torch.tensor(r.shape, dtype=torch.float32), torch.tensor(r.translation[None], dtype=torch.float32),
-                    up=torch.tensor(np.diag(OPENCV_TO_VIEW), dtype=torch.float32), tightness=tightness)
+                    up=torch.tensor(camera.HALF_TURN_X, dtype=torch.float32), tightness=tightness)
         cloth = trimesh.Trimesh(d.vertices[0], d.faces, process=False)
         paths.atomic_write(folder / "outfit.obj", lambda t: cloth.export(t, file_type="obj"))
         scene = trimesh.Scene({"body": mesh, "outfit": cloth})
         paths.atomic_write(folder / "dressed.glb", lambda t: scene.export(t, file_type="glb"))
-        meshes = [(r.vertices, faces, (0.85, 0.75, 0.68, 1.0)), (d.vertices[0], d.faces, OUTFIT_RGBA)]
+        meshes = [(r.vertices, faces, DRESSED_BODY_RGBA), (d.vertices[0], d.faces, OUTFIT_RGBA)]
     if overlay:
-        from recon.viz import render_meshes, render_overlay
-
         paths.write_image(folder / "overlay.png", render_overlay(small, meshes, k_small))
-        side = render_meshes([(m[0] * OPENCV_TO_VIEW, m[1], m[2]) for m in meshes], size=(small.shape[0] // 2 * 2, ) * 2,
-                             yaw_deg=90) if min(small.shape[:2]) >= 64 else None
-        if side is not None:
+        if min(small.shape[:2]) >= 64:
+            side = render_meshes([(camera.to_view(m[0]), m[1], m[2]) for m in meshes],
+                                 size=(small.shape[0] // 2 * 2, ) * 2, yaw_deg=90)
             paths.write_image(folder / "side.png", side)
     js = r.to_json()
     if s != 1.0:  # back to the original image's pixels: same 3D, focal and 2D scaled by 1/s
@@ -192,6 +179,7 @@ def _write(folder: Path, src: Path, img, small, s: float, k_small, r, rec, overl
     js["source"] = str(src)
     js["keypoint_source"] = getattr(getattr(rec, "source", None), "name", None)
     if dresser is not None:
-        js["outfit"] = {"garments": dresser.names, "tightness": None if tightness is None else [float(t) for t in tightness]}
+        js["outfit"] = {"garments": dresser.names,
+                        "tightness": None if tightness is None else [float(t) for t in tightness]}
     js["files"] = sorted(p.name for p in folder.iterdir() if not p.name.startswith("."))
-    paths.atomic_write(folder / "result.json", lambda t: Path(t).write_text(json.dumps(js, indent=1)))
+    paths.write_text(folder / "result.json", json.dumps(js, indent=1))

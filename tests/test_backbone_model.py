@@ -1,10 +1,28 @@
 """The trained backbone: soft targets, shipped weights on rendered val images, self-found crops,
 online training data."""
+import json
+
+import cv2
 import numpy as np
 import pytest
+import roma
 import torch
 
+from recon import camera
+from recon.backbone.crop import Crop
+from recon.backbone.hourglass import StackedHourglass
+from recon.backbone.model import Backbone
+from recon.backbone.search import crop_from_keypoints
+from recon.backbone.train import OnlineCrops
 from recon.backbone.volumetric import soft_argmax_3d, trilinear_target, volumetric_ce
+from recon.body import skeleton
+from recon.fit import FitConfig
+from recon.keypoints import BackboneSource
+from recon.pipeline import Reconstructor
+from recon.run import run
+from recon.smplr.features import template_distances
+from recon.synth.dataset import BENCHMARKS
+from recon.synth.scene import SceneSampler
 
 
 def test_trilinear_target_has_the_point_as_its_expectation():
@@ -24,11 +42,6 @@ def test_bone_depth_uses_the_predicted_foreshortening(body):
     """A template body turned away from the camera at 6 m: its 2D bones are foreshortened, so the
     fixed-0.85 estimate misses the depth; with the 3D points' own foreshortening it is exact up
     to perspective."""
-    import roma
-
-    from recon.backbone.model import crop_from_keypoints, depth_from_bones
-    from recon.smplr.features import template_distances
-
     template = template_distances(body).cpu().numpy().astype(np.float64)
     with torch.no_grad():
         pts = body(points_only=True).points[0].double()
@@ -38,8 +51,8 @@ def test_bone_depth_uses_the_predicted_foreshortening(body):
     k = np.array([[1000.0, 0, 320], [0, 1000.0, 240], [0, 0, 1]])
     uv = pts @ k.T
     uv = uv[:, :2] / uv[:, 2:]
-    assert depth_from_bones(uv, k, template, pts) == pytest.approx(6.0, rel=0.02)
-    assert abs(depth_from_bones(uv, k, template) / 6.0 - 1) > 0.05
+    assert camera.depth_from_bones(uv, k, template, pts) == pytest.approx(6.0, rel=0.02)
+    assert abs(camera.depth_from_bones(uv, k, template) / 6.0 - 1) > 0.05
     # the crop is centred on the joints' mean at that depth
     c = crop_from_keypoints(uv, k, template, points=pts)
     assert c.zc == pytest.approx(6.0, rel=0.02)
@@ -47,9 +60,6 @@ def test_bone_depth_uses_the_predicted_foreshortening(body):
 
 @pytest.fixture(scope="module")
 def val_samples(body, mocap):
-    from recon.synth.dataset import BENCHMARKS
-    from recon.synth.scene import SceneSampler
-
     b = BENCHMARKS["synth-val"]
     sampler = SceneSampler(body, b["split"], b["seed"], pool=256)
     return [sampler.sample(i) for i in range(6)]
@@ -60,10 +70,6 @@ def _mpjpe(p, gt):
 
 
 def test_shipped_weights_beat_an_untrained_network_on_rendered_images(val_samples):
-    from recon.backbone.crop import Crop
-    from recon.backbone.hourglass import StackedHourglass
-    from recon.backbone.model import Backbone
-
     torch.set_num_threads(1)
     net = Backbone.load()
     untrained = Backbone(StackedHourglass(net.net.cfg))
@@ -87,10 +93,6 @@ def test_flip_averaging_is_mirror_equivariant_and_helps(val_samples):
     """avg(f(x), M f(Mx)) is exactly mirror-equivariant: the mirrored crop gives the mirrored
     answer (left/right points swapped, x -> 1 - x). And on rendered images it is no worse
     than the single pass (synth-val: ~3 mm better, eval/results/synth-test.md)."""
-    from recon.backbone.crop import Crop
-    from recon.backbone.model import Backbone
-    from recon.body import skeleton
-
     torch.set_num_threads(1)
     net = Backbone.load()
     crops = []
@@ -116,8 +118,6 @@ def test_flip_averaging_is_mirror_equivariant_and_helps(val_samples):
 
 
 def test_backbone_source_finds_the_person_without_ground_truth(body, val_samples):
-    from recon.pipeline import BackboneSource
-
     torch.set_num_threads(1)
     src = BackboneSource(body)
     d2, depth = [], []
@@ -126,15 +126,13 @@ def test_backbone_source_finds_the_person_without_ground_truth(body, val_samples
         kp = src(s["rgb"], k)
         assert kp is not None and kp.points3d.shape == (42, 3) and np.allclose(kp.points3d[0], 0)
         d2.append(np.linalg.norm(kp.points2d[:24] - s["points2d"][:24], axis=1).mean())
-        _, _, _, crop = src.locate(s["rgb"], k)
+        _, _, _, crop = src.search.locate(s["rgb"], k)
         depth.append(crop.zc / s["points3d"][:24, 2].mean())
     assert np.median(d2) < 15  # pixels, 256 x 256 images
     assert 0.7 < np.median(depth) < 1.3
 
 
 def test_online_crops_are_valid_training_samples(body, mocap):
-    from recon.backbone.train import OnlineCrops
-
     it = iter(OnlineCrops(64, seed=3, repeats=2, buffer=4))
     for _ in range(6):
         img, grid, *_ = next(it)
@@ -143,23 +141,16 @@ def test_online_crops_are_valid_training_samples(body, mocap):
 
 
 def test_recon_run_with_the_backbone_source(tmp_path, val_samples):
-    import json
-
-    import cv2
-
-    from recon.run import run
-
     torch.set_num_threads(1)
     cv2.imwrite(str(tmp_path / "synthetic.png"), val_samples[0]["rgb"][..., ::-1])
-    s = run([tmp_path / "synthetic.png"], tmp_path / "out", overlay=False, refine_steps=0, source="backbone",
-            progress=False, log=lambda *_: None)
+    rec = Reconstructor(source="backbone", fit=FitConfig(steps=0))
+    s = run([tmp_path / "synthetic.png"], tmp_path / "out", rec, overlay=False, progress=False, log=lambda *_: None)
     assert s.done == ["synthetic"]
     js = json.loads((tmp_path / "out" / "synthetic" / "result.json").read_text())
     assert js["keypoint_source"] == "backbone" and len(js["joints3d"]) == 24
+    assert js["fit"] == {"steps": 0, "silhouette": 0.0}
 
 
-def test_run_passes_flip_to_the_backbone_source():
-    from recon.run import _make_reconstructor
-
-    assert _make_reconstructor("cpu", 1.0, 0, "backbone", flip=True).source.flip
-    assert not _make_reconstructor("cpu", 1.0, 0, "backbone").source.flip
+def test_the_flip_reaches_the_backbone_source():
+    assert Reconstructor(source="backbone", flip=True).source.flip
+    assert not Reconstructor(source="backbone").source.flip

@@ -1,4 +1,6 @@
 """The body-model interface on the default anny backend: shapes, dtypes, gradients, errors."""
+import copy
+
 import pytest
 import roma
 import torch
@@ -76,7 +78,8 @@ def test_shape_changes_height_and_gender(body):
     assert h(tall) > h(short) + 0.15
 
 
-@pytest.mark.parametrize("bad", [torch.zeros(1, 23, 3), torch.zeros(24, 3), torch.zeros(1, 24, 4), torch.zeros(1, 24, 3, 4)])
+@pytest.mark.parametrize("bad", [torch.zeros(1, 23, 3), torch.zeros(24, 3), torch.zeros(1, 24, 4),
+                                 torch.zeros(1, 24, 3, 4)])
 def test_wrong_pose_shape_is_a_clear_error(body, bad):
     with pytest.raises(ValueError, match="pose must have shape"):
         body(bad)
@@ -105,8 +108,6 @@ def test_unknown_joint_name():
 
 
 def test_float64_module(body):
-    import copy
-
     b64 = copy.deepcopy(body).double()
     out = b64(torch.zeros(1, 24, 3, dtype=torch.float64))
     assert out.vertices.dtype == torch.float64

@@ -1,9 +1,19 @@
-"""The command line: model facts, pose statistics and the demo (needs offscreen GL)."""
+"""The command line: scoped subcommands, defaults from the dataclasses, user errors vs bugs, and
+the demo (needs offscreen GL)."""
 import json
 
+import cv2
+import numpy as np
+import pytest
+import torch
 import trimesh
 
-from recon.cli import main
+from recon import cli
+from recon.backbone.train import BackboneTrainConfig
+from recon.cli import build_parser, main
+from recon.fit import FitConfig
+from recon.garment import store
+from recon.garment.templates import RestBody
 
 
 def test_body_info(capsys):
@@ -14,39 +24,75 @@ def test_body_info(capsys):
 
 
 def test_body_export_is_the_rest_body_garments_are_modelled_on(body, tmp_path):
-    import numpy as np
-
-    from recon.garment.templates import RestBody
-
     assert main(["body", "export", "--out", str(tmp_path / "rest.obj")]) == 0
     m = trimesh.load(tmp_path / "rest.obj", process=False)
     assert np.abs(m.vertices - RestBody(body).v).max() < 1e-6 and len(m.faces) == len(body.faces)
 
 
-def test_poses_stats(capsys, mocap):
+def test_poses_stats_use_the_shipped_set(capsys, mocap):
     assert main(["poses", "stats"]) == 0
     stats = json.loads(capsys.readouterr().out)
     assert stats["train"]["frames"] > stats["test"]["frames"] > 0
+    assert stats["file"].endswith("recon/data/poses/mocap-anny-v1.npz")
 
 
+def test_each_action_takes_only_its_own_flags(capsys):
+    p = build_parser()
+    assert p.parse_args(["run", "--out", "o"]).refine_steps == FitConfig.steps  # defaults from the dataclasses
+    assert p.parse_args(["run", "--out", "o"]).silhouette == FitConfig.silhouette
+    assert p.parse_args(["backbone", "train", "--out", "o", "--online"]).batch == BackboneTrainConfig.batch
+    for argv in (["body", "info", "--force"], ["run", "--out", "o", "--epochs", "3"], ["demo", "--stages", "psi"],
+                 ["garment", "eval", "--frames", "3"], ["poses", "stats", "--limit", "2"]):
+        with pytest.raises(SystemExit):
+            p.parse_args(argv)
+        assert "unrecognized arguments" in capsys.readouterr().err
+
+
+def test_user_errors_are_one_line_and_bugs_keep_their_traceback(capsys, monkeypatch, tmp_path):
+    assert main(["body", "info", "--model", "nope.fbx"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("recon: error: unknown body model") and "Traceback" not in err
+    assert main(["eval", "--bench", "nope", "--method", "mean"]) == 2
+    assert "unknown benchmark" in capsys.readouterr().err
+    assert main(["run", str(tmp_path / "missing.jpg"), "--out", str(tmp_path / "o"), "--source", "backbone"]) == 2
+    assert "no such file or folder" in capsys.readouterr().err
+
+    def bug(args):
+        raise ValueError("a bug, not the user's fault")
+
+    monkeypatch.setattr(cli, "cmd_body_info", bug)
+    with pytest.raises(ValueError, match="a bug"):
+        main(["body", "info"])
+
+
+def test_threads_flag_sets_torch_threads():
+    try:
+        assert main(["--threads", "2", "body", "info"]) == 0
+        assert torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(1)
+
+
+def test_demo_finds_an_outfit_trained_into_the_cache(monkeypatch, tmp_path):
+    """`recon demo --outfit <own garment>`: the path comes from recon.garment.store, not built by hand."""
+    monkeypatch.setattr(store, "user_dir", lambda: tmp_path)
+    (tmp_path / "pbns_mine.pt").write_bytes(b"")
+    seen = {}
+    monkeypatch.setattr(cli, "photo_demo", lambda out, outfit: seen.setdefault("outfit", outfit) and [])
+    monkeypatch.setattr(cli, "body_demo", lambda out, seed: [])
+    monkeypatch.setattr(cli, "dressed_gif", lambda out, outfit: tmp_path / "x.gif")
+    assert main(["demo", "--out", str(tmp_path / "d"), "--outfit", "mine"]) == 0
+    assert seen["outfit"] == "mine"
+
+
+@pytest.mark.slow
 def test_demo_writes_png_obj_glb(tmp_path, body, mocap):
     assert main(["demo", "--out", str(tmp_path)]) == 0
-    import cv2
-
     img = cv2.imread(str(tmp_path / "bodies.png"))
     assert img is not None and img.shape[0] > 100
     assert (img < 250).mean() > 0.02  # something was drawn on the white background
     assert cv2.imread(str(tmp_path / "smplr.png")) is not None
+    assert cv2.imread(str(tmp_path / "examples.png")) is not None
     mesh = trimesh.load(tmp_path / "body0.glb", force="mesh")
     assert len(mesh.vertices) > 1000
     assert not list(tmp_path.glob(".*"))  # no temp files left behind
-
-
-def test_bad_model_is_a_clean_error(capsys):
-    assert main(["body", "info", "--model", "nope.fbx"]) == 2
-    assert "unknown body model" in capsys.readouterr().err
-
-
-def test_eval_rejects_unknown_benchmark(capsys):
-    assert main(["eval", "--bench", "nope", "--method", "mean"]) == 2
-    assert "unknown benchmark" in capsys.readouterr().err

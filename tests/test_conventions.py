@@ -1,7 +1,11 @@
-"""Frames, units, left/right and the mirror map (documented in recon/body/skeleton.py)."""
+"""Frames, units, left/right and the mirror map (documented in recon/body/skeleton.py), and the
+camera frames (recon/camera.py)."""
 import numpy as np
+import pytest
+import roma
 import torch
 
+from recon import camera
 from recon.body import lbs, skeleton
 
 J = {n: i for i, n in enumerate(skeleton.JOINT_NAMES)}
@@ -69,4 +73,59 @@ def test_landmarks_are_plausible(body):
     assert lm[L["chest"], 2] > 0 > lm[L["upper_back"], 2]
     assert lm[L["left_knee_front"], 2] > j[J["left_knee"], 2]
     assert len(set(body.landmark_indices.tolist())) == 18
-    np.testing.assert_array_equal(body.landmark_indices.numpy(), body.landmark_indices.numpy())
+    # left and right landmarks are each other's mirror vertices; midline ones are their own
+    mm = body.mirror_vertex_map()
+    idx = body.landmark_indices.numpy()
+    for i, m in enumerate(skeleton.POINT_MIRROR[24:]):
+        assert mm[idx[i]] == idx[m - 24], skeleton.LANDMARK_NAMES[i]
+
+
+def test_the_view_frame_is_the_opencv_frame_turned_half_about_x():
+    x = np.array([[0.3, -0.2, 2.0], [-1.0, 0.5, 4.0]])
+    v = camera.to_view(x)
+    np.testing.assert_array_equal(v, x * [1, -1, -1])  # y up, z towards the viewer
+    np.testing.assert_array_equal(camera.to_opencv(v), x)  # its own inverse
+    t = torch.tensor(x, dtype=torch.float32)
+    assert torch.equal(camera.to_view(t), torch.tensor(v, dtype=torch.float32))
+    half = roma.rotvec_to_rotmat(torch.tensor([np.pi, 0.0, 0.0], dtype=torch.float64)).numpy()
+    np.testing.assert_allclose(camera.HALF_TURN_X, half, atol=1e-12)
+    # a rotation into the view frame, turned into the OpenCV frame, maps body points to to_opencv(view points)
+    r = roma.rotvec_to_rotmat(torch.tensor([0.3, -1.1, 0.2], dtype=torch.float64)).numpy()
+    np.testing.assert_allclose(x @ camera.rotation_to_opencv(r).T, camera.to_opencv(x @ r.T), atol=1e-12)
+
+
+def test_a_subject_facing_the_camera_stands_upright_in_the_image(body):
+    """Body frame -> OpenCV camera for a camera in front of the subject: its head projects
+    above its feet, its left hand to the image's right (the subject faces us)."""
+    out = body()
+    pts = (out.points[0].double().numpy() @ camera.HALF_TURN_X.T) + [0.0, 0.0, 3.0]
+    uv = camera.project(pts, camera.default_intrinsics(480, 640))
+    j = {n: uv[i] for i, n in enumerate(skeleton.JOINT_NAMES)}
+    assert j["head"][1] < j["pelvis"][1] < j["left_ankle"][1]  # rows grow downwards
+    assert j["left_hand"][0] > j["right_hand"][0]
+
+
+def test_projection_placement_and_bone_depth_are_consistent():
+    k = np.array([[500.0, 0, 320], [0, 450.0, 240], [0, 0, 1]])
+    rng = np.random.default_rng(0)
+    pts = rng.normal(0, 0.3, (42, 3)) + [0.2, -0.1, 4.0]
+    uv = camera.project(pts, k)
+    np.testing.assert_allclose(uv, (pts @ k.T)[:, :2] / pts[:, 2:], atol=1e-9)
+    np.testing.assert_allclose(camera.unproject(uv, pts[:, 2], k), pts, atol=1e-12)
+    # placing the pelvis-relative points by their projections recovers the translation
+    t = camera.place(pts - pts[:1], uv, k)
+    np.testing.assert_allclose(t, pts[0], atol=1e-9)
+    assert camera.default_intrinsics(480, 640)[0, 0] == 640 and camera.default_intrinsics(480, 640, 2.0)[1, 1] == 1280
+    w = camera.in_image_weights(np.array([[10.0, 10.0], [-5.0, 10.0], [639.0, 479.0], [640.0, 0.0]]), (480, 640))
+    assert w.tolist() == [1.0, 0.1, 1.0, 0.1]
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_projection_is_differentiable_and_batched(dtype):
+    k = torch.tensor([[[500.0, 0, 320], [0, 450.0, 240], [0, 0, 1]]] * 2, dtype=dtype)
+    p = (torch.rand(2, 5, 3, dtype=dtype) + torch.tensor([0.0, 0.0, 2.0], dtype=dtype)).requires_grad_(True)
+    uv = camera.project(p, k)
+    assert uv.shape == (2, 5, 2) and uv.dtype == dtype
+    uv.sum().backward()
+    assert torch.isfinite(p.grad).all() and (p.grad[..., 2] < 0).all()  # farther points move towards the centre
+    torch.testing.assert_close(camera.unproject(uv, p[..., 2], k), p)

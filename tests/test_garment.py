@@ -1,10 +1,26 @@
+import json
+import struct
+
 import numpy as np
 import pytest
+import roma
 import torch
+import trimesh
+from scipy.spatial import cKDTree
 
+import recon.garment.pbns as P
+from recon.errors import ReconError
+from recon.garment import evaluate as E
 from recon.garment import losses as L
 from recon.garment import mesh as gm
+from recon.garment import store
+from recon.garment import train as T
+from recon.garment.data import pose_set, posed_bodies
+from recon.garment.dress import Dresser
+from recon.garment.gltf import write_animated_glb
+from recon.garment.metrics import penetration, physical_metrics
 from recon.garment.pbns import PBNS, PBNSConfig, initial_weights, pose_features, remove_yaw
+from recon.garment.templates import PRESETS, GarmentSpec, RestBody, hangs_free, make_outfit
 
 
 def _grid(n=6):
@@ -31,7 +47,6 @@ def test_cut_is_exact_and_connected():
 
 
 def test_remove_yaw_keeps_tilt():
-    import roma
 
     tilt = roma.rotvec_to_rotmat(torch.tensor([0.3, 0.0, 0.0]))
     yaw = roma.rotvec_to_rotmat(torch.tensor([0.0, 1.1, 0.0]))
@@ -76,7 +91,6 @@ def test_pbns_weight_cache_follows_changes():
 def test_pbns_pose_equals_forward(batch, monkeypatch):
     """The inference path (vertex-major, in chunks of vertices from 12 frames on) gives the
     differentiable forward's vertices, also for per-sample rest outfits and after D changes."""
-    import recon.garment.pbns as P
 
     monkeypatch.setattr(P, "VERTEX_MAJOR_CHUNK_FLOATS", 12 * batch * 7)  # chunks of 16 vertices: several
     g = torch.Generator().manual_seed(0)
@@ -86,7 +100,6 @@ def test_pbns_pose_equals_forward(batch, monkeypatch):
         m.D.normal_(0, 0.01, generator=g)
         for p in m.mlp.parameters():
             p.normal_(0, 0.3, generator=g)
-    import roma
 
     rot = roma.rotvec_to_rotmat(torch.randn(batch, 24, 3, generator=g) * 0.5)
     t = torch.cat([roma.rotvec_to_rotmat(torch.randn(batch, 24, 3, generator=g)),
@@ -115,36 +128,33 @@ def test_energies():
     # collision: body = the sheet itself with +Z normals; a cloth point below it penetrates
     body_v, body_n = rest[None], torch.tensor([0.0, 0.0, 1.0]).expand(1, len(v), 3)
     cloth = torch.tensor([[[0.5, 0.5, -0.01], [0.5, 0.5, 0.02]]])
-    coll = L.CollisionLoss(np.zeros(2, int))
-    pen = coll.penetration(cloth, body_v, body_n, L.nearest(body_v, cloth), 0.004)
+
+    pen = penetration(cloth, body_v, body_n, L.nearest(body_v, cloth), 0.004)
     assert pen[0, 0] == pytest.approx(-0.014, abs=1e-6) and pen[0, 1] == 0
     cand = L.nearest(body_v, cloth, k=4)
     assert torch.equal(L.nearest_among(body_v, cloth, cand), L.nearest(body_v, cloth))
 
 
 def test_stiffness_continuation_scales_only_the_edge_energy():
-    from recon.garment.train import edge_scale
 
     v, f = _grid(5)
     rest = torch.tensor(v).float()
     edge = L.EdgeLoss(rest, f)
     full = float(edge(rest[None] * 1.1))
-    edge.scale = edge_scale(0.1, 0, 100)
+    edge.scale = T.edge_scale(0.1, 0, 100)
     assert float(edge(rest[None] * 1.1)) == pytest.approx(0.1 * full)
-    assert edge_scale(0.1, 25, 100) == pytest.approx(0.1 ** 0.5)  # geometric rise...
-    assert edge_scale(0.1, 50, 100) == edge_scale(0.1, 99, 100) == 1.0  # ...to full by mid-training
-    assert edge_scale(1.0, 0, 100) == 1.0
+    assert T.edge_scale(0.1, 25, 100) == pytest.approx(0.1 ** 0.5)  # geometric rise...
+    assert T.edge_scale(0.1, 50, 100) == T.edge_scale(0.1, 99, 100) == 1.0  # ...to full by mid-training
+    assert T.edge_scale(1.0, 0, 100) == 1.0
 
 
 @pytest.fixture(scope="module")
 def outfits(body):
-    from recon.garment.templates import PRESETS, make_outfit
 
     return {name: make_outfit(body, name) for name in PRESETS}
 
 
 def test_templates_are_clean(body, outfits):
-    from recon.garment.templates import RestBody
 
     rb = RestBody(body)
     expected_loops = {"tshirt": 4, "top": 2, "trousers": 3, "shorts": 3, "skirt": 2, "dress": 4, "jumpsuit": 5}
@@ -154,7 +164,6 @@ def test_templates_are_clean(body, outfits):
             el = np.linalg.norm(np.diff(g.vertices[gm.unique_edges(g.faces)], axis=1)[:, 0], axis=1)
             assert 0.007 < np.median(el) < 0.017, (name, g.name, np.median(el))  # ~1 cm cloth
             # outside the rest body: in front of the nearest body vertex's tangent plane
-            from scipy.spatial import cKDTree
 
             _, idx = cKDTree(rb.v).query(g.vertices)
             d = np.einsum("ij,ij->i", g.vertices - rb.v[idx], rb.n[idx])
@@ -167,7 +176,6 @@ def test_outfit_layers_do_not_interpenetrate(outfits):
     o = outfits["tshirt-trousers"]
     inner, outer = o.garments
     n = gm.vertex_normals(torch.from_numpy(inner.vertices)[None], torch.from_numpy(inner.faces))[0].numpy()
-    from scipy.spatial import cKDTree
 
     dist, idx = cKDTree(inner.vertices).query(outer.vertices)
     near = dist < 0.02
@@ -176,8 +184,6 @@ def test_outfit_layers_do_not_interpenetrate(outfits):
 
 
 def _read_glb(path):
-    import json
-    import struct
 
     raw = open(path, "rb").read()
     jl = struct.unpack("<I", raw[12:16])[0]
@@ -197,12 +203,7 @@ def _read_glb(path):
 def test_animated_glb_reproduces_body_and_cloth(body, tmp_path):
     """Evaluate the written glTF by hand (node hierarchy, skin, morph targets) at one frame and
     compare with the body model and the dresser: the file means what we think it means."""
-    import roma
 
-    from recon.garment.dress import Dresser
-    from recon.garment.gltf import write_animated_glb
-    from recon.garment.pbns import PBNS, PBNSConfig, initial_weights
-    from recon.garment.templates import GarmentSpec, RestBody, make_outfit
 
     torch.manual_seed(0)
     outfit = make_outfit(body, [GarmentSpec("top", "top", sleeve=0.0)])
@@ -211,7 +212,6 @@ def test_animated_glb_reproduces_body_and_cloth(body, tmp_path):
     with torch.no_grad():
         model.D.normal_(0, 1e-3)
     path = tmp_path / "m.pt"
-    import json
 
     model.save(path, {"meta_json": json.dumps({"garments": ["top"]}), "layer": torch.zeros(len(w)),
                       "garment_id": torch.zeros(len(w), dtype=torch.long), "shape": body.mean_shape})
@@ -219,7 +219,6 @@ def test_animated_glb_reproduces_body_and_cloth(body, tmp_path):
     rot = roma.rotvec_to_rotmat(0.3 * torch.randn(3, 24, 3))
     transl = torch.tensor([[0.0, 0.9, 0.0], [0.1, 0.9, 0.2], [0.2, 1.0, 0.4]])
     glb = write_animated_glb(tmp_path / "a.glb", body, body.mean_shape, rot, transl, 30.0, dresser)
-    import trimesh
 
     assert len(trimesh.load(glb).geometry) == 2
     doc, acc = _read_glb(glb)
@@ -263,9 +262,7 @@ def test_animated_glb_reproduces_body_and_cloth(body, tmp_path):
 
 
 def test_user_obj_garment(body, outfits, tmp_path):
-    import trimesh
 
-    from recon.garment.templates import GarmentSpec, make_outfit
 
     g = outfits["top-shorts"].garments[1]
     trimesh.Trimesh(g.vertices, g.faces).export(tmp_path / "top.obj")
@@ -273,16 +270,14 @@ def test_user_obj_garment(body, outfits, tmp_path):
     assert len(o.garments[0].faces) == len(g.faces)
     far = trimesh.Trimesh(g.vertices + 5.0, g.faces)
     far.export(tmp_path / "far.obj")
-    with pytest.raises(ValueError, match="not around the rest body"):
+    with pytest.raises(ReconError, match="not around the rest body"):
         make_outfit(body, [GarmentSpec("obj", "far", path=str(tmp_path / "far.obj"))])
 
 
 def test_skirt_like_garments_and_waist_pins_are_found_from_the_geometry(body, outfits, tmp_path):
     """hangs_free (more blend-weight smoothing) picks the skirt and the dress among the presets;
     a user mesh is pinned at the waist when it is a lower garment."""
-    import trimesh
 
-    from recon.garment.templates import GarmentSpec, RestBody, hangs_free, make_outfit
 
     rb = RestBody(body)
     free = {(name, g.name) for name, o in outfits.items() for g in o.garments if hangs_free(rb, g)}
@@ -295,39 +290,39 @@ def test_skirt_like_garments_and_waist_pins_are_found_from_the_geometry(body, ou
     assert mine.garments[0].pinned.sum() > 100 and not mine.garments[1].pinned.any()
 
 
+@pytest.mark.slow
 def test_train_and_dress_your_own_garment_mesh(body, outfits, tmp_path, monkeypatch):
     """`recon garment train --outfit my_shorts.obj`, then `Dresser("my_shorts")`: a tiny run."""
-    import trimesh
 
-    from recon.garment import train as T
-    from recon.garment.dress import Dresser
 
     shorts = outfits["top-shorts"].garments[0]
     mesh = tmp_path / "my_shorts.obj"
     trimesh.Trimesh(shorts.vertices, shorts.faces).export(mesh)
-    monkeypatch.setattr(T, "user_weights_dir", lambda: tmp_path / "garments")
+    monkeypatch.setattr(store, "user_dir", lambda: tmp_path / "garments")
     cfg = T.GarmentTrainConfig(outfit=str(mesh), poses=24, epochs=1, batch=8)
-    meta = T.train(body, cfg, log=lambda *_: None)
+    meta = T.train(body, cfg, log=lambda *_: None, progress=False)
     assert meta["outfit"] == "my_shorts" and meta["garments"] == ["my_shorts"]
-    assert T.weights_path(str(mesh)) == T.weights_path("my_shorts") == tmp_path / "garments" / "pbns_my_shorts.pt"
+    assert store.pbns_path(str(mesh)) == store.pbns_path("my_shorts") == tmp_path / "garments" / "pbns_my_shorts.pt"
+    assert store.trained_outfits()[-1] == "my_shorts"
+    assert not list((tmp_path / "garments").glob(".*.run"))  # the resumable state goes once the weights are written
     assert (tmp_path / "garments" / "pbns_my_shorts.pt").exists()
     d = Dresser("my_shorts")
     rot = torch.eye(3).expand(2, 24, 3, 3).clone()
     v = d(body, rot, body.mean_shape[None].expand(2, -1)).vertices
     assert v.shape == (2, len(shorts.vertices), 3) and np.isfinite(v).all()
-    with pytest.raises(KeyError, match="or a garment mesh"):
+    with pytest.raises(ReconError, match="or a garment mesh"):
         T.build(body, T.GarmentTrainConfig(outfit="no-such-outfit"))
     logs = []  # valid poses only (thesis 5.4.3): fewer training poses, or a clear error when none is left
     T.train(body, T.GarmentTrainConfig(outfit=str(mesh), poses=96, epochs=1, batch=4, valid_max_self=1.0),
-            out=tmp_path / "v.pt", log=logs.append)
+            out=tmp_path / "v.pt", log=logs.append, progress=False)
     n_train = int(logs[0].split(";")[1].split()[0])
     assert 4 <= n_train < 0.85 * 96 / 2  # about an eighth of the poses are valid
-    with pytest.raises(ValueError, match="body self-intersection"):
-        T.train(body, T.GarmentTrainConfig(outfit=str(mesh), poses=24, batch=8, valid_max_self=-1.0), out=tmp_path / "w.pt")
+    with pytest.raises(ReconError, match="body self-intersection"):
+        T.train(body, T.GarmentTrainConfig(outfit=str(mesh), poses=24, batch=8, valid_max_self=-1.0),
+                out=tmp_path / "w.pt")
 
 
 def test_physical_metrics_count_inside_vertices():
-    from recon.garment.evaluate import physical_metrics
 
     v, f = _grid(5)
     rest = torch.tensor(v).float()
@@ -343,11 +338,7 @@ def test_physical_metrics_count_inside_vertices():
 def test_diffused_blend_weights_stretch_the_skinned_cloth_less(body, outfits):
     """Nearest-vertex weights jump between bones across the crotch; the shipped diffusion must
     cut the skinned (dT = 0) shorts' edge error on a wide-legged, bent-forward pose."""
-    import roma
 
-    from recon.garment.evaluate import physical_metrics
-    from recon.garment.mesh import vertex_normals
-    from recon.garment.templates import RestBody
 
     o = outfits["top-shorts"]
     rb = RestBody(body)
@@ -358,7 +349,7 @@ def test_diffused_blend_weights_stretch_the_skinned_cloth_less(body, outfits):
     rot = roma.rotvec_to_rotmat(rv)
     with torch.no_grad():
         out = body(rot, body.mean_shape[None])
-    bn = vertex_normals(out.vertices, body.faces)
+    bn = gm.vertex_normals(out.vertices, body.faces)
     edge = {}
     for steps in (0, PBNSConfig().weight_diffusion):
         w = torch.from_numpy(initial_weights(rb, o, steps))
@@ -372,10 +363,8 @@ def test_diffused_blend_weights_stretch_the_skinned_cloth_less(body, outfits):
 def test_error_to_cached_drapes_lines_up_poses(body, tmp_path, monkeypatch):
     """Scoring a PBNS variant against cached simulator drapes must pair each drape with its pose:
     a 'drape' made of PBNS's own output (shifted 10 mm down) scores 10 mm, skinning more."""
-    from recon.garment import evaluate as E
-    from recon.garment.train import WEIGHTS_DIR, pose_set, posed_bodies
 
-    model, ck = PBNS.load(WEIGHTS_DIR / "pbns_top-shorts.pt")
+    model, ck = PBNS.load(store.SHIPPED_DIR / "pbns_top-shorts.pt")
     idx = np.array([3, 7])
     rot = pose_set("test", 20, 0.5, seed=123)[torch.from_numpy(idx)]
     rot[:, 0] = remove_yaw(rot[:, 0])
@@ -395,12 +384,9 @@ def test_error_to_cached_drapes_lines_up_poses(body, tmp_path, monkeypatch):
 def test_rescoring_against_cached_drapes_rewrites_the_pbns_rows_and_checks_the_start(body, tmp_path, monkeypatch):
     """After a retrain, `recon garment reference --rescore` scores the new weights against the
     cached drapes, but only when the drapes' start (the skinned outfit) is still the same."""
-    import json
 
-    from recon.garment import evaluate as E
-    from recon.garment.train import WEIGHTS_DIR, posed_bodies
 
-    model, ck = PBNS.load(WEIGHTS_DIR / "pbns_top-shorts.pt")
+    model, ck = PBNS.load(store.SHIPPED_DIR / "pbns_top-shorts.pt")
     idx = np.array([2])
     rot = E.reference_poses(20, 0.5, idx)
     with torch.no_grad():
@@ -421,5 +407,5 @@ def test_rescoring_against_cached_drapes_rewrites_the_pbns_rows_and_checks_the_s
     assert r["rescored_start_shift_mm"] == [pytest.approx(0.0, abs=1e-3)] and "re-scored" in md
     np.savez(tmp_path / "top-shorts.npz", vertices=v.numpy(), start=start.numpy() + 0.005, poses=idx, pool_size=20,
              min_pose_distance=0.5)
-    with pytest.raises(RuntimeError, match="start moved"):
+    with pytest.raises(ReconError, match="start moved"):
         E.rescore_reference("top-shorts", tmp_path)

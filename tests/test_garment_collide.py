@@ -2,9 +2,14 @@ import numpy as np
 import pytest
 import torch
 import trimesh
+from scipy.spatial import cKDTree
 
+from recon.body import default_body
 from recon.garment.collide import CollisionResolver
+from recon.garment.data import pose_set
+from recon.garment.dress import Dresser
 from recon.garment.mesh import vertex_normals
+from recon.garment.metrics import physical_metrics
 
 
 def _sphere(r):
@@ -14,8 +19,6 @@ def _sphere(r):
 
 def _depth(v, surf, faces):
     """Signed distance along the normal of the nearest surface vertex (the collision metric)."""
-    from scipy.spatial import cKDTree
-
     n = vertex_normals(surf[None], torch.as_tensor(faces))[0]
     idx = cKDTree(surf.numpy()).query(v.numpy())[1]
     return ((v - surf[idx]) * n[idx]).sum(-1)
@@ -64,19 +67,12 @@ def test_dresser_resolves_collisions_by_default():
     """The shipped outfit in held-out poses: the Dresser's output has (almost) no cloth inside the
     body, the network's own output has some; the fix is local (a thigh under a hem lifts it by
     several cm, so the largest moves are not bounded here)."""
-    from recon.body import default_body
-    from recon.garment.dress import Dresser
-    from recon.garment.evaluate import physical_metrics
-    from recon.garment.train import pose_set
-
     body = default_body()
     rot = pose_set("test", 500, 0.5, seed=123)[:8]
     raw, fixed = Dresser("top-shorts", resolve_collisions=False), Dresser("top-shorts")
     shape = raw.shape.expand(len(rot), -1)
     a, b = raw(body, rot, shape), fixed(body, rot, shape)
     out = body(rot, shape)
-    from recon.garment.mesh import vertex_normals
-
     bn = vertex_normals(out.vertices, body.faces)
     rest = raw.model.rest
     m_raw = physical_metrics(torch.from_numpy(a.vertices), a.faces, rest, out.vertices, bn)

@@ -5,7 +5,8 @@ import trimesh
 
 from recon.garment import reference
 
-pytestmark = pytest.mark.skipif(not reference.available(), reason="newton not installed (pip install recon[sim])")
+pytestmark = [pytest.mark.skipif(not reference.available(), reason="newton not installed (pip install recon[sim])"),
+              pytest.mark.slow]  # compiles newton's kernels (~35 s) on a fresh machine
 
 
 def test_drape_rests_on_collider_and_keeps_rest_lengths():

@@ -2,9 +2,14 @@
 import numpy as np
 import torch
 
-from recon.garment.train import WEIGHTS_DIR
+from recon.garment import resize, store
+from recon.garment.data import trained_outfit
+from recon.garment.dress import Dresser
+from recon.garment.templates import PRESETS
+from recon.garment.train import train_resizer
+from recon.paths import load_checkpoint
 
-PBNS_FILE = WEIGHTS_DIR / "pbns_top-shorts.pt"
+PBNS_FILE = store.SHIPPED_DIR / "pbns_top-shorts.pt"
 
 
 def _girth(v: np.ndarray, body_v: np.ndarray) -> float:
@@ -14,10 +19,8 @@ def _girth(v: np.ndarray, body_v: np.ndarray) -> float:
 
 
 def test_transfer_tightness_is_looser_when_positive(body):
-    from recon.garment.resize import Transfer, _outfit_for
-
-    outfit, shape0, _ = _outfit_for(body, PBNS_FILE)
-    tr = Transfer(body, outfit.vertices, outfit.faces, shape0)
+    outfit, shape0, _ = trained_outfit(body, PBNS_FILE)
+    tr = resize.Transfer(body, outfit.vertices, outfit.faces, shape0)
     s = shape0[None].float()
     same = tr(s, torch.zeros(1, 2))[0]
     np.testing.assert_allclose(same, outfit.vertices, atol=1e-6)  # own shape, no tightness: the template
@@ -28,24 +31,20 @@ def test_transfer_tightness_is_looser_when_positive(body):
 
 
 def test_resizer_trains_and_feeds_the_dresser(body, tmp_path, monkeypatch):
-    from recon.garment import resize
-
     torch.set_num_threads(1)
     cfg = resize.ResizeConfig(samples=16, val_samples=4, epochs=3, batch=8)
     out = tmp_path / "resize_top-shorts.pt"
-    meta = resize.train(body, PBNS_FILE, out, cfg, log=lambda *_: None)
-    assert out.exists() and len(meta["curve"]) == 3
+    meta = train_resizer(body, PBNS_FILE, out, cfg, log=lambda *_: None, progress=False)
+    assert out.exists() and len(meta["curve"]) == 3 and not list(tmp_path.glob(".*.run"))
     assert np.isfinite(meta["curve"][-1]["val_collision_pct"])
-    outfit, _, _ = resize._outfit_for(body, PBNS_FILE)
+    outfit, _, _ = trained_outfit(body, PBNS_FILE)
     rz = resize.OutfitResizer(body, out, outfit.vertices, outfit.faces)
     shape = body.mean_shape.clone()
     v = rz.rest(shape, torch.tensor([0.1, 0.0]))
     base = rz.rest(shape, torch.tensor([0.1, 0.0]), corrected=False)
     assert v.shape == (1, len(outfit.vertices), 3) and not torch.equal(v, base)
     # the Dresser picks up a resizer file named after the outfit and accepts a tightness
-    monkeypatch.setattr(resize, "RESIZE_WEIGHTS", str(tmp_path / "resize_{outfit}.pt"))
-    from recon.garment.dress import Dresser
-
+    monkeypatch.setattr(store, "resizer_path", lambda outfit, pbns=None: tmp_path / f"resize_{outfit}.pt")
     d = Dresser("top-shorts")
     rot = torch.eye(3).expand(1, 24, 3, 3).clone()
     dressed = d(body, rot, shape[None], tightness=(0.1, 0.0))
@@ -53,11 +52,7 @@ def test_resizer_trains_and_feeds_the_dresser(body, tmp_path, monkeypatch):
 
 
 def test_every_shipped_outfit_has_a_resizer_for_its_template():
-    from recon.garment import resize
-    from recon.garment.templates import PRESETS
-    from recon.paths import load_checkpoint
-
     for name in PRESETS:
-        rest = load_checkpoint(WEIGHTS_DIR / f"pbns_{name}.pt", "recon garment train")["state"]["rest"]
-        ck = load_checkpoint(resize.RESIZE_WEIGHTS.format(outfit=name), "recon garment resize")
+        rest = load_checkpoint(store.pbns_path(name), "recon garment train")["state"]["rest"]
+        ck = load_checkpoint(store.resizer_path(name), "recon garment resize")
         assert ck["num_vertices"] == len(rest) and ck["state"]["D"].shape[1] == len(rest), name

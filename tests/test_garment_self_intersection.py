@@ -1,14 +1,16 @@
+import numpy as np
 import pytest
 import roma
 import torch
 
 from recon.body import JOINT_NAMES
+from recon.garment import evaluate as E
+from recon.garment.metrics import physical_metrics
+from recon.garment.self_intersection import SkinSelfIntersection
 
 
 @pytest.fixture(scope="module")
 def self_intersection(body):
-    from recon.garment.self_intersection import SkinSelfIntersection
-
     return SkinSelfIntersection(body)
 
 
@@ -38,14 +40,12 @@ def test_rest_pose_is_free_and_deep_flexion_is_not(body, self_intersection):
 
 
 def test_collision_is_binned_by_body_self_intersection():
-    from recon.garment.evaluate import physical_metrics
-
     rest = torch.tensor([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]])
     faces = [[0, 1, 2], [1, 3, 2]]
     body_v, body_n = rest[None].repeat(3, 1, 1), torch.tensor([0.0, 0.0, 1.0]).expand(3, 4, 3)
     cloth = body_v + torch.tensor([0.0, 0.0, 0.01])
     cloth[2, :2, 2] = -0.01  # half the cloth inside the body in the third pose only
-    m = physical_metrics(cloth, __import__("numpy").array(faces), rest, body_v, body_n, torch.tensor([0.0, 0.5, 7.0]))
+    m = physical_metrics(cloth, np.array(faces), rest, body_v, body_n, torch.tensor([0.0, 0.5, 7.0]))
     bins = m["by_body_self_intersection"]
     assert bins["0-1"]["poses"] == 2 and bins["0-1"]["collision_pct"] == 0.0
     assert bins["1-3"] == {"poses": 0, "collision_pct": None, "edge_mm": None}
@@ -55,8 +55,6 @@ def test_collision_is_binned_by_body_self_intersection():
 
 
 def test_eval_computes_the_body_self_intersection_once_per_shape_and_poses(body, monkeypatch):
-    from recon.garment import evaluate as E
-
     calls = []
     real = E.SkinSelfIntersection.percent
     monkeypatch.setattr(E.SkinSelfIntersection, "percent", lambda self, v: calls.append(1) or real(self, v))
@@ -74,8 +72,6 @@ def test_eval_computes_the_body_self_intersection_once_per_shape_and_poses(body,
 
 
 def test_valid_test_poses_drop_the_poses_where_the_body_passes_through_itself(body, monkeypatch):
-    from recon.garment import evaluate as E
-
     rot = body.identity_pose(3).clone()
     rot[1, JOINT_NAMES.index("left_hip")] = roma.rotvec_to_rotmat(torch.tensor([-2.3, 0.0, 0.0]))  # thigh in belly
     rot[2, JOINT_NAMES.index("left_elbow")] = roma.rotvec_to_rotmat(torch.tensor([0.0, 0.3, 0.0]))  # harmless

@@ -1,15 +1,24 @@
 """Image loading and `recon run` robustness: bad files are reported and skipped, outputs are
 atomic, an interrupted batch resumes."""
+import inspect
 import json
 
 import numpy as np
 import pytest
 from PIL import Image
 
-from recon import io
+from recon import camera, io
+from recon.body import skeleton
+from recon.cli import build_parser
 from recon.demo import EXAMPLES
+from recon.errors import ReconError
+from recon.fit import FitConfig
+from recon.garment import store
+from recon.keypoints import MediaPipeSource
 from recon.keypoints import available as mediapipe_available
 from recon.keypoints.adapter import WEIGHTS as ADAPTER_WEIGHTS
+from recon.pipeline import Reconstructor
+from recon.run import run
 
 needs_pipeline = pytest.mark.skipif(not (mediapipe_available() and ADAPTER_WEIGHTS.exists()),
                                     reason="needs mediapipe (scripts/setup.sh) and the adapter weights")
@@ -79,18 +88,24 @@ def test_list_images_keys(tmp_path):
 
 
 def test_unwritable_output(tmp_path):
-    from recon.run import run
-
     (tmp_path / "file").write_text("x")
-    with pytest.raises(PermissionError, match="not writable"):
+    with pytest.raises(ReconError, match="not writable"):
         run([ASTRONAUT], tmp_path / "file" / "out", progress=False)
 
 
 @pytest.fixture(scope="module")
 def reconstructor():
-    from recon.pipeline import Reconstructor
+    return Reconstructor()
 
-    return Reconstructor(refine_steps=30)
+
+def test_the_api_defaults_are_recon_runs():
+    """`recon.Reconstructor()` gives what `recon run` gives: the same source and fit defaults."""
+    params = inspect.signature(Reconstructor).parameters
+    args = build_parser().parse_args(["run", "--out", "o"])
+    assert params["source"].default == args.source and params["focal_factor"].default == args.focal
+    assert params["fit"].default is None and (FitConfig().steps, FitConfig().silhouette) == (args.refine_steps,
+                                                                                            args.silhouette)
+    assert args.refine_steps == 30
 
 
 @needs_pipeline
@@ -100,12 +115,13 @@ def test_pipeline_on_photo(reconstructor):
     assert len(js["joints3d"]) == 24 and len(js["landmarks2d"]) == 18
     assert rec.joints[0, 2] > 0.5  # in front of the camera
     assert js["reprojection_error_px"] < 0.06 * max(rec.image_size)
-    raw = reconstructor.refine_steps
+    assert reconstructor.fit.steps == 30 and rec.fit["steps"] == 30  # recon run's default fit
+    raw = reconstructor.fit
     try:  # the 2D fit brings the model closer to the detected keypoints than SMPLR alone
-        reconstructor.refine_steps = 0
+        reconstructor.fit = FitConfig(steps=0)
         assert reconstructor(io.load_image(ASTRONAUT)).reprojection_error_px > rec.reprojection_error_px
     finally:
-        reconstructor.refine_steps = raw
+        reconstructor.fit = raw
     height = rec.vertices[:, 1].max() - rec.vertices[:, 1].min()
     assert 1.2 < height < 2.2  # a plausible adult (metres)
     # parameters re-posed through the body model give the same mesh (frames are consistent)
@@ -113,15 +129,14 @@ def test_pipeline_on_photo(reconstructor):
     assert np.abs(v - rec.vertices).max() < 1e-3
 
 
+@pytest.mark.slow
 @needs_pipeline
 def test_run_robust_batch_and_resume(tmp_path, reconstructor):
-    from recon.run import run
-
     src = tmp_path / "in"
     src.mkdir()
     (src / "a_photo.jpg").write_bytes(ASTRONAUT.read_bytes())
     gray = np.asarray(Image.open(EXAMPLES / "cameraman.png"))
-    Image.fromarray((gray.astype(np.uint16) * 257)).save(src / "b_gray16.png")
+    Image.fromarray(gray.astype(np.uint16) * 257).save(src / "b_gray16.png")
     (src / "c_corrupt.jpg").write_bytes(ASTRONAUT.read_bytes()[:5000])
     (src / "d_text.png").write_text("hello")
     Image.fromarray(np.full((200, 200, 3), 127, np.uint8)).save(src / "e_nobody.png")
@@ -131,7 +146,7 @@ def test_run_robust_batch_and_resume(tmp_path, reconstructor):
 
     class Interrupting:  # Ctrl-C during the second batch
         def __init__(self):
-            self.calls, self.faces = 0, reconstructor.faces
+            self.calls, self.faces, self.focal_factor = 0, reconstructor.faces, 1.0
 
         def batch(self, images, ks):
             self.calls += 1
@@ -139,10 +154,10 @@ def test_run_robust_batch_and_resume(tmp_path, reconstructor):
                 raise KeyboardInterrupt
             return reconstructor.batch(images, ks)
 
-    s = run([src], out, batch_size=2, overlay=False, reconstructor=Interrupting(), progress=False, log=lambda m: None)
+    s = run([src], out, Interrupting(), batch_size=2, overlay=False, progress=False, log=lambda m: None)
     assert s.interrupted and s.done == ["a_photo", "b_gray16"]
     assert not list(out.rglob(".*"))  # no temporary files left behind
-    s = run([src], out, batch_size=2, overlay=True, reconstructor=reconstructor, progress=False, log=lambda m: None)
+    s = run([src], out, reconstructor, batch_size=2, overlay=True, progress=False, log=lambda m: None)
     assert not s.interrupted
     assert sorted(s.skipped) == ["a_photo", "b_gray16"]
     assert set(s.failed) == {"c_corrupt", "d_text", "e_nobody"}
@@ -163,14 +178,11 @@ def test_run_robust_batch_and_resume(tmp_path, reconstructor):
 
 
 def test_run_tightness_needs_an_outfit_with_a_resizer(tmp_path, monkeypatch):
-    from recon.garment import resize
-    from recon.run import run
-
     quiet = dict(progress=False, log=lambda m: None)
-    with pytest.raises(ValueError, match="needs --outfit"):
+    with pytest.raises(ReconError, match="needs --outfit"):
         run([EXAMPLES], tmp_path / "a", tightness=(0.1, 0.0), **quiet)
-    monkeypatch.setattr(resize, "RESIZE_WEIGHTS", str(tmp_path / "resize_{outfit}.pt"))  # no resizer there
-    with pytest.raises(ValueError, match="trained resizer for top-shorts"):
+    monkeypatch.setattr(store, "resizer_path", lambda outfit, pbns=None: tmp_path / "none.pt")  # no resizer there
+    with pytest.raises(ReconError, match="trained resizer for top-shorts"):
         run([EXAMPLES], tmp_path / "b", outfit="top-shorts", tightness=(0.1, 0.0), **quiet)
     assert not (tmp_path / "b" / "summary.json").exists()  # refused before any image
 
@@ -178,12 +190,9 @@ def test_run_tightness_needs_an_outfit_with_a_resizer(tmp_path, monkeypatch):
 @needs_pipeline
 def test_mediapipe_flip_is_mirror_equivariant():
     """avg(f(x), M f(Mx)) gives the mirrored answer on the mirrored photo (left/right swapped)."""
-    from recon.body import skeleton
-    from recon.pipeline import MediaPipeSource, default_intrinsics
-
     src = MediaPipeSource(flip=True)
     img = io.load_image(ASTRONAUT)
-    k = default_intrinsics(*img.shape[:2])
+    k = camera.default_intrinsics(*img.shape[:2])
     a, b = src(img, k), src(np.ascontiguousarray(img[:, ::-1]), k)
     mirror = list(skeleton.POINT_MIRROR)
     np.testing.assert_allclose(b.points3d[mirror] * [-1, 1, 1], a.points3d, atol=1e-4)

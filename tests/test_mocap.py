@@ -1,15 +1,20 @@
-"""Mocap readers, retargeting accuracy, resampling and the cached pose set."""
+"""Mocap readers, retargeting accuracy, resampling and the shipped pose set, which the code must
+reproduce from raw clips (short excerpts in tests/data/mocap: the tests never read ../shared)."""
+import csv
+import json
+
 import numpy as np
 import pytest
 import torch
+from conftest import MOCAP_CLIPS
+from scipy.spatial.transform import Rotation
 
 from recon.body import skeleton
-from recon.poses import mocap
+from recon.errors import ReconError
 from recon.poses.asfamc import read_asf_amc
 from recon.poses.bvh import BVHError, read_bvh
-from recon.poses.retarget import PRIMARY_CHILD, SKELETON_MAPS, Retargeter, detect_skeleton
-
-from conftest import MOCAP, needs_mocap
+from recon.poses.mocap import SPLIT_SUBJECTS, MocapPoses, build, read_clip, resample
+from recon.poses.retarget import PRIMARY_CHILD, SKELETON_MAPS, Retargeter, _snap, detect_skeleton
 
 TINY_BVH = """HIERARCHY
 ROOT hip
@@ -100,15 +105,13 @@ def test_asf_amc_known_answer(tmp_path):
 
 def test_resample_120_to_30_is_exact_decimation():
     rng = np.random.default_rng(0)
-    from scipy.spatial.transform import Rotation
-
     rot = Rotation.from_rotvec(rng.normal(size=(121 * 24, 3))).as_matrix().reshape(121, 24, 3, 3)
     tr = rng.normal(size=(121, 3))
-    r, t = mocap.resample(rot, tr, 120.0)
+    r, t = resample(rot, tr, 120.0)
     assert r.shape[0] == 31
     np.testing.assert_allclose(r, rot[::4], atol=1e-9)
     np.testing.assert_allclose(t, tr[::4], atol=1e-12)
-    r, t = mocap.resample(rot[:101], tr[:101], 100.0)  # 1 s at 100 fps -> 31 frames, interpolated
+    r, t = resample(rot[:101], tr[:101], 100.0)  # 1 s at 100 fps -> 31 frames, interpolated
     assert r.shape[0] == 31
     np.testing.assert_allclose(t[1], tr[3] + (tr[4] - tr[3]) / 3, atol=1e-9)
 
@@ -123,22 +126,17 @@ CLIPS = [
 TOLERANCE_DEG = 0.5
 
 
-@needs_mocap
 @pytest.mark.parametrize("rel,kind", CLIPS)
 def test_retargeted_pose_reproduces_source_bone_directions(body, rel, kind):
     """Pose the body with the retargeted rotations (float32 axis-angle, as cached) and compare
     every primary bone's direction with the source bone's: within TOLERANCE_DEG."""
-    import csv
-
-    row = next(r for r in csv.DictReader(open(MOCAP / "metadata" / "clips.csv")) if r["path"] == rel)
-    motion = mocap.read_clip(MOCAP, row)
+    row = next(r for r in csv.DictReader(open(MOCAP_CLIPS / "metadata" / "clips.csv")) if r["path"] == rel)
+    motion = read_clip(MOCAP_CLIPS, row)
     motion = motion.subset(np.arange(0, min(motion.num_frames, 1200), 7))
     assert detect_skeleton(motion.names) == kind
     rest = body()
     rt = Retargeter(rest.joints[0].numpy(), rest.landmarks[0].numpy())
     res = rt.retarget(motion)
-    from scipy.spatial.transform import Rotation
-
     rotvec = Rotation.from_matrix(res.rotmats.reshape(-1, 3, 3)).as_rotvec().reshape(-1, 24, 3)
     out = body(torch.tensor(rotvec, dtype=torch.float32))
     pts = torch.cat([out.joints, out.landmarks], 1).numpy()
@@ -146,8 +144,6 @@ def test_retargeted_pose_reproduces_source_bone_directions(body, rel, kind):
     table = SKELETON_MAPS[kind]
     src = {n: rt._points(motion, s, False)[0] for n, s in table.items()}
     srest = {n: rt._points(motion, s, True)[0] for n, s in table.items()}
-    from recon.poses.retarget import _snap
-
     up, left = _snap(srest["head"] - srest["pelvis"]), _snap(srest["left_hip"] - srest["right_hip"])
     align = np.stack([left, up, np.cross(left, up)])
     worst = 0.0
@@ -170,14 +166,42 @@ def test_pose_cache_splits_by_subject(mocap):
     assert mocap.rotvec.dtype == np.float32 and mocap.rotvec.shape[1:] == (24, 3)
     assert np.isfinite(mocap.rotvec).all() and np.isfinite(mocap.transl).all()
     assert max(c["max_primary_bone_error_deg"] for c in mocap.clips) < TOLERANCE_DEG
-    with pytest.raises(ValueError, match="unknown split"):
+    with pytest.raises(ReconError, match="unknown split"):
         mocap.split("dev")
 
 
 def mocap_module_test_subjects():
-    return mocap.SPLIT_SUBJECTS["test"]
+    return SPLIT_SUBJECTS["test"]
 
 
 def test_unknown_skeleton_is_reported():
-    with pytest.raises(ValueError, match="unsupported source skeleton"):
+    with pytest.raises(ReconError, match="unsupported source skeleton"):
         detect_skeleton(["root", "a", "b"])
+
+
+def test_building_from_raw_clips_reproduces_the_shipped_pose_set(body, mocap, tmp_path):
+    """`recon poses build` on the excerpts: every clip's frames equal the first frames of that
+    clip in the shipped set (the shipped set is what this code makes of the raw clips)."""
+    out = build(body, MOCAP_CLIPS, tmp_path / "poses.npz")
+    built = MocapPoses.load(path=out)
+    assert len(built.clips) == len(CLIPS)
+    for i, clip in enumerate(built.clips):
+        j = next(k for k, c in enumerate(mocap.clips) if c["path"] == clip["path"])
+        assert mocap.clips[j]["split"] == clip["split"] and mocap.clips[j]["frames"] > clip["frames"] > 10
+        ours, shipped = built.rotvec[built.clip == i], mocap.rotvec[mocap.clip == j][:clip["frames"]]
+        np.testing.assert_allclose(ours, shipped, atol=1e-6, err_msg=clip["path"])
+        np.testing.assert_allclose(built.transl[built.clip == i], mocap.transl[mocap.clip == j][:clip["frames"]],
+                                   atol=1e-6)
+
+
+def test_building_without_raw_clips_is_a_clear_error(tmp_path, monkeypatch):
+    monkeypatch.setenv("RECON_SHARED_DIR", str(tmp_path))
+    with pytest.raises(ReconError, match="ships the retargeted set"):
+        build()
+
+
+def test_recon_poses_points_at_another_pose_set(tmp_path, monkeypatch, mocap):
+    np.savez(tmp_path / "p.npz", rotvec=mocap.rotvec[:10], transl=mocap.transl[:10], clip=np.zeros(10, np.int32),
+             clips=np.array(json.dumps(mocap.clips[:1])), fps=np.array(30.0))
+    monkeypatch.setenv("RECON_POSES", str(tmp_path / "p.npz"))
+    assert len(MocapPoses.load()) == 10

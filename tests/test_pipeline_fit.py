@@ -1,11 +1,12 @@
-"""The fit after SMPLR (recon.pipeline.Reconstructor.refine): the body-model shortcuts it relies
-on, the silhouette term's geometry, and a fit that must recover a body's width from its mask."""
+"""The fit after SMPLR (recon.fit): the body-model shortcuts it relies on, the silhouette term's
+geometry, and a fit that must recover a body's width from its mask."""
 import cv2
 import numpy as np
 import torch
 
-from recon.pipeline import Keypoints, Reconstructor, SilhouetteTarget, _linear_rest_geometry, place
-from recon.synth.scene import BODY_TO_CAMERA_FRONT
+from recon import camera
+from recon.fit import FitConfig, SilhouetteTarget, fit_body, linear_rest_geometry, mask_weight
+from recon.keypoints import Keypoints
 
 
 def test_vertex_subset_and_precomputed_rest_match_full_forward(body):
@@ -25,7 +26,7 @@ def test_vertex_subset_and_precomputed_rest_match_full_forward(body):
 def test_linearised_rest_geometry_predicts_a_shape_change(body):
     shape = torch.tensor([[0.5, 0.6, 0.4, 0.5, 0.5, 0.5]])
     ids = torch.arange(0, body.num_vertices, 50)
-    (v0, j0), (jv, jj) = _linear_rest_geometry(body, shape, ids, with_jacobian=True)
+    (v0, j0), (jv, jj) = linear_rest_geometry(body, shape, ids, with_jacobian=True)
     d = torch.tensor([[0.0, 0.0, 0.05, -0.04, 0.03, 0.0]])
     v1, j1 = body.rest_geometry(shape + d, torch.cat([body.landmark_indices, ids]))
     pred_v = v0 + torch.einsum("bnks,bs->bnk", jv, d)
@@ -68,7 +69,7 @@ def test_fit_to_a_mask_corrects_biased_keypoints(body):
     are; with the mask term the body moves onto the person."""
     hw, k = (256, 256), np.array([[300.0, 0, 128], [0, 300.0, 128], [0, 0, 1]])
     rot = body.identity_pose(1)
-    rot[0, 0] = torch.tensor(BODY_TO_CAMERA_FRONT, dtype=torch.float32)
+    rot[0, 0] = torch.tensor(camera.HALF_TURN_X, dtype=torch.float32)
     shape = torch.tensor([0.5, 0.5, 0.5, 0.9, 0.5, 0.5])
     with torch.no_grad():
         gt = body(rot, shape[None], transl=torch.tensor([[0.0, 0.1, 2.6]]))
@@ -79,29 +80,27 @@ def test_fit_to_a_mask_corrects_biased_keypoints(body):
     uv = uv[:, :2] / uv[:, 2:] + np.array([8.0, 0.0])
     ys, xs = np.nonzero(gt_mask)
     kp = Keypoints(pts - pts[:1], uv, 1.0, (xs.min(), ys.min(), xs.max(), ys.max()), gt_mask)
-    t0 = place(pts - pts[:1], uv, k)
+    t0 = camera.place(pts - pts[:1], uv, k)
     start_iou = _iou(_mask(gt.vertices[0].numpy() - pts[:1] + t0, faces, k, hw), gt_mask)
     fits = {}
     for silhouette in (0.0, 10.0):
-        rec = Reconstructor(body, source=lambda rgb, k: None, refine_steps=30, silhouette=silhouette)
-        r, s, t, (v, j, lm) = rec.refine(rot[0], shape, t0, kp, k, hw)
-        fits[silhouette] = _iou(_mask(v, faces, k, hw), gt_mask), s
+        f = fit_body(body, FitConfig(silhouette=silhouette), rot[0], shape, t0, kp, k, hw)
+        fits[silhouette] = _iou(_mask(f.vertices, faces, k, hw), gt_mask), f.shape
         with torch.no_grad():  # the returned mesh is the body at the returned parameters
-            again = body(r[None], s[None], transl=torch.tensor(t[None], dtype=torch.float32))
-        assert np.abs(again.vertices[0].numpy() - v).max() < 1e-5
+            again = body(f.rotmats[None], f.shape[None], transl=torch.tensor(f.translation[None], dtype=torch.float32))
+        assert np.abs(again.vertices[0].numpy() - f.vertices).max() < 1e-5
     assert torch.equal(fits[0.0][1], shape)  # keypoints alone do not touch the shape
     assert abs(fits[0.0][0] - start_iou) < 0.05
     assert fits[10.0][0] > start_iou + 0.2 and fits[10.0][0] > fits[0.0][0] + 0.2
 
 
-def test_mask_weight_skips_missing_or_failed_masks(body):
-    rec = Reconstructor(body, source=lambda rgb, k: None, refine_steps=30, silhouette=10.0)
+def test_mask_weight_skips_missing_or_failed_masks():
+    cfg = FitConfig(silhouette=10.0)
     pts, uv = np.zeros((42, 3)), np.zeros((42, 2))
     mask = np.zeros((100, 100), bool)
     box = (20.0, 10.0, 60.0, 90.0)
-    assert rec.mask_weight(Keypoints(pts, uv, 1.0, box, None)) == 0.0
-    assert rec.mask_weight(Keypoints(pts, uv, 1.0, box, mask)) == 0.0  # empty: segmentation failed
+    assert mask_weight(cfg, Keypoints(pts, uv, 1.0, box, None)) == 0.0
+    assert mask_weight(cfg, Keypoints(pts, uv, 1.0, box, mask)) == 0.0  # empty: segmentation failed
     mask[10:90, 30:50] = True  # a person-like strip: half of the box
-    assert rec.mask_weight(Keypoints(pts, uv, 1.0, box, mask)) == 10.0
-    rec.silhouette = 0.0
-    assert rec.mask_weight(Keypoints(pts, uv, 1.0, box, mask)) == 0.0
+    assert mask_weight(cfg, Keypoints(pts, uv, 1.0, box, mask)) == 10.0
+    assert mask_weight(FitConfig(silhouette=0.0), Keypoints(pts, uv, 1.0, box, mask)) == 0.0

@@ -25,11 +25,26 @@ def test_self_intersection_detects_arm_through_chest(body):
     assert (~si.check(pose)).all()
 
 
-def test_samples_are_inside_limits_and_collision_free(body, sampler):
+def test_samples_are_float32_poses_inside_the_joint_limits(body, sampler):
     x = sampler.sample(300)
     assert x.shape == (300, 24, 3) and x.dtype == torch.float32
     assert sampler.limits.inside(x.double().numpy()).all()
-    assert sampler.collide.check(x).all()
+
+
+def test_colliding_draws_are_redrawn_and_never_returned(body, sampler, monkeypatch):
+    """The rejection loop: draws that self-intersect are replaced by later draws, in place."""
+    bad = np.zeros((1, 24, 3))
+    bad[0, J["left_shoulder"]] = [0.0, 0.0, -2.2]  # the arm through the chest
+    good = np.zeros((1, 24, 3))
+    good[0, J["left_elbow"]] = [0.0, 0.3, 0.0]
+    draws = iter([np.concatenate([good, bad, good * 2]), bad, np.concatenate([good * 3])])
+    monkeypatch.setattr(sampler, "_draw", lambda n: next(draws)[:n])
+    x = sampler.sample(3).double().numpy()
+    np.testing.assert_allclose(x, np.concatenate([good, good * 3, good * 2]), atol=1e-6)
+    stuck = PoseSampler(body, mocap=sampler.poses, seed=0, max_rounds=2)
+    monkeypatch.setattr(stuck, "_draw", lambda n: np.repeat(bad, n, 0))
+    with pytest.raises(RuntimeError, match="still self-intersect"):
+        stuck.sample(2)
 
 
 def test_sampler_is_deterministic_by_seed(body, mocap):

@@ -10,6 +10,7 @@ import torch
 
 import recon.body
 from recon.body import skeleton
+from recon.errors import ReconError
 
 CUBE = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=np.float64)
 CUBE_FACES = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
@@ -128,14 +129,14 @@ def test_bad_files_give_clear_errors(tmp_path, model_file):
     m, _ = model_file
     p = tmp_path / "nokeys.npz"
     np.savez(p, **{k: v for k, v in m.items() if k != "weights"})
-    with pytest.raises(KeyError, match="lacks \\['weights'\\]"):
+    with pytest.raises(ReconError, match="lacks \\['weights'\\]"):
         recon.body.create(p)
     bad = dict(m, kintree_table=np.stack([np.r_[2**32 - 1, np.zeros(23)], np.arange(24)]).astype(np.int64))
     p = tmp_path / "tree.npz"
     np.savez(p, **bad)
-    with pytest.raises(ValueError, match="not SMPL's 24-joint tree"):
+    with pytest.raises(ReconError, match="not SMPL's 24-joint tree"):
         recon.body.create(p)
-    with pytest.raises(ValueError, match="unknown body model"):
+    with pytest.raises(ReconError, match="unknown body model"):
         recon.body.create(tmp_path / "model.fbx")
     with pytest.raises(FileNotFoundError):
         recon.body.create(tmp_path / "missing.npz")

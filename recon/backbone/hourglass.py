@@ -10,6 +10,7 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
+from recon.backbone.efficientnet import ImageNetStem
 from recon.body import skeleton
 
 
@@ -59,10 +60,11 @@ class Hourglass(nn.Module):
 
 
 class StackedHourglass(nn.Module):
-    def __init__(self, cfg: HourglassConfig = HourglassConfig(), imagenet: bool = False):
+    def __init__(self, cfg: HourglassConfig | None = None, imagenet: bool = False):
         """``imagenet``: start an EfficientNet stem from its ImageNet weights (training only;
         trained weights hold every parameter)."""
         super().__init__()
+        cfg = cfg or HourglassConfig()
         if cfg.stem not in STEMS:
             raise ValueError(f"stem must be one of {STEMS}; got {cfg.stem!r}")
         if imagenet and cfg.stem == "hourglass":
@@ -70,16 +72,16 @@ class StackedHourglass(nn.Module):
         self.cfg = cfg
         w = cfg.width
         if cfg.stem == "hourglass":
-            self.stem = nn.Sequential(nn.Conv2d(3, 64, 7, stride=2, padding=3), nn.BatchNorm2d(64), nn.ReLU(inplace=True),
-                                      Residual(64, w // 2), nn.MaxPool2d(2), Residual(w // 2, w // 2), Residual(w // 2, w))
+            self.stem = nn.Sequential(nn.Conv2d(3, 64, 7, stride=2, padding=3), nn.BatchNorm2d(64),
+                                      nn.ReLU(inplace=True), Residual(64, w // 2), nn.MaxPool2d(2),
+                                      Residual(w // 2, w // 2), Residual(w // 2, w))
         else:
-            from recon.backbone.efficientnet import ImageNetStem
-
             self.stem = ImageNetStem(w, imagenet)
         self.volumes = cfg.points + cfg.limbs
         self.hgs = nn.ModuleList(Hourglass(cfg.levels, w) for _ in range(cfg.stacks))
-        self.feats = nn.ModuleList(nn.Sequential(Residual(w, w), nn.Conv2d(w, w, 1), nn.BatchNorm2d(w), nn.ReLU(inplace=True))
-                                   for _ in range(cfg.stacks))
+        self.feats = nn.ModuleList(
+            nn.Sequential(Residual(w, w), nn.Conv2d(w, w, 1), nn.BatchNorm2d(w), nn.ReLU(inplace=True))
+            for _ in range(cfg.stacks))
         self.heads = nn.ModuleList(nn.Conv2d(w, self.volumes * cfg.depth_bins, 1) for _ in range(cfg.stacks))
         self.merge_f = nn.ModuleList(nn.Conv2d(w, w, 1) for _ in range(cfg.stacks - 1))
         self.merge_h = nn.ModuleList(nn.Conv2d(self.volumes * cfg.depth_bins, w, 1) for _ in range(cfg.stacks - 1))

@@ -1,15 +1,17 @@
-"""Train the volumetric stacked hourglass (``recon backbone train``).
+"""Train the volumetric stacked hourglass (``recon backbone train``) and export the result.
 
 Data: either ``recon synth`` shard folders, or ``--online``: SURREAL-like samples rendered on
 the fly by the data-loader workers (``recon.synth.scene``; each worker draws its own pose and
 shape pools, so W workers see W x 4,096 poses). Each image is cropped with the thesis' metric
-2.5 m crop around the mean joint (scale/centre jittered), resized to the network input, and
-augmented (colour, horizontal flip with the left/right point map, in-plane rotation). Loss:
-softmax cross-entropy on every stack's volumes (thesis 2.4.1) against trilinear soft targets,
-plus an L1 term on the soft-argmax coordinates (integral regression). Validation: MPJPE of the
-decoded joints (pelvis-aligned) on the first images of synth-val, ground-truth crop as in the
-thesis protocol; online runs render exactly those images (same generator, split and seed).
-Checkpoints are resumable; the learning curve is written as JSON next to them.
+2.5 m crop around the mean joint (scale/centre jittered) and resized to the network input; the
+batch is then augmented on the training device (``CropAugmentation``: horizontal flip with the
+left/right point map and in-plane rotation through kornia.augmentation, the targets moved with
+the image; colour gains and offsets). Loss: softmax cross-entropy on every stack's volumes
+(thesis 2.4.1) against trilinear soft targets, plus an L1 term on the soft-argmax coordinates
+(integral regression). Validation: MPJPE of the decoded joints (pelvis-aligned) on the first
+images of synth-val, ground-truth crop as in the thesis protocol; online runs render exactly
+those images (same generator, split and seed). The loop is ``recon.training.Trainer``:
+checkpoints are resumable and the learning curve is written as JSON next to them.
 
 End-to-end fine-tuning (thesis 2.4.5, ``--init <weights> --smplr-weight w``): the trained DAE and
 SMPLR (Omega, Psi, body model), frozen, sit on the decoded J+ of the last stack, and their L1
@@ -19,23 +21,35 @@ learning rate (thesis: 1e-4). Model selection then follows the MPJPE of the whol
 from __future__ import annotations
 
 import json
-import math
-import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import cv2
+import kornia.augmentation as KA
 import numpy as np
 import torch
+from kornia.geometry.linalg import transform_points
+from torch import nn
 from torch.utils.data import DataLoader, Dataset, IterableDataset, get_worker_info
 
-from recon import paths
+from recon import camera, paths
 from recon.backbone.crop import Crop, grid_to_camera
 from recon.backbone.hourglass import SIZES, HourglassConfig, StackedHourglass
+from recon.backbone.model import WEIGHTS
+from recon.backbone.search import calibrated
 from recon.backbone.volumetric import soft_argmax_3d, volumetric_ce
-from recon.body import skeleton
+from recon.body import create, skeleton
+from recon.errors import ReconError
 from recon.metrics import per_point_error
+from recon.smplr import SMPLR
 from recon.synth.dataset import BENCHMARKS, SynthDataset
+from recon.synth.scene import SceneSampler
+from recon.training import Schedule, Trainer
+
+LR_FLOOR = 0.02  # the cosine schedule decays to this fraction of the peak rate
+CROP_KEYS = ("rgb", "K", "points3d")  # what a training crop reads of a stored sample
+# settings a resumed run may change: longer runs, other machines, other validation cadence
+RESUMABLE_CHANGES = ("steps", "run_minutes", "workers", "eval_every")
 
 
 @dataclass
@@ -50,7 +64,7 @@ class BackboneTrainConfig:
     val_images: int = 256
     workers: int = 2
     augment: bool = True
-    repeats: int = 1  # online data: augmented crops per rendered sample
+    repeats: int = 1  # online data: crops per rendered sample (each jittered and augmented on its own)
     l1_weight: float = 10.0  # on grid coordinates in [0, 1] (x 2.5 m: 1 voxel of 32 = 0.3 of loss)
     seed: int = 0
     model: dict = field(default_factory=dict)  # overrides of HourglassConfig
@@ -59,59 +73,78 @@ class BackboneTrainConfig:
     imagenet: bool = False  # start the stem from ImageNet weights (needs model={"stem": "efficientnet-lite0"})
 
 
-def make_crop(s: dict, size: int, augment: bool, rng: np.random.Generator):
-    """One sample -> (image (3,S,S) float tensor in [0,1], grid targets (42,3), crop vector, K, camera points)."""
+def make_crop(s: dict, size: int, jitter: bool, rng: np.random.Generator):
+    """One sample -> (image (3, S, S) float tensor in [0, 1], grid targets (42, 3), crop vector,
+    K, camera points). ``jitter``: the crop's centre and scale are perturbed (training)."""
     pts = s["points3d"].astype(np.float64)
     centre = pts[:24].mean(0)
     extent = 2.5
-    if augment:
+    if jitter:
         centre = centre + rng.normal(0, 0.05, 3) * [1, 1, 0]
         extent *= rng.uniform(0.9, 1.1)
     crop = Crop.around(centre, s["K"].astype(np.float64), extent)
     img = crop.image(s["rgb"], size).astype(np.float32) / 255.0
-    grid = crop.to_grid(pts)
-    if augment:
-        if rng.random() < 0.5:  # flip: mirror x, swap left/right points
-            img = img[:, ::-1]
-            grid = grid[list(skeleton.POINT_MIRROR)]
-            grid[:, 0] = 1.0 - grid[:, 0]
-        ang = rng.normal(0, 15)
-        if abs(ang) > 1:
-            m = cv2.getRotationMatrix2D((size / 2, size / 2), ang, 1.0)
-            img = cv2.warpAffine(img, m, (size, size), borderMode=cv2.BORDER_CONSTANT)
-            xy = grid[:, :2] * size  # the same affine map moves the targets
-            grid[:, :2] = (xy @ m[:, :2].T + m[:, 2]) / size
-        img = np.clip(img * rng.uniform(0.7, 1.3, 3) + rng.normal(0, 0.03), 0, 1)
     crop_vec = np.array([crop.u0, crop.v0, crop.side, crop.zc, crop.extent], np.float64)
     return (torch.from_numpy(np.ascontiguousarray(img.transpose(2, 0, 1))).float(),
-            torch.from_numpy(grid).float(), torch.from_numpy(crop_vec), torch.from_numpy(s["K"].astype(np.float64)),
-            torch.from_numpy(pts))
+            torch.from_numpy(crop.to_grid(pts)).float(), torch.from_numpy(crop_vec),
+            torch.from_numpy(s["K"].astype(np.float64)), torch.from_numpy(pts))
+
+
+class CropAugmentation(nn.Module):
+    """Batch augmentation on the training device: a horizontal flip (p = 0.5; the left/right
+    points swapped through the J+ mirror map), an in-plane rotation of ~ N(0, ``rotation_deg``)
+    (none under 1 degree) and colour: per-channel gains in ``gain`` and one offset
+    ~ N(0, ``offset``), clipped to [0, 1]. The geometric part is kornia.augmentation's; grid
+    targets move with the image through each augmentation's transform matrix (pixel-index
+    coordinates: a grid value g is the pixel g S - 0.5)."""
+
+    def __init__(self, rotation_deg: float = 15.0, gain: tuple[float, float] = (0.7, 1.3), offset: float = 0.03):
+        super().__init__()
+        self.flip = KA.RandomHorizontalFlip(p=0.5)
+        self.rotate = KA.RandomRotation(degrees=180.0, p=1.0)
+        self.rotation_deg, self.gain, self.offset = rotation_deg, gain, offset
+        self.register_buffer("mirror", torch.tensor(skeleton.POINT_MIRROR), persistent=False)
+
+    def forward(self, img: torch.Tensor, grid: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        b, size = img.shape[0], img.shape[-1]
+        params = self.flip.forward_parameters(img.shape)
+        img = self.flip(img, params=params)
+        flipped = params["batch_prob"].to(grid.device) > 0.5
+        grid = torch.where(flipped[:, None, None], grid[:, self.mirror], grid)  # left <-> right
+        xy = transform_points(self.flip.transform_matrix.to(grid), grid[..., :2] * size - 0.5)
+        params = self.rotate.forward_parameters(img.shape)
+        deg = torch.randn(b) * self.rotation_deg
+        params["degrees"] = torch.where(deg.abs() > 1.0, deg, torch.zeros_like(deg))
+        img = self.rotate(img, params=params)
+        xy = transform_points(self.rotate.transform_matrix.to(grid), xy)
+        grid = torch.cat([(xy + 0.5) / size, grid[..., 2:]], -1)
+        lo, hi = self.gain
+        gains = lo + (hi - lo) * torch.rand(b, 3, 1, 1)
+        offsets = self.offset * torch.randn(b, 1, 1, 1)
+        return (img * gains.to(img) + offsets.to(img)).clamp(0.0, 1.0), grid
 
 
 class CropDataset(Dataset):
-    """Crops of stored ``recon synth`` samples."""
+    """Crops of stored ``recon synth`` samples (jittered for training)."""
 
-    def __init__(self, roots: list[Path], input_size: int, augment: bool, seed: int = 0):
-        self.sets = [SynthDataset(r) for r in roots]
+    def __init__(self, roots: list[Path], input_size: int, jitter: bool, seed: int = 0):
+        self.sets = [SynthDataset(r, keys=CROP_KEYS) for r in roots]
         self.index = [(i, j) for i, s in enumerate(self.sets) for j in range(len(s))]
-        self.size, self.augment, self.seed = input_size, augment, seed
+        self.size, self.jitter, self.seed = input_size, jitter, seed
 
     def __len__(self) -> int:
         return len(self.index)
 
     def __getitem__(self, n: int):
         i, j = self.index[n]
-        rng = np.random.default_rng([self.seed, n, int(time.time_ns() % 1_000_000) if self.augment else 0])
-        return make_crop(self.sets[i][j], self.size, self.augment, rng)
+        rng = np.random.default_rng([self.seed, n, int(torch.randint(1 << 30, ()).item()) if self.jitter else 0])
+        return make_crop(self.sets[i][j], self.size, self.jitter, rng)
 
 
-def _scene_sampler(split: str, seed: int):
-    import recon.body
-    from recon.synth.scene import SceneSampler
-
+def _scene_sampler(split: str, seed: int) -> SceneSampler:
     torch.set_num_threads(1)  # many workers: one thread each, or OpenCV/BLAS thread pools oversubscribe the CPU
     cv2.setNumThreads(1)
-    return SceneSampler(recon.body.create(), split, seed)
+    return SceneSampler(create(), split, seed)
 
 
 class RenderedCrops(Dataset):
@@ -132,9 +165,9 @@ class RenderedCrops(Dataset):
 
 
 class OnlineCrops(IterableDataset):
-    """Endless augmented training crops rendered by each data-loader worker; worker w uses the
+    """Endless jittered training crops rendered by each data-loader worker; worker w uses the
     stream (train, seed * 1000 + w) from sample ``start`` on. Each render gives ``repeats``
-    differently augmented crops, mixed through a shuffle buffer (rendering is the bottleneck)."""
+    crops, mixed through a shuffle buffer (rendering is the bottleneck)."""
 
     def __init__(self, input_size: int, seed: int = 0, start: int = 0, repeats: int = 1, buffer: int = 64):
         self.size, self.seed, self.start, self.repeats, self.buffer = input_size, seed, start, repeats, buffer
@@ -153,28 +186,23 @@ class OnlineCrops(IterableDataset):
                 yield pool.pop(int(rng.integers(len(pool))))
 
 
-class EndToEnd(torch.nn.Module):
+class EndToEnd(nn.Module):
     """The frozen DAE + SMPLR on top of the backbone (thesis 2.4.5). Targets are the ground-truth
     grid coordinates decoded with the same crop, so flips and in-plane rotations of the crop stay
-    consistent with the image. Points go to SMPLR's frame (OpenCV axes times (1, -1, -1))."""
+    consistent with the image. Points go to SMPLR's view frame (``recon.camera.to_view``)."""
 
     def __init__(self, device: str = "cpu"):
         super().__init__()
-        from recon.pipeline import OPENCV_TO_VIEW
-        from recon.smplr import SMPLR
-
         self.smplr = SMPLR.load().to(device).eval().requires_grad_(False)
-        self.register_buffer("flip", torch.as_tensor(OPENCV_TO_VIEW, dtype=torch.float32, device=device),
-                             persistent=False)
 
     def chain(self, grid: torch.Tensor, crop_vec: torch.Tensor, k: torch.Tensor):
         """Grid J+ (B, 42, 3) -> (DAE output, body-model J+), both (B, 42, 3) in SMPLR's frame."""
-        pts = grid_to_camera(grid, crop_vec.float(), k.float()) * self.flip
+        pts = camera.to_view(grid_to_camera(grid, crop_vec.float(), k.float()))
         out = self.smplr(pts, points_only=True)
         return out.points_in, out.body.points
 
     def forward(self, grid: torch.Tensor, grid_gt: torch.Tensor, crop_vec: torch.Tensor, k: torch.Tensor):
-        target = grid_to_camera(grid_gt, crop_vec.float(), k.float()) * self.flip
+        target = camera.to_view(grid_to_camera(grid_gt, crop_vec.float(), k.float()))
         target = target - target[:, :1]
         dae, body = self.chain(grid, crop_vec, k)
         return (dae - dae[:, :1] - target).abs().mean() + (body - body[:, :1] - target).abs().mean()
@@ -191,7 +219,7 @@ def evaluate(net: StackedHourglass, batches, device: str, e2e: EndToEnd | None =
             g = soft_argmax_3d(net(img.to(device))[-1][:, :skeleton.NUM_POINTS].float())
             if e2e is not None:
                 with torch.autocast(device_type=device.split(":")[0], enabled=False):
-                    body = e2e.chain(g, crop_vec.to(device), k.to(device))[1] * e2e.flip
+                    body = camera.to_opencv(e2e.chain(g, crop_vec.to(device), k.to(device))[1])
                 chain.append(per_point_error(body.double().cpu()[:, :24], pts[:, :24]))
             errs.append(per_point_error(grid_to_camera(g.double().cpu(), crop_vec, k)[:, :24], pts[:, :24]))
     net.train()
@@ -206,12 +234,18 @@ def _loader(ds, batch: int, workers: int, device: str, shuffle: bool | None = No
     return DataLoader(ds, batch_size=batch, shuffle=shuffle, **kw)
 
 
-def train(train_roots: list[Path] | None, val: Path | str, out_dir: Path,
-          cfg: BackboneTrainConfig = BackboneTrainConfig(), device: str = "cpu") -> dict:
-    """``train_roots=None`` renders training data online. ``val``: a synth folder, or a benchmark
-    name rendered online (``"synth-val"``)."""
-    from tqdm import tqdm
+def _endless(loader):
+    while True:
+        yield from loader
 
+
+def train(train_roots: list[Path] | None, val: Path | str, out_dir: Path, cfg: BackboneTrainConfig | None = None,
+          device: str = "cpu", progress: bool = True) -> dict:
+    """``train_roots=None`` renders training data online. ``val``: a synth folder, or a benchmark
+    name rendered online (``"synth-val"``). Resumes from ``out_dir`` if it holds a run."""
+    cfg = cfg or BackboneTrainConfig()
+    if cfg.imagenet and cfg.model.get("stem", "hourglass") == "hourglass" and not cfg.init:
+        raise ReconError("--imagenet initialises the EfficientNet stem: add --stem efficientnet-lite0")
     torch.manual_seed(cfg.seed)
     init = paths.load_checkpoint(cfg.init, "recon backbone train") if cfg.init else None
     mcfg = HourglassConfig(**(init["config"] if init else {**asdict(SIZES[cfg.size]), **cfg.model}))
@@ -220,20 +254,17 @@ def train(train_roots: list[Path] | None, val: Path | str, out_dir: Path,
     if init:
         net.load_state_dict(init["net"])
     net = net.to(device).to(memory_format=torch.channels_last)
+    augment = CropAugmentation().to(device) if cfg.augment else None
     e2e = EndToEnd(device) if cfg.smplr_weight > 0 else None
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    # optimiser moments apart from the weights: each file stays small enough to move around
-    state_path, opt_path = out_dir / "state.pt", out_dir / "optimizer.pt"
-    best_path, curve_path = out_dir / "best.pt", out_dir / "curve.json"
-    step, best, history, spent = 0, float("inf"), [], 0.0
-    if state_path.exists():
-        s = torch.load(state_path, map_location=device, weights_only=True)
-        net.load_state_dict(s["net"])
-        opt.load_state_dict(torch.load(opt_path, map_location=device, weights_only=True))
-        step, best, history, spent = s["step"], s["best"], s["history"], s.get("seconds", 0.0)
+    trainer = Trainer({"net": net}, opt, cfg.steps, schedule=Schedule(floor=LR_FLOOR), eval_every=cfg.eval_every,
+                      out_dir=out_dir, select="val_chain_mpjpe_mm" if e2e else "val_mpjpe_mm", minutes=cfg.minutes,
+                      run_minutes=cfg.run_minutes, desc="train backbone", config=asdict(cfg),
+                      identity={k: v for k, v in asdict(cfg).items() if k not in RESUMABLE_CHANGES},
+                      extra={"config": asdict(mcfg)}, progress=progress)
     if train_roots is None:
-        data = OnlineCrops(mcfg.input_size, cfg.seed, start=step * cfg.batch // max(cfg.workers, 1), repeats=cfg.repeats)
+        data = OnlineCrops(mcfg.input_size, cfg.seed, start=trainer.step * cfg.batch // max(cfg.workers, 1),
+                           repeats=cfg.repeats)
         loader = _loader(data, cfg.batch, cfg.workers, device)
     else:
         loader = _loader(CropDataset(train_roots, mcfg.input_size, cfg.augment, cfg.seed), cfg.batch, cfg.workers,
@@ -247,66 +278,49 @@ def train(train_roots: list[Path] | None, val: Path | str, out_dir: Path,
         vset.index = vset.index[:cfg.val_images]
         val_batches = list(DataLoader(vset, batch_size=cfg.batch, num_workers=0))
 
-    def validate() -> tuple[float, dict]:
-        """Selection metric (the backbone's MPJPE, or the whole chain's when end-to-end) + log."""
+    def validate() -> dict:
         if e2e is None:
-            m = evaluate(net, val_batches, device)
-            return m, {"val_mpjpe_mm": m}
+            return {"val_mpjpe_mm": evaluate(net, val_batches, device)}
         m, chain = evaluate(net, val_batches, device, e2e)
-        return chain, {"val_mpjpe_mm": m, "val_chain_mpjpe_mm": chain}
+        return {"val_mpjpe_mm": m, "val_chain_mpjpe_mm": chain}
 
-    def save(tag: str, mpjpe: float, loss: float | None, metrics: dict):
-        nonlocal best
-        history.append({"step": step, "loss": loss, **metrics, "time_s": spent + time.time() - t0,
-                        "lr": opt.param_groups[0]["lr"], "tag": tag})
-        if mpjpe < best:
-            best = mpjpe
-            paths.atomic_write(best_path, lambda t: torch.save({"net": net.state_dict(), "config": asdict(mcfg),
-                                                                "val_mpjpe_mm": metrics["val_mpjpe_mm"], "step": step,
-                                                                "val_metrics": metrics}, t))
-        paths.atomic_write(opt_path, lambda t: torch.save(opt.state_dict(), t))
-        paths.atomic_write(state_path, lambda t: torch.save({"net": net.state_dict(), "step": step, "best": best, "history": history,
-                                                             "seconds": spent + time.time() - t0}, t))
-        paths.atomic_write(curve_path, lambda t: Path(t).write_text(json.dumps(
-            {"config": asdict(cfg), "model": asdict(mcfg), "history": history}, indent=1)))
+    def step(batch):
+        img, grid, crop_vec, k, _ = batch
+        img = img.to(device, non_blocking=True)
+        g = grid.to(device, non_blocking=True)
+        if augment is not None:
+            img, g = augment(img, g)
+        with torch.autocast(device_type=device.split(":")[0], dtype=torch.bfloat16, enabled=cuda):
+            outs = net(img.contiguous(memory_format=torch.channels_last))
+        loss = 0.0
+        for o in outs:
+            o = o[:, :skeleton.NUM_POINTS].float()
+            coords = soft_argmax_3d(o)
+            loss = loss + volumetric_ce(o, g) + cfg.l1_weight * (coords - g).abs().mean()
+        if e2e is not None:  # on the last stack's J+
+            loss = loss + cfg.smplr_weight * e2e(coords, g, crop_vec.to(device), k.to(device))
+        return loss
 
-    bar = tqdm(total=cfg.steps, initial=step, desc="train backbone", unit="step", mininterval=10)
-    t0 = time.time()
-    done, loss = step >= cfg.steps, torch.zeros(())
-    if init and step == 0:  # the starting point, for the curve and as the best so far
-        m, metrics = validate()
-        save("init", m, None, metrics)
-    while not done:
-        for img, grid, crop_vec, k, _ in loader:
-            elapsed = spent + time.time() - t0
-            frac = step / cfg.steps
-            if cfg.minutes > 0:
-                frac = max(frac, elapsed / (60 * cfg.minutes))
-            for g in opt.param_groups:  # cosine decay to 2 % of the initial rate
-                g["lr"] = cfg.lr * (0.02 + 0.98 * 0.5 * (1 + math.cos(math.pi * min(frac, 1.0))))
-            img = img.to(device, non_blocking=True).to(memory_format=torch.channels_last)
-            g = grid.to(device, non_blocking=True)
-            with torch.autocast(device_type=device.split(":")[0], dtype=torch.bfloat16, enabled=cuda):
-                outs = net(img)
-            loss = 0.0
-            for o in outs:
-                o = o[:, :skeleton.NUM_POINTS].float()
-                coords = soft_argmax_3d(o)
-                loss = loss + volumetric_ce(o, g) + cfg.l1_weight * (coords - g).abs().mean()
-            if e2e is not None:  # on the last stack's J+
-                loss = loss + cfg.smplr_weight * e2e(coords, g, crop_vec.to(device), k.to(device))
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            opt.step()
-            step += 1
-            bar.update(1)
-            done = step >= cfg.steps or (cfg.minutes > 0 and elapsed >= 60 * cfg.minutes)
-            done = done or (cfg.run_minutes > 0 and time.time() - t0 >= 60 * cfg.run_minutes)
-            if step % cfg.eval_every == 0 or done:
-                mpjpe, metrics = validate()
-                save("eval", mpjpe, loss.item(), metrics)
-                bar.set_postfix(loss=f"{loss.item():.3f}", val_mm=f"{mpjpe:.1f}")
-            if done:
-                break
-    bar.close()
-    return {"best_val_mpjpe_mm": best, "steps": step, "history": history}
+    if init and trainer.step == 0 and not trainer.history:  # the starting point, for the curve and as the best so far
+        trainer.validate_now(validate, tag="init")
+    log = trainer.fit(_endless(loader), step, validate)
+    return {"best_val_mpjpe_mm": log["best"], "steps": log["steps"], "history": log["history"]}
+
+
+def export(run_dir: Path, out: Path = WEIGHTS, calibrate_on: int = 300) -> Path:
+    """``recon backbone export``: shipped weights from a training run: its best checkpoint, the
+    training config and curve, and the crop-depth factors calibrated on the first
+    ``calibrate_on`` synth-val images (``recon.backbone.search``)."""
+    run_dir = Path(run_dir)
+    best = paths.load_checkpoint(run_dir / "best.pt", "recon backbone train")
+    curve = json.loads((run_dir / "curve.json").read_text())
+    ck = {"net": best["net"], "config": best["config"], "step": best["step"],
+          "val_mpjpe_mm": best["metrics"]["val_mpjpe_mm"], "train_config": curve["config"],
+          "curve_json": json.dumps(curve["history"])}
+    if curve["config"].get("init"):  # fine-tuned: keep the starting weights' provenance
+        start = paths.load_checkpoint(curve["config"]["init"], "recon backbone train")
+        ck["fine_tuned_from"] = {k: start[k] for k in ("train_config", "step", "val_mpjpe_mm", "fine_tuned_from")
+                                 if k in start}
+    ck = calibrated(ck, calibrate_on)
+    paths.atomic_write(out, lambda t: torch.save(ck, t))
+    return out

@@ -34,7 +34,8 @@ def voxel_index(coords: torch.Tensor, shape: tuple[int, int, int]) -> tuple[torc
     return flat, valid
 
 
-def trilinear_target(coords: torch.Tensor, shape: tuple[int, int, int]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+def trilinear_target(coords: torch.Tensor, shape: tuple[int, int, int]
+                     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Split each point's unit mass over its 8 surrounding voxel centres (trilinear weights).
 
     Unlike a one-hot voxel, the target's expectation equals the point itself, so a network
@@ -66,7 +67,8 @@ def volumetric_ce(logits: torch.Tensor, coords: torch.Tensor) -> torch.Tensor:
     points outside the volume are ignored."""
     b, p, d, h, w = logits.shape
     idx, wts, valid = trilinear_target(coords, (d, h, w))
-    logp = F.log_softmax(logits.reshape(b, p, -1).float(), dim=-1)
+    x = logits.reshape(b, p, -1)
+    logp = F.log_softmax(x if x.dtype == torch.float64 else x.float(), dim=-1)  # bf16/fp16 logits: in float32
     ce = -(logp.gather(-1, idx) * wts).sum(-1)
     return (ce * valid).sum() / valid.sum().clamp(min=1)
 
@@ -81,7 +83,8 @@ def local_mass(logits: torch.Tensor, coords: torch.Tensor) -> torch.Tensor:
     flat = logits.reshape(b, p, -1)
     lse = torch.logsumexp(flat, -1, keepdim=True)
     centre = torch.stack([(coords[..., 2] * d).floor(), (coords[..., 1] * h).floor(), (coords[..., 0] * w).floor()], -1)
-    offsets = torch.stack(torch.meshgrid(*[torch.arange(-1, 2, device=logits.device)] * 3, indexing="ij"), -1).view(27, 3)
+    steps = torch.arange(-1, 2, device=logits.device)
+    offsets = torch.stack(torch.meshgrid(steps, steps, steps, indexing="ij"), -1).view(27, 3)
     idx = centre.clamp(torch.zeros(3, device=logits.device), torch.tensor([d - 1, h - 1, w - 1], device=logits.device))
     idx = idx.long()[..., None, :] + offsets  # (B, P, 27, 3) as (z, y, x)
     size = torch.tensor([d, h, w], device=logits.device)

@@ -1,2 +1,2 @@
-"""Benchmark runner: methods predict from a synthetic sample's image (and intrinsics); the
-runner scores MPJPE P1/P2, per-group errors, landmark error, PVE and silhouette IoU."""
+"""Benchmark methods (baselines and our pipelines) and the runner that scores them on the
+synthetic benchmarks: MPJPE P1/P2, per-group errors, landmark error, PVE, silhouette IoU."""

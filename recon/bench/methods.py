@@ -2,14 +2,20 @@
 intrinsics K (as in the thesis protocol) and returns a ``Prediction`` in the camera frame."""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
+import roma
 import torch
 
+from recon import camera
+from recon.backbone.crop import Crop
 from recon.body import skeleton
-from recon.pipeline import OPENCV_TO_VIEW, _in_image, place
-from recon.synth.scene import BODY_TO_CAMERA_FRONT
+from recon.fit import FitConfig
+from recon.keypoints import BackboneSource, MediaPipePose
+from recon.pipeline import Reconstructor
+from recon.poses.mocap import MocapPoses
+from recon.smplr import SMPLR
 
 
 @dataclass
@@ -29,14 +35,10 @@ class MeanBaseline:
     description = "mean pose + mean shape, facing the camera"
 
     def __init__(self, body):
-        import roma
-
-        from recon.poses.mocap import MocapPoses
-
         self.body = body
         rv = torch.tensor(MocapPoses.load().split("train").rotvec[::10])
         mean = roma.special_procrustes(roma.rotvec_to_rotmat(rv).sum(0))
-        mean[0] = torch.tensor(BODY_TO_CAMERA_FRONT, dtype=torch.float32)  # body -> camera
+        mean[0] = torch.tensor(camera.HALF_TURN_X, dtype=torch.float32)  # body -> camera, seen from the front
         with torch.no_grad():
             self.out = body(mean[None])
         v = self.out.vertices[0].numpy()
@@ -81,8 +83,6 @@ class MediaPipeBaseline:
     description = "MediaPipe Pose 3D world landmarks mapped to our joints"
 
     def __init__(self, body=None):
-        from recon.keypoints.mediapipe import MediaPipePose
-
         self.pose = MediaPipePose(complexity=1, segmentation=True)
 
     def __call__(self, rgb: np.ndarray, k: np.ndarray) -> Prediction | None:
@@ -92,33 +92,29 @@ class MediaPipeBaseline:
         return Prediction(mediapipe_to_joints(r.world), mask=r.mask)
 
 
+def _placed(b, vertices: bool = True) -> Prediction:
+    """Prediction from ``SMPLR.lift_and_place`` output of one sample."""
+    return Prediction(b.joints[0], b.landmarks[0], b.vertices[0] if vertices else None)
+
+
 class SMPLROracle2D:
     """Upper bound for the lifting stage: the ground-truth 2D J+ of the image, back-projected
-    to unit depth, lifted by the DAE-2D + SMPLR, placed by least-squares translation."""
+    to the depth where template bones match them, lifted by the DAE-2D + SMPLR, placed by
+    least-squares translation."""
 
     name = "smplr-gt2d"
     description = "oracle: GT 2D J+ -> DAE-2D -> SMPLR (not an image method)"
 
     def __init__(self, body):
-        from recon.smplr import SMPLR
-
         self.model = SMPLR.load(body)
         self.needs_gt = True
 
     def __call__(self, rgb, k, points2d=None, **_) -> Prediction:
-        from recon.backbone.model import depth_from_bones
-
-        xy = (points2d - k[:2, 2]) / k[0, 0]  # normalised image coordinates = X / Z
         # metric scale for the DAE-2D: the depth where template bones match the 2D bones
-        depth = depth_from_bones(points2d, k, self.model.template.numpy())
-        x = np.concatenate([xy * depth, np.zeros((len(xy), 1))], 1) * OPENCV_TO_VIEW
-        with torch.no_grad():
-            out = self.model(torch.tensor(x[None], dtype=torch.float32), mode="2d")
-        v = out.body.vertices[0].numpy() * OPENCV_TO_VIEW
-        j, lm = out.body.joints[0].numpy() * OPENCV_TO_VIEW, out.body.landmarks[0].numpy() * OPENCV_TO_VIEW
-        pts = np.concatenate([j, lm]) - j[:1]
-        t = place(pts, points2d, k)
-        return Prediction(j - j[:1] + t, lm - j[:1] + t, v - j[:1] + t)
+        depth = camera.depth_from_bones(points2d, k, self.model.template.numpy())
+        xy = camera.normalized(points2d, k) * depth
+        x = np.concatenate([xy, np.zeros((len(xy), 1))], 1)  # orthographic, metric
+        return _placed(self.model.lift_and_place(x[None], points2d[None], k, mode="2d"))
 
 
 class MediaPipeSMPLR:
@@ -129,12 +125,10 @@ class MediaPipeSMPLR:
     name = "mediapipe-smplr"
     description = "recon.Reconstructor: MediaPipe (+ its mirror image) -> adapter -> DAE -> SMPLR, no fit"
 
-    source, refine_steps, silhouette = "mediapipe", 0, 0.0
+    source, fit = "mediapipe", FitConfig(steps=0, silhouette=0.0)
 
     def __init__(self, body):
-        from recon.pipeline import Reconstructor
-
-        self.rec = Reconstructor(body, source=self.source, refine_steps=self.refine_steps, silhouette=self.silhouette)
+        self.rec = Reconstructor(body, source=self.source, fit=replace(self.fit))
 
     def __call__(self, rgb: np.ndarray, k: np.ndarray) -> Prediction | None:
         r = self.rec.batch([rgb], [k])[0]
@@ -146,13 +140,13 @@ class MediaPipeSMPLR:
 class MediaPipeSMPLRFitKeypoints(MediaPipeSMPLR):
     name = "mediapipe-smplr-fit-kp"
     description = "recon.Reconstructor + 30-step fit to the keypoints only (`recon run --silhouette 0`)"
-    refine_steps = 30
+    fit = FitConfig(silhouette=0.0)
 
 
 class MediaPipeSMPLRFit(MediaPipeSMPLR):
     name = "mediapipe-smplr-fit"
     description = "recon.Reconstructor + 30-step fit to the keypoints and MediaPipe's person mask (`recon run` default)"
-    refine_steps, silhouette = 30, 10.0
+    fit = FitConfig()
 
 
 class BackboneSMPLRFit(MediaPipeSMPLR):
@@ -162,7 +156,7 @@ class BackboneSMPLRFit(MediaPipeSMPLR):
     name = "backbone-smplr-fit"
     description = "recon.Reconstructor: our hourglass (crop found by the network) -> DAE -> SMPLR + 30-step " \
                   "keypoint fit (`recon run --source backbone`)"
-    source, refine_steps = "backbone", 30
+    source, fit = "backbone", FitConfig()
 
 
 class BackboneMethod:
@@ -170,50 +164,42 @@ class BackboneMethod:
     rows): ``stage`` "net" = decoded J+ alone, "dae" = after the 3D DAE, "smplr" = DAE + SMPLR
     mesh placed by reprojection of the predicted 2D. ``crop`` "gt" = the metric crop around the
     ground-truth mean joint (the thesis protocol; uses GT), "self" = found by the network
-    itself (``recon.pipeline.BackboneSource``; no GT). ``flip``: the final prediction averaged
-    with that of the mirrored crop (``BackboneSource(flip=True)``)."""
+    itself (``recon.backbone.search``; no GT). ``flip``: the final prediction averaged
+    with that of the mirrored crop."""
 
     crop, stage, flip = "gt", "net", False
 
     def __init__(self, body):
-        from recon.pipeline import BackboneSource
-        from recon.smplr import SMPLR
-
         self.source = BackboneSource(body, flip=self.flip)
         self.smplr = SMPLR.load(body) if self.stage != "net" else None
         self.needs_gt = self.crop == "gt"
 
     def __call__(self, rgb, k, points3d=None, **_) -> Prediction | None:
-        from recon.backbone.crop import Crop
-
         if self.crop == "gt":
             crop = Crop.around(points3d[:24].astype(np.float64).mean(0), k)
-            pts, uv, _conf = self.source.net.predict([rgb], [crop], flip=self.source.flip)
+            pts, uv, _conf = self.source.search.net.predict([rgb], [crop], flip=self.flip)
             pts, uv = pts[0], uv[0]
         else:
             kp = self.source(rgb, k)
             if kp is None:
                 return None
             uv = kp.points2d
-            pts = kp.points3d + place(kp.points3d, uv, k)
+            pts = kp.points3d + camera.place(kp.points3d, uv, k)
         if self.stage == "net":
             return Prediction(pts[:24], pts[24:])
-        x = torch.tensor(((pts - pts[:1]) * OPENCV_TO_VIEW)[None], dtype=torch.float32)
-        with torch.no_grad():
-            o = self.smplr(x, mode="3d", denoise=True, points_only=self.stage == "dae")
+        b = self.smplr.lift_and_place(pts[None], uv[None], k, weights=camera.in_image_weights(uv, rgb.shape)[None],
+                                      points_only=self.stage == "dae")
         if self.stage == "dae":
-            p = o.points_in[0].numpy() * OPENCV_TO_VIEW + pts[:1]
+            p = b.points_in[0] + pts[:1]
             return Prediction(p[:24], p[24:])
-        v = o.body.vertices[0].numpy() * OPENCV_TO_VIEW
-        j, lm = o.body.joints[0].numpy() * OPENCV_TO_VIEW, o.body.landmarks[0].numpy() * OPENCV_TO_VIEW
-        t = place(np.concatenate([j, lm]) - j[:1], uv, k, weights=_in_image(uv, rgb.shape))
-        return Prediction(j - j[:1] + t, lm - j[:1] + t, v - j[:1] + t)
+        return _placed(b)
 
 
 def _backbone(crop: str, stage: str, flip: bool = False) -> type:
     what = {"net": "J+ decoded from the volumes", "dae": "+ 3D DAE", "smplr": "+ DAE + SMPLR mesh"}[stage]
     where = {"gt": "GT metric crop (thesis protocol)", "self": "crop found by the network (no GT)"}[crop]
-    name = "backbone" + ("-gtcrop" if crop == "gt" else "") + ("" if stage == "net" else "-" + stage) + ("-flip" if flip else "")
+    name = ("backbone" + ("-gtcrop" if crop == "gt" else "") + ("" if stage == "net" else "-" + stage)
+            + ("-flip" if flip else ""))
     how = ", final pass averaged with the mirrored crop" if flip else ""
     return type(name, (BackboneMethod,), {"name": name, "crop": crop, "stage": stage, "flip": flip,
                                           "description": f"our hourglass{how}, {where}: {what}"})

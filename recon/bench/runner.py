@@ -8,30 +8,37 @@ image counts as a failure; it is scored on the images it handled and failures ar
 """
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 
 import numpy as np
 import torch
+from tqdm import tqdm
 
-from recon import metrics, paths
+from recon import metrics, report
 from recon.bench.methods import METHODS
+from recon.body import default_body
+from recon.errors import ReconError
 from recon.synth.dataset import BENCHMARKS, SynthDataset, bench_dir
 from recon.synth.raster import Rasterizer, silhouette_iou
+from recon.synth.scene import SceneSampler
 
-ABBR = {"head": "Hd", "torso": "Ts", "shoulder": "Sr", "elbow": "Ew", "wrist": "Wt", "hip": "Hp", "knee": "Kn", "foot": "Ft"}
+ABBR = {"head": "Hd", "torso": "Ts", "shoulder": "Sr", "elbow": "Ew", "wrist": "Wt", "hip": "Hp", "knee": "Kn",
+        "foot": "Ft"}
+COLUMNS = ("MPJPE-P1", "MPJPE-P2 (PA)", "Lm", "PVE", "IoU")
+CHECK_IMAGES = 8  # the slice tests/test_results.py recomputes: the first images of the benchmark
 
 
-def run_method(name: str, ds: SynthDataset, body, n: int | None = None) -> dict:
+def run_method(name: str, ds, body, n: int | None = None, progress: bool = True) -> dict:
+    """Scores of one method on the first ``n`` samples of ``ds`` (a SynthDataset or a list of
+    samples)."""
     method = METHODS[name](body)
     raster = None
     faces = body.faces.numpy()
     rows = {"p1": [], "p2": [], "lm": [], "pve": [], "iou": [], "joint": []}
     failures, t0 = 0, time.time()
-    from tqdm import tqdm
-
-    for i in tqdm(range(min(n or len(ds), len(ds))), desc=f"eval {name}", unit="img", mininterval=5):
+    for i in tqdm(range(min(n or len(ds), len(ds))), desc=f"eval {name}", unit="img", mininterval=5,
+                  disable=not progress):
         s = ds[i]
         extra = {"points2d": s["points2d"], "points3d": s["points3d"]} if getattr(method, "needs_gt", False) else {}
         pred = method(s["rgb"], s["K"], **extra)
@@ -60,51 +67,59 @@ def run_method(name: str, ds: SynthDataset, body, n: int | None = None) -> dict:
     joint = np.stack(rows["joint"]) * 1000 if done else np.zeros((0, 24))
     res = {"method": name, "description": method.description, "images": done + failures,
            "failures": failures, "seconds_per_image": (time.time() - t0) / max(done + failures, 1)}
-    for key, label in (("p1", "MPJPE-P1"), ("p2", "MPJPE-P2 (PA)"), ("lm", "Lm"), ("pve", "PVE")):
+    for key, label in zip(("p1", "p2", "lm", "pve"), COLUMNS[:4], strict=True):
         res[label] = float(np.mean(rows[key]) * 1000) if rows[key] else None
     res["IoU"] = float(np.mean(rows["iou"])) if rows["iou"] else None
     res["groups"] = {ABBR[g]: float(v) for g, v in metrics.group_errors(torch.tensor(joint)).items()} if done else {}
     return res
 
 
-def evaluate(bench: str, methods: list[str], n: int | None = None, out_dir: Path = Path("eval/results")) -> Path:
-    from recon.body import default_body
+def check(bench: str, methods: list[str], n: int = CHECK_IMAGES) -> dict:
+    """The check slice of a benchmark's results: every method on its first ``n`` images, rendered
+    on the fly (sample i depends only on the benchmark's split, seed and i)."""
+    b = BENCHMARKS[bench]
+    body = default_body()
+    scenes = SceneSampler(body, b["split"], b["seed"])
+    samples = [scenes.sample(i) for i in range(n)]
+    return {m: {k: r[k] for k in (*COLUMNS, "failures")}
+            for m in methods for r in [run_method(m, samples, body, progress=False)]}
 
-    torch.set_num_threads(1)
+
+def evaluate(bench: str, methods: list[str], n: int | None = None, out_dir: Path = Path("eval/results")) -> Path:
+    """``recon eval``: run ``methods`` on the benchmark (its first ``n`` images) and merge them into
+    ``<out_dir>/<bench>.{json,md}`` (re-run methods replaced in place)."""
     if bench not in BENCHMARKS:
-        raise KeyError(f"unknown benchmark {bench!r}; known: {', '.join(BENCHMARKS)}")
+        raise ReconError(f"unknown benchmark {bench!r}; known: {', '.join(BENCHMARKS)}")
     unknown = [m for m in methods if m not in METHODS]
     if unknown:
-        raise KeyError(f"unknown method(s) {unknown}; known: {', '.join(METHODS)}")
+        raise ReconError(f"unknown method(s) {unknown}; known: {', '.join(METHODS)}")
     ds = SynthDataset(bench_dir(bench))
     body = default_body()
     new = [run_method(m, ds, body, n) for m in methods]
-    out_dir.mkdir(parents=True, exist_ok=True)
-    stem = out_dir / f"{bench}"
-    # merge with earlier runs: one table for all methods, re-run methods replaced in place
-    old = json.loads(stem.with_suffix(".json").read_text()) if stem.with_suffix(".json").exists() else []
-    fresh = {r["method"]: r for r in new}
-    results = [fresh.pop(r["method"], r) for r in old] + list(fresh.values())
-    paths.atomic_write(stem.with_suffix(".json"), lambda t: Path(t).write_text(json.dumps(results, indent=1)))
-    return write_tables(bench, results, len(ds), out_dir)
-
-
-def write_tables(bench: str, results: list[dict], images: int, out_dir: Path = Path("eval/results")) -> Path:
-    """The Markdown tables of ``results`` (the benchmark's JSON rows) -> ``out_dir/<bench>.md``."""
     stem = Path(out_dir) / bench
-    cols = ["MPJPE-P1", "MPJPE-P2 (PA)", "Lm", "PVE", "IoU"]
-    fmt = lambda v, c: "-" if v is None else (f"{v:.3f}" if c == "IoU" else f"{v:.1f}")  # noqa: E731
-    lines = [f"Benchmark {bench} ({images} images; a method may be run on the first N). Errors in mm; "
-             "failures = images where the method found no person (not scored).", "",
-             "| method | " + " | ".join(cols) + " | images | failures | s/img |", "|---|" + "---|" * (len(cols) + 3)]
-    for r in results:
-        lines.append(f"| {r['method']} | " + " | ".join(fmt(r[c], c) for c in cols) +
-                     f" | {r['images']} | {r['failures']} | {r['seconds_per_image']:.3f} |")
-    lines += ["", "Per joint group (MPJPE-P1, mm):", "", "| method | " + " | ".join(ABBR.values()) + " |",
-              "|---|" + "---|" * len(ABBR)]
-    for r in results:
-        lines.append(f"| {r['method']} | " + " | ".join(f"{r['groups'].get(a, float('nan')):.1f}" for a in ABBR.values()) + " |")
-    lines += ["", "Methods: " + "; ".join(f"**{r['method']}**: {r['description']}" for r in results)]
-    paths.atomic_write(stem.with_suffix(".md"), lambda t: Path(t).write_text("\n".join(lines) + "\n"))
-    print("\n".join(lines))
-    return stem.with_suffix(".md")
+    old = report.read(stem) if stem.with_suffix(".json").exists() else {"rows": []}
+    fresh = {r["method"]: r for r in new}
+    rows = [fresh.pop(r["method"], r) for r in old["rows"]] + list(fresh.values())
+    names = [r["method"] for r in rows]
+    values = old.get("check", {}).get("values", {})
+    values = {m: values[m] for m in names if m in values and m not in methods}
+    values |= check(bench, [m for m in names if m not in values], CHECK_IMAGES)
+    data = {"benchmark": bench, "images": len(ds), "rows": rows,
+            "check": {"function": "recon.bench.runner:check", "kwargs": {"bench": bench, "methods": names,
+                                                                          "n": CHECK_IMAGES}, "values": values}}
+    return report.write(stem, data, render(data))
+
+
+def render(data: dict) -> str:
+    """The Markdown of a benchmark's results JSON."""
+    rows = data["rows"]
+    main = [[r["method"], *(r[c] for c in COLUMNS), r["images"], r["failures"], r["seconds_per_image"]] for r in rows]
+    groups = [[r["method"], *(r["groups"].get(a, float("nan")) for a in ABBR.values())] for r in rows]
+    return "\n".join([
+        f"Benchmark {data['benchmark']} ({data['images']} images; a method may be run on the first N). Errors in mm; "
+        "failures = images where the method found no person (not scored).", "",
+        report.table(main, ["method", *COLUMNS, "images", "failures", "s/img"],
+                     ["", ".1f", ".1f", ".1f", ".1f", ".3f", "", "", ".3f"]), "",
+        "Per joint group (MPJPE-P1, mm):", "",
+        report.table(groups, ["method", *ABBR.values()]), "",
+        "Methods: " + "; ".join(f"**{r['method']}**: {r['description']}" for r in rows)])

@@ -8,8 +8,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from recon.body.anny_model import AnnyBody
 from recon.body.base import BodyModel, BodyOutput
-from recon.body.skeleton import JOINT_NAMES, JOINT_PARENTS, LANDMARK_NAMES, KINTREE_PLUS
+from recon.body.skeleton import JOINT_NAMES, JOINT_PARENTS, KINTREE_PLUS, LANDMARK_NAMES
+from recon.body.smpl_file import SMPLFileBody
+from recon.errors import ReconError
 
 _CACHE: dict[str, BodyModel] = {}
 
@@ -17,14 +20,10 @@ _CACHE: dict[str, BodyModel] = {}
 def create(model: str | Path = "anny", **kwargs) -> BodyModel:
     """Body model factory: "anny" (default) or the path of an SMPL-family .npz/.pkl file."""
     if str(model) == "anny":
-        from recon.body.anny_model import AnnyBody
-
         return AnnyBody(**kwargs)
     if Path(model).suffix in (".npz", ".pkl"):
-        from recon.body.smpl_file import SMPLFileBody
-
         return SMPLFileBody(model, **kwargs)
-    raise ValueError(f"unknown body model {model!r}: use 'anny' or a path to an SMPL-family .npz/.pkl")
+    raise ReconError(f"unknown body model {model!r}: use 'anny' or a path to an SMPL-family .npz/.pkl")
 
 
 def default_body() -> BodyModel:

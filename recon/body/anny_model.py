@@ -17,13 +17,18 @@ import logging
 import time
 from pathlib import Path
 
+import anny
 import torch
+import warp
+from anny.models.model_data import ModelData
 
 from recon import paths
 from recon.body import skeleton
 from recon.body.base import BodyModel
+from recon.errors import MissingFile
 
 log = logging.getLogger(__name__)
+warp.config.log_level = warp.LOG_WARNING  # anny's warp start-up banner would pollute JSON on stdout
 
 ANNY_VERSION = "0.6.2"
 EXPORT_NAME = f"anny-{ANNY_VERSION}-float32.safetensors"
@@ -58,19 +63,6 @@ def _owner_joint(bone: str, bones: list[str], parents: list[int]) -> int:
     return bone_to_joint[bones[i]]
 
 
-def _import_anny():
-    """Import anny with warp's start-up banner silenced (it would pollute JSON on stdout)."""
-    try:
-        import warp
-
-        warp.config.log_level = warp.LOG_WARNING
-    except ImportError:
-        pass
-    import anny
-
-    return anny
-
-
 def export_path() -> Path:
     return paths.cache_dir() / EXPORT_NAME
 
@@ -80,8 +72,6 @@ def build_cache(force: bool = False) -> Path:
     path = export_path()
     if path.exists() and not force:
         return path
-    anny = _import_anny()
-
     log.info("building anny %s from its MakeHuman assets (one-off, ~3 min)...", ANNY_VERSION)
     t0 = time.time()
     model = anny.Anny().to(torch.float32)
@@ -96,13 +86,10 @@ class AnnyBody(BodyModel):
 
     def __init__(self, path: str | Path | None = None, build: bool = True) -> None:
         super().__init__()
-        anny = _import_anny()
-        from anny.models.model_data import ModelData
-
         path = Path(path) if path is not None else export_path()
         if not path.exists():
             if not build:
-                raise FileNotFoundError(f"anny export {path} missing: run `recon body build-cache`")
+                raise MissingFile(f"anny export {path} missing: run `recon body build-cache`")
             build_cache()
         self.anny = anny.Anny.from_model_data(
             ModelData.load_safetensors(path), pose_parameterization="local-ref",

@@ -5,9 +5,11 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
+from scipy.spatial import cKDTree
 from torch import nn
 
 from recon.body import lbs, skeleton
+from recon.body.landmarks import select_landmarks
 
 
 @dataclass
@@ -67,8 +69,6 @@ class BodyModel(nn.Module):
 
     def _finish_init(self) -> None:
         """Pick landmarks and the mirror map once the rest geometry is available."""
-        from recon.body.landmarks import select_landmarks
-
         with torch.no_grad():
             v, j = self.rest_geometry(self.mean_shape[None])
         idx = select_landmarks(v[0].cpu().numpy(), j[0].cpu().numpy(), self.weights.cpu().numpy())
@@ -76,8 +76,6 @@ class BodyModel(nn.Module):
 
     def mirror_vertex_map(self) -> np.ndarray:
         """For each vertex, its left/right mirror (nearest vertex of the X-reflected rest mesh)."""
-        from scipy.spatial import cKDTree
-
         with torch.no_grad():
             v = self.rest_geometry(self.mean_shape[None])[0][0].cpu().numpy()
         mirrored = v * np.array([-1.0, 1.0, 1.0])

@@ -8,6 +8,7 @@ the dominant skinning joint of each vertex; they pick extreme points (most forwa
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from recon.body import skeleton
 
@@ -38,8 +39,6 @@ def select_landmarks(verts: np.ndarray, joints: np.ndarray, weights: np.ndarray)
 
     # Left/right symmetry: right landmarks are the mirror vertices of left ones; midline
     # landmarks are self-mirrored vertices (exactly on X=0 for a symmetric mesh).
-    from scipy.spatial import cKDTree
-
     mirror = cKDTree(verts).query(verts * np.array([-1.0, 1.0, 1.0]))[1]
     midline = mirror == np.arange(len(verts))
     if not midline.any():

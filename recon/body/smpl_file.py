@@ -16,8 +16,13 @@ import torch
 
 from recon.body import skeleton
 from recon.body.base import BodyModel
+from recon.errors import MissingFile, ReconError
 
 REQUIRED = ("v_template", "shapedirs", "posedirs", "J_regressor", "weights", "kintree_table", "f")
+
+
+class RefusedPickle(ReconError, pickle.UnpicklingError):
+    """A .pkl model file asks to build an object that is not numpy/scipy data."""
 
 
 class _ChumpyArray:
@@ -42,7 +47,7 @@ class _SafeUnpickler(pickle.Unpickler):
             ("__builtin__", "object"), ("_codecs", "encode"),
         ):
             return super().find_class(module, name)
-        raise pickle.UnpicklingError(f"refusing to load {module}.{name} from a model file")
+        raise RefusedPickle(f"refusing to load {module}.{name} from a model file")
 
 
 def _dense(a) -> np.ndarray:
@@ -54,7 +59,7 @@ def _dense(a) -> np.ndarray:
 def load_model_arrays(path: str | Path) -> dict[str, np.ndarray]:
     path = Path(path)
     if not path.exists():
-        raise FileNotFoundError(f"body model file {path} does not exist")
+        raise MissingFile(f"body model file {path} does not exist")
     if path.suffix == ".npz":
         with np.load(path, allow_pickle=False) as z:
             data = {k: z[k] for k in z.files}
@@ -62,10 +67,10 @@ def load_model_arrays(path: str | Path) -> dict[str, np.ndarray]:
         with open(path, "rb") as fh:
             data = _SafeUnpickler(fh, encoding="latin1").load()
     else:
-        raise ValueError(f"unsupported body model file type {path.suffix!r} (use .npz or .pkl)")
+        raise ReconError(f"unsupported body model file type {path.suffix!r} (use .npz or .pkl)")
     missing = [k for k in REQUIRED if k not in data]
     if missing:
-        raise KeyError(f"{path.name} lacks {missing}; an SMPL-family file needs {list(REQUIRED)}")
+        raise ReconError(f"{path.name} lacks {missing}; an SMPL-family file needs {list(REQUIRED)}")
     return {k: _dense(data[k]) for k in REQUIRED}
 
 
@@ -80,7 +85,7 @@ class SMPLFileBody(BodyModel):
         parents = tuple(int(p) for p in d["kintree_table"][0])
         parents = (-1,) + parents[1:]
         if len(parents) != skeleton.NUM_JOINTS or parents != skeleton.JOINT_PARENTS:
-            raise ValueError(
+            raise ReconError(
                 f"{Path(path).name}: kinematic tree {parents} is not SMPL's 24-joint tree "
                 f"{skeleton.JOINT_PARENTS}"
             )
@@ -89,7 +94,7 @@ class SMPLFileBody(BodyModel):
             shapedirs = shapedirs[..., :num_shape_params]
         posedirs = d["posedirs"].reshape(nv * 3, -1)
         if posedirs.shape[1] != 9 * (skeleton.NUM_JOINTS - 1):
-            raise ValueError(f"posedirs must have {9 * (skeleton.NUM_JOINTS - 1)} columns, got {posedirs.shape[1]}")
+            raise ReconError(f"posedirs must have {9 * (skeleton.NUM_JOINTS - 1)} columns, got {posedirs.shape[1]}")
         f32 = lambda a: torch.as_tensor(a, dtype=torch.float32)  # noqa: E731
         self.shape_names = tuple(f"beta{i}" for i in range(shapedirs.shape[-1]))
         self.register_buffer("v_template", f32(v), persistent=False)

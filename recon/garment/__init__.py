@@ -1,3 +1,10 @@
-"""Garments (thesis ch. 3 and 5): procedural outfit templates on the rest body (templates),
-PBNS neural simulation (pbns, losses, train, evaluate), dressing a posed body of any shape
-(dress) and animated glTF export (gltf)."""
+"""Garments (thesis ch. 3 and 5).
+
+Runtime: ``templates`` (CLOTH3D-style outfits on the rest body), ``pbns`` (the network),
+``resize`` (body shape + tightness), ``dress`` (any body shape and pose: ``Dresser``),
+``collide`` (collision resolution), ``gltf`` (animated .glb), ``store`` (where weights live),
+``mesh``. Shared: ``losses`` (PBNS energies), ``metrics`` (what the logs and tables report),
+``self_intersection`` (where the posed body passes through itself), ``data`` (pose sets,
+conditions). Training: ``train``; evaluation: ``evaluate``, with ``reference`` (a newton cloth
+drape, optional extra). Runtime modules import nothing from training or evaluation.
+"""

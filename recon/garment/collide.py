@@ -11,7 +11,9 @@ evaluation reports PBNS with and without it, and its cost (a KD-tree on the body
 from __future__ import annotations
 
 import numpy as np
+import scipy.sparse as sp
 import torch
+from scipy.spatial import cKDTree
 
 from recon.garment.mesh import neighbour_mean
 
@@ -25,7 +27,8 @@ class CollisionResolver:
         self.n = int(self.faces.max()) + 1
         layer = np.zeros(self.n, np.int64) if layer is None else np.asarray(layer).astype(np.int64)
         # (inner, outer) vertex ids per outer layer, the order of CollisionLoss.pairs
-        self.pairs = [(np.nonzero(layer < lay)[0], np.nonzero(layer == lay)[0]) for lay in sorted(set(layer.tolist()))[1:]]
+        self.pairs = [(np.nonzero(layer < lay)[0], np.nonzero(layer == lay)[0])
+                      for lay in sorted(set(layer.tolist()))[1:]]
         self.eps, self.spread, self.passes, self.cloth_reach = eps, spread, passes, cloth_reach
         self.avg = neighbour_mean(self.faces, self.n).astype(np.float32)
         self.cloth_inc = self.incidence(self.faces, self.n)
@@ -58,10 +61,9 @@ class CollisionResolver:
     def incidence(faces: np.ndarray, n: int):
         """(n, F) sparse vertex-face incidence: vertex normals = incidence @ face normals (an
         index_add over faces costs 2-4x more on one thread: benchmarks/bench_garment.py)."""
-        import scipy.sparse as sp
-
         f = np.asarray(faces)
-        return sp.csr_matrix((np.ones(f.size, np.float32), (f.ravel(), np.repeat(np.arange(len(f)), 3))), shape=(n, len(f)))
+        rows, cols = f.ravel(), np.repeat(np.arange(len(f)), 3)
+        return sp.csr_matrix((np.ones(f.size, np.float32), (rows, cols)), shape=(n, len(f)))
 
     @staticmethod
     def normals(v: np.ndarray, faces: np.ndarray, inc) -> np.ndarray:
@@ -71,8 +73,6 @@ class CollisionResolver:
 
     @torch.no_grad()
     def __call__(self, cloth, body_v, body_faces) -> torch.Tensor:
-        from scipy.spatial import cKDTree
-
         out = torch.as_tensor(cloth, dtype=torch.float32).detach().cpu().numpy().copy()
         bv = torch.as_tensor(body_v, dtype=torch.float32).detach().cpu().numpy()
         bf = np.asarray(body_faces)

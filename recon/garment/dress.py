@@ -9,14 +9,18 @@ not print through; when the outfit has a trained resizer (``recon garment resize
 """
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from recon.errors import MissingFile, ReconError
+from recon.garment import store
+from recon.garment.collide import CollisionResolver
 from recon.garment.pbns import PBNS
-from recon.garment.train import weights_path
+from recon.garment.resize import OutfitResizer, Transfer
 
 
 @dataclass
@@ -34,27 +38,21 @@ class Dresser:
                  resolve_collisions: bool = True):
         """``resolve_collisions``: push cloth that PBNS leaves inside the body out of it
         (recon.garment.collide; ~1 % of the vertices, about 30-70 ms a frame on one core)."""
-        import json
-
-        path = Path(path or weights_path(outfit))  # a preset, your own garment's name, or a .pt file
+        path = Path(path or store.pbns_path(outfit))  # a preset, your own garment's name, or a .pt file
         if not path.exists():
-            raise FileNotFoundError(f"no trained outfit {path}: run `recon garment train --outfit {outfit}`")
+            raise MissingFile(f"no trained outfit {path}: run `recon garment train --outfit {outfit}`")
         self.model, ck = PBNS.load(path)
         self.shape = ck["shape"]
         self.garment_id = ck["garment_id"].numpy()
         self.names = json.loads(ck["meta_json"])["garments"]
         self.resolver = None
         if resolve_collisions:
-            from recon.garment.collide import CollisionResolver
-
             self.resolver = CollisionResolver(self.model.faces.numpy(), ck["layer"].numpy())
         self._resized: dict[bytes, torch.Tensor] = {}
         self.resizer, self._resizer_path, self.transfer = None, None, None
         name = json.loads(ck["meta_json"]).get("outfit")
         if resizer and name:
-            from recon.garment.resize import resize_weights_path
-
-            p = resize_weights_path(name, path)
+            p = store.resizer_path(name, path)
             self._resizer_path = p if p.exists() else None
 
     @property
@@ -66,21 +64,18 @@ class Dresser:
         """Outfit rest vertices resized to ``shape`` (1-D tensor); ``tightness`` (2,) needs a
         trained resizer (> 0 looser, see recon.garment.resize)."""
         if self._resizer_path is not None:
-            from recon.garment.resize import OutfitResizer
-
             if self.resizer is None:
-                self.resizer = OutfitResizer(body, self._resizer_path, self.model.rest.numpy(), self.model.faces.numpy())
+                self.resizer = OutfitResizer(body, self._resizer_path, self.model.rest.numpy(),
+                                             self.model.faces.numpy())
             t = torch.zeros(2) if tightness is None else torch.as_tensor(tightness, dtype=torch.float32)
             key = shape.detach().cpu().numpy().tobytes() + t.numpy().tobytes()
             if key not in self._resized:
                 self._resized[key] = self.resizer.rest(shape.detach().cpu(), t)[0]
             return self._resized[key]
         if tightness is not None:
-            raise ValueError("tightness needs a trained resizer: run `recon garment resize`")
+            raise ReconError("tightness needs a trained resizer: run `recon garment resize`")
         key = shape.detach().cpu().numpy().tobytes()
         if key not in self._resized:
-            from recon.garment.resize import Transfer
-
             if self.transfer is None or self.transfer.smooth != smooth:
                 self.transfer = Transfer(body, self.model.rest.numpy(), self.model.faces.numpy(), self.shape, smooth)
             self._resized[key] = torch.from_numpy(self.transfer.resize(shape.detach().cpu().reshape(1, -1))[0])

@@ -1,101 +1,75 @@
-"""``recon garment eval``: PBNS on held-out poses (mocap test subjects), thesis Tables 5.1/5.2.
+"""``recon garment eval`` and ``recon garment reference``: PBNS on held-out poses (thesis
+Tables 5.1/5.2), the resizers on held-out body shapes, and PBNS against a physics drape.
 
-Reports, per outfit: collision % (cloth vertices inside the body: behind the normal of their
-nearest body vertex, exact KD-tree search), edge error (mean |l - l0| in mm and % of l0),
-bending (mean squared normal difference of adjacent faces), gravity (mean height above the
-lowest body point, m) and speed (CPU, 1 thread: frames per second for batch 1, 64 and 256,
-garment model alone given joint transforms, and with the body's forward kinematics; median of
-5 timed blocks). Edge % is length-weighted: sum |l - l0| / sum l0 (slivers at cut lines would
-dominate a plain mean). The skinned template without PBNS (dT = 0) is evaluated on the same
-poses as the baseline, and PBNS followed by the collision resolution the Dresser applies
-(recon.garment.collide) as the output users get; its FPS b=1 includes that post-process.
+PBNS rows, per outfit: collision %, edge error, bending, gravity (recon.garment.metrics) and
+speed (frames per second for batch 1, 64 and 256 of the garment model given joint transforms,
+and with the body's forward kinematics; ``recon.timing``). The skinned template without PBNS
+(dT = 0) is the baseline, and PBNS followed by the collision resolution the Dresser applies
+(recon.garment.collide) is what users get; its FPS b=1 includes that post-process.
 
 Collision % and edge error are also split by how far the posed body passes through itself under
-the garment (recon.garment.self_intersection: % of the covered skin inside the body, fixed bins
-SELF_INTERSECTION_BINS): cloth squeezed between two interpenetrating body parts cannot be outside
-both, and the thesis trains and tests on poses without body self-collisions (5.4.3).
+the garment (recon.garment.self_intersection: % of the covered skin inside the body): cloth
+squeezed between two interpenetrating body parts cannot be outside both, and the thesis trains
+and tests on poses without body self-collisions (5.4.3), whose own table is the third.
+
+Every results file carries a ``check``: a small slice of it that tests/test_results.py
+recomputes with the current code and weights.
 """
 from __future__ import annotations
 
 import hashlib
 import json
 import time
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from multiprocessing import get_context
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from recon import paths
-from recon.garment import losses as L
+from recon import paths, report
+from recon.body import default_body
+from recon.errors import MissingFile, ReconError
+from recon.garment import reference, store
 from recon.garment.collide import CollisionResolver
+from recon.garment.data import Conditions, pose_set, posed_bodies, sample_conditions, trained_outfit
 from recon.garment.mesh import unique_edges
+from recon.garment.metrics import SELF_INTERSECTION_BINS, physical_metrics, rest_metrics
 from recon.garment.pbns import PBNS, remove_yaw
+from recon.garment.resize import TIGHTNESS_PHENOTYPES, TIGHTNESS_RANGE, OutfitResizer
 from recon.garment.self_intersection import SkinSelfIntersection
-from recon.garment.templates import PRESETS
-from recon.garment.train import WEIGHTS_DIR, pose_set, posed_bodies, weights_path
-
+from recon.garment.templates import PRESETS, make_outfit
+from recon.timing import median_ms
 
 # held-out poses differ by >= this (rad) in some joint, whatever spacing a model was trained with
 # (thesis 5.4.3's 0.5; the test subjects then offer 290 poses)
 TEST_POSE_DISTANCE = 0.5
-# (low, high] % of the covered skin inside the body; the first bin includes 0
-SELF_INTERSECTION_BINS = ((0.0, 1.0), (1.0, 3.0), (3.0, 100.0))
 # the thesis' protocol (5.4.3: "valid poses" do not make the body collide with itself): held-out
 # poses balanced at >= 0.3 rad (0.5 rad leaves 290 poses of the test subjects, 54 of them valid),
-# kept when at most VALID_MAX_SELF % of the covered skin is inside the body (the first bin above)
+# kept when at most VALID_MAX_SELF % of the covered skin is inside the body (the first bin)
 VALID_POOL = (2000, 0.3)
 VALID_MAX_SELF = 1.0
+MODELS = ("skinning only (dT = 0)", "PBNS", "PBNS + collision resolution")
+CHECK_POSES, CHECK_CONDITIONS = 8, 16  # the slices tests/test_results.py recomputes
+THESIS = "Thesis PBNS (Table 5.1/5.2): collision 0.45 %, edge 0.66 mm, CPU 213 FPS (b=1) / 1,235 (batched)."
 
 
-@torch.no_grad()
-def physical_metrics(v: torch.Tensor, faces: np.ndarray, rest: torch.Tensor, body_v, body_n,
-                     body_self: torch.Tensor | None = None) -> dict:
-    """``rest``: (N, 3) template, or (B, N, 3) one rest garment per sample (resizing).
-    ``body_self`` (B,): the body's self-intersection % per pose; adds collision % and edge error per bin."""
-    e = torch.from_numpy(unique_edges(faces))
-    l0 = (rest[..., e[:, 0], :] - rest[..., e[:, 1], :]).norm(dim=-1)
-    strain = (v[:, e[:, 0]] - v[:, e[:, 1]]).norm(dim=-1) - l0
-    bend = L.BendLoss(faces)
-    pen = L.CollisionLoss.penetration(v, body_v, body_n, L.nearest(body_v, v), 0.0)
-    floor = body_v[..., 1].min(1).values[:, None]
-    per_pose, strain_pose = (pen < 0).float().mean(1) * 100, strain.abs().mean(-1) * 1000
-    bins = {}
-    if body_self is not None:
-        for lo, hi in SELF_INTERSECTION_BINS:
-            k = ((body_self > lo) | (lo == 0)) & (body_self <= hi)
-            bins[f"{lo:g}-{hi:g}"] = {"poses": int(k.sum()), "collision_pct": float(per_pose[k].mean()) if k.any() else None,
-                                      "edge_mm": float(strain_pose[k].mean()) if k.any() else None}
-    return ({"by_body_self_intersection": bins} if bins else {}) | {
-            "collision_pct": float(per_pose.mean()),
-            "edge_mm": float(strain.abs().mean() * 1000),
-            "edge_pct": float((strain.abs().sum(1) / l0.sum(-1)).mean() * 100),  # length-weighted
-            "bend": float(bend.energy(v).mean()),
-            "gravity_m": float((v[..., 1] - floor).mean())}
-
-
-def _fps(fn, batch: int, repeats: int, blocks: int = 5) -> float:
-    """Median rate over ``blocks`` timed blocks of ``repeats`` calls: one block lasts a fraction of
-    a second, and a burst of load from elsewhere on the machine then skews it alone."""
-    fn()
-    rates = []
-    for _ in range(blocks):
-        t = time.perf_counter()
-        for _ in range(repeats):
-            fn()
-        rates.append(batch * repeats / (time.perf_counter() - t))
-    return float(np.median(rates))
+def _fps(fn, batch: int) -> float:
+    return 1000.0 * batch / median_ms(fn)
 
 
 @torch.no_grad()
 def speed(model: PBNS, body, rot: torch.Tensor, shape: torch.Tensor) -> dict:
     out = {}
-    for b, reps in ((1, 200), (64, 10), (256, 3)):
+    for b in (1, 64, 256):
         r = rot[:b] if len(rot) >= b else rot[torch.arange(b) % len(rot)]
         t = body(r, shape.expand(b, -1), points_only=True).transforms
-        out[f"fps_batch{b}"] = _fps(lambda: model.pose(r, t), b, reps)  # noqa: B023
+        out[f"fps_batch{b}"] = _fps(lambda: model.pose(r, t), b)  # noqa: B023
         if b == 256:
             continue
-        out[f"fps_batch{b}_with_fk"] = _fps(lambda: model.pose(r, body(r, shape.expand(b, -1), points_only=True).transforms), b, reps)  # noqa: B023,E501
+        out[f"fps_batch{b}_with_fk"] = _fps(  # noqa: B023
+            lambda: model.pose(r, body(r, shape.expand(b, -1), points_only=True).transforms), b)  # noqa: B023
     return out
 
 
@@ -123,85 +97,183 @@ def valid_test_poses(body, shape: torch.Tensor) -> tuple[torch.Tensor, tuple]:
 
 
 @torch.no_grad()
-def _posed_outfits(model: PBNS, res: CollisionResolver, rot, bt, bv, body_faces) -> dict:
+def posed_outfits(model: PBNS, res: CollisionResolver, rot, bt, bv, body_faces) -> dict:
     """The rows of the tables for every pose: the skinned template (dT = 0), PBNS, and PBNS
     followed by the collision resolution the Dresser applies by default (not part of the network)."""
     chunks = range(0, len(rot), 64)
     pv = torch.cat([model.pose(rot[i:i + 64], bt[i:i + 64]) for i in chunks])
-    return {"skinning only (dT = 0)": torch.cat([model.skin(model.rest, bt[i:i + 64]) for i in chunks]),
-            "PBNS": pv, "PBNS + collision resolution": res(pv, bv, body_faces)}
+    return dict(zip(MODELS, (torch.cat([model.skin(model.rest, bt[i:i + 64]) for i in chunks]), pv,
+                             res(pv, bv, body_faces)), strict=True))
+
+
+def _load(outfit: str, weights: Path | None) -> tuple[PBNS, dict]:
+    path = Path(weights or store.pbns_path(outfit))
+    if not path.exists():
+        raise MissingFile(f"{path} not found: train it with `recon garment train --outfit {outfit}`")
+    return PBNS.load(path)
+
+
+@dataclass
+class _TestPoses:
+    """An outfit's model and the first ``n_poses`` balanced test poses of its body."""
+    model: PBNS
+    checkpoint: dict
+    resolver: CollisionResolver
+    rot: torch.Tensor
+    shape: torch.Tensor
+    body_verts: torch.Tensor
+    body_normals: torch.Tensor
+    body_transforms: torch.Tensor
+    body_self: torch.Tensor | None  # per pose, % (None: not scored against)
+
+    @classmethod
+    def load(cls, body, outfit: str, n_poses: int, weights: Path | None = None) -> _TestPoses:
+        model, ck = _load(outfit, weights)
+        shape = ck["shape"][None]
+        rot = pose_set("test", n_poses, TEST_POSE_DISTANCE, seed=123)
+        bv, bn, bt = posed_bodies(body, rot, shape)
+        return cls(model, ck, CollisionResolver(model.faces.numpy(), ck["layer"].numpy()), rot, shape, bv, bn, bt,
+                   body_self_intersection(body, shape, rot, bv))
+
+    def rows(self, body) -> dict:
+        """The physical metrics of the three models (PBNS, + collision resolution, LBS)."""
+        return {k: physical_metrics(v, self.model.faces.numpy(), self.model.rest, self.body_verts, self.body_normals,
+                                    self.body_self)
+                for k, v in posed_outfits(self.model, self.resolver, self.rot, self.body_transforms, self.body_verts,
+                                          body.faces).items()}
+
+
+def pose_rows(body, outfit: str, n_poses: int, weights: Path | None = None) -> dict:
+    """The physical metrics of the three models on the first ``n_poses`` balanced test poses."""
+    return _TestPoses.load(body, outfit, n_poses, weights).rows(body)
+
+
+def pbns_check(outfits: list[str] | None = None, n_poses: int = CHECK_POSES) -> dict:
+    """The check slice of garment-pbns.json: ``pose_rows`` on the first ``n_poses`` poses."""
+    body = default_body()
+    return {o: pose_rows(body, o, n_poses) for o in outfits or PRESETS}
 
 
 def evaluate(body, outfit: str, n_poses: int = 500, weights: Path | None = None) -> dict:
-    torch.set_num_threads(1)
-    path = Path(weights or weights_path(outfit))
-    if not path.exists():
-        raise FileNotFoundError(f"{path} not found: train it with `recon garment train --outfit {outfit}`")
-    model, ck = PBNS.load(path)
-    meta = json.loads(ck["meta_json"])
-    shape = ck["shape"][None]
-    rot = pose_set("test", n_poses, TEST_POSE_DISTANCE, seed=123)
-    bv, bn, bt = posed_bodies(body, rot, shape)
-    body_self = body_self_intersection(body, shape, rot, bv)
-    faces = model.faces.numpy()
-    res = CollisionResolver(faces, ck["layer"].numpy())
-    rows = {k: physical_metrics(v, faces, model.rest, bv, bn, body_self)
-            for k, v in _posed_outfits(model, res, rot, bt, bv, body.faces).items()}
-    rows["PBNS"] |= speed(model, body, rot, shape)
+    """One outfit's rows on the held-out poses, speed, and the valid-pose rows."""
+    t = _TestPoses.load(body, outfit, n_poses, weights)
+    model, res = t.model, t.resolver
+    meta = json.loads(t.checkpoint["meta_json"])
+    rows = t.rows(body)
+    rows["PBNS"] |= speed(model, body, t.rot, t.shape)
     rows["PBNS + collision resolution"]["fps_batch1"] = _fps(
-        lambda: res(model.pose(rot[:1], bt[:1]), bv[:1], body.faces), 1, 50)
-    vrot, (vbv, vbn, vbt) = valid_test_poses(body, shape)
-    valid = {k: physical_metrics(v, faces, model.rest, vbv, vbn)
-             for k, v in _posed_outfits(model, res, vrot, vbt, vbv, body.faces).items()}
-    return {"outfit": meta.get("outfit", outfit), "vertices": int(model.rest.shape[0]), "faces": int(len(faces)),
-            "test_poses": int(len(rot)), "train_seconds": meta["train_seconds"], "rows": rows,
-            "valid_poses": int(len(vrot)), "valid_rows": valid,
-            "body_self_intersection_pct": {"median": float(body_self.median()), "mean": float(body_self.mean())}}
+        lambda: res(model.pose(t.rot[:1], t.body_transforms[:1]), t.body_verts[:1], body.faces), 1)
+    vrot, (vbv, vbn, vbt) = valid_test_poses(body, t.shape)
+    valid = _TestPoses(model, t.checkpoint, res, vrot, t.shape, vbv, vbn, vbt, body_self=None)
+    return {"outfit": meta.get("outfit", outfit), "vertices": int(model.rest.shape[0]),
+            "faces": int(len(model.faces)), "test_poses": int(len(t.rot)), "train_seconds": meta["train_seconds"],
+            "rows": rows, "valid_poses": int(len(valid.rot)), "valid_rows": valid.rows(body),
+            "threads": torch.get_num_threads(),
+            "body_self_intersection_pct": {"median": float(t.body_self.median()), "mean": float(t.body_self.mean())}}
 
 
-def evaluate_and_report(body, outfits: list[str], n_poses: int, out_dir: Path) -> Path:
+def evaluate_and_report(body, outfits: list[str], n_poses: int = 500, out_dir: Path = Path("eval/results")) -> Path:
+    """``recon garment eval``: garment-pbns.{json,md} (your own garments: a file of their own)."""
     results = [evaluate(body, o, n_poses) for o in outfits]
-    out_dir.mkdir(parents=True, exist_ok=True)
-    names = [r["outfit"] for r in results]  # your own garments get a file of their own
-    stem = out_dir / ("garment-pbns" if set(names) <= set(PRESETS) else "garment-pbns-" + "-".join(names))
-    paths.atomic_write(stem.with_suffix(".json"), lambda t: Path(t).write_text(json.dumps(results, indent=1)))
-    lines = ["# PBNS on held-out mocap poses (CMU test subjects)", "",
-             "| outfit | vertices | model | collision % | edge mm | edge % | bend | train min | "
-             "FPS b=1 | FPS b=64 | FPS b=256 | FPS b=1 +FK | FPS b=64 +FK |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
-    for r in results:
-        for name, m in r["rows"].items():
-            fps = [f"{m[k]:.0f}" if k in m else "" for k in
-                   ("fps_batch1", "fps_batch64", "fps_batch256", "fps_batch1_with_fk", "fps_batch64_with_fk")]
-            lines.append(f"| {r['outfit']} | {r['vertices']} | {name} | {m['collision_pct']:.2f} | {m['edge_mm']:.2f} | "
-                         f"{m['edge_pct']:.2f} | {m['bend']:.4f} | {r['train_seconds'] / 60:.1f} | " + " | ".join(fps) + " |")
-    lines += ["", f"{results[0]['test_poses']} balanced test poses per outfit; CPU, 1 thread. "
-              "Thesis PBNS (Table 5.1/5.2): collision 0.45 %, edge 0.66 mm, CPU 213 FPS (b=1) / 1,235 (batched).", "",
-              "## Collisions by the body's own self-intersection", "",
-              "Test poses binned by the % of the skin under garments (torso, hips, legs, arms) that lies inside the "
-              "posed body itself (LBS interpenetration: thigh into belly, arm into chest; "
-              "`recon.garment.self_intersection`); the thesis trains and tests PBNS on poses without body "
-              "self-collisions (5.4.3). Collision % / edge error mm of the cloth per bin (poses in brackets).", "",
-              "| outfit | model | " + " | ".join(f"body {lo:g}-{hi:g} %" for lo, hi in SELF_INTERSECTION_BINS) + " |",
-              "|---|---|" + "---|" * len(SELF_INTERSECTION_BINS)]
-    for r in results:
-        for name, m in r["rows"].items():
-            cells = [f"{b['collision_pct']:.2f} / {b['edge_mm']:.2f} ({b['poses']})" if b["poses"] else "- (0)"
-                     for b in m["by_body_self_intersection"].values()]
-            lines.append(f"| {r['outfit']} | {name} | " + " | ".join(cells) + " |")
-    lines += ["", f"Body self-intersection on these poses: median {results[0]['body_self_intersection_pct']['median']:.2f} % "
-              "of the covered skin (the body at the outfit's shape, 2 mm probe along the normals, rest-pose contacts excluded).",
-              "", "## Valid poses only (the thesis' protocol)", "",
-              f"The thesis trains and tests PBNS on \"valid poses\" (5.4.3: no body self-collisions). Held-out poses "
-              f"balanced at >= {VALID_POOL[1]:g} rad instead of 0.5 (more of them), kept when <= {VALID_MAX_SELF:g} % of the "
-              f"covered skin is inside the body: {results[0]['valid_poses']} poses. Thesis PBNS: collision 0.45 %, edge 0.66 mm.", "",
-              "| outfit | model | collision % | edge mm | edge % | bend |", "|---|---|---|---|---|---|"]
-    for r in results:
-        for name, m in r["valid_rows"].items():
-            lines.append(f"| {r['outfit']} | {name} | {m['collision_pct']:.2f} | {m['edge_mm']:.2f} | {m['edge_pct']:.2f} | "
-                         f"{m['bend']:.4f} |")
-    paths.atomic_write(stem.with_suffix(".md"), lambda t: Path(t).write_text("\n".join(lines) + "\n"))
-    return stem.with_suffix(".md")
+    names = [r["outfit"] for r in results]
+    presets = set(names) <= set(PRESETS)
+    stem = Path(out_dir) / ("garment-pbns" if presets else "garment-pbns-" + "-".join(names))
+    data = {"outfits": results}
+    if presets:
+        data["check"] = {"function": "recon.garment.evaluate:pbns_check",
+                         "kwargs": {"outfits": names, "n_poses": CHECK_POSES},
+                         "values": pbns_check(names, CHECK_POSES)}
+    return report.write(stem, data, render_pbns(data))
+
+
+def render_pbns(data: dict) -> str:
+    """The Markdown of a garment-pbns.json."""
+    results = data["outfits"]
+    fps_keys = ("fps_batch1", "fps_batch64", "fps_batch256", "fps_batch1_with_fk", "fps_batch64_with_fk")
+    main = [[r["outfit"], r["vertices"], name, m["collision_pct"], m["edge_mm"], m["edge_pct"], m["bend"],
+             r["train_seconds"] / 60] + [f"{m[k]:.0f}" if k in m else "" for k in fps_keys]
+            for r in results for name, m in r["rows"].items()]
+    bins = [[r["outfit"], name] + [f"{b['collision_pct']:.2f} / {b['edge_mm']:.2f} ({b['poses']})" if b["poses"]
+                                   else "- (0)" for b in m["by_body_self_intersection"].values()]
+            for r in results for name, m in r["rows"].items()]
+    valid = [[r["outfit"], name, m["collision_pct"], m["edge_mm"], m["edge_pct"], m["bend"]]
+             for r in results for name, m in r["valid_rows"].items()]
+    threads = results[0].get("threads", 1)
+    return "\n".join([
+        "# PBNS on held-out mocap poses (CMU test subjects)", "",
+        report.table(main, ["outfit", "vertices", "model", "collision %", "edge mm", "edge %", "bend", "train min",
+                            "FPS b=1", "FPS b=64", "FPS b=256", "FPS b=1 +FK", "FPS b=64 +FK"],
+                     ["", "", "", ".2f", ".2f", ".2f", ".4f", ".1f", "", "", "", "", ""]),
+        "", f"{results[0]['test_poses']} balanced test poses per outfit; CPU, {threads} thread(s). {THESIS}", "",
+        "## Collisions by the body's own self-intersection", "",
+        "Test poses binned by the % of the skin under garments (torso, hips, legs, arms) that lies inside the "
+        "posed body itself (LBS interpenetration: thigh into belly, arm into chest; "
+        "`recon.garment.self_intersection`); the thesis trains and tests PBNS on poses without body "
+        "self-collisions (5.4.3). Collision % / edge error mm of the cloth per bin (poses in brackets).", "",
+        report.table(bins, ["outfit", "model"] + [f"body {lo:g}-{hi:g} %" for lo, hi in SELF_INTERSECTION_BINS]),
+        "", f"Body self-intersection on these poses: median {results[0]['body_self_intersection_pct']['median']:.2f} % "
+        "of the covered skin (the body at the outfit's shape, 2 mm probe along the normals, rest-pose contacts "
+        "excluded).", "", "## Valid poses only (the thesis' protocol)", "",
+        f"The thesis trains and tests PBNS on \"valid poses\" (5.4.3: no body self-collisions). Held-out poses "
+        f"balanced at >= {VALID_POOL[1]:g} rad instead of 0.5 (more of them), kept when <= {VALID_MAX_SELF:g} % of the "
+        f"covered skin is inside the body: {results[0]['valid_poses']} poses. Thesis PBNS: collision 0.45 %, edge "
+        "0.66 mm.", "",
+        report.table(valid, ["outfit", "model", "collision %", "edge mm", "edge %", "bend"],
+                     ["", "", ".2f", ".2f", ".2f", ".4f"])])
+
+
+# --- resizers (thesis 5.5.6) ----------------------------------------------------------------------
+
+def resize_rows(body, outfit: str, n: int, seed: int = 1234) -> tuple[dict, float]:
+    """Held-out (shape, tightness) conditions: E_T alone vs E_T + resizer, rest pose on the
+    body of that shape, per subset (all, loose, tight); and the resizer's ms per outfit."""
+    o, _, name = trained_outfit(body, store.pbns_path(outfit))
+    rz = OutfitResizer(body, store.resizer_path(name), o.vertices, o.faces)
+    data = Conditions(body, rz.transfer, *sample_conditions(body, n, seed), torch.from_numpy(unique_edges(o.faces)), 1)
+    t = time.perf_counter()
+    with torch.no_grad():
+        dv = rz.net(data.shape, data.tight)
+    ms = (time.perf_counter() - t) * 1000 / n
+    rows = {}
+    loose = data.tight[:, 0] >= 0
+    subsets = (("all", torch.ones_like(loose)), ("loose (gamma_weight >= 0)", loose),
+               ("tight (gamma_weight < 0)", ~loose))
+    for subset, m in subsets:
+        for model, v in (("transfer only (CLOTH3D E_T)", data.base), ("E_T + resizer (PBNS 5.5.6)", data.base + dv)):
+            rows[f"{model}, {subset}"] = rest_metrics(v[m], data.base[m], o.faces, data.bv[m], data.bn[m])
+    return rows, ms
+
+
+def resize_check(outfit: str, n: int = CHECK_CONDITIONS) -> dict:
+    """The check slice of garment-resize-<outfit>.json: the rows on ``n`` conditions."""
+    return resize_rows(default_body(), outfit, n)[0]
+
+
+def evaluate_resizer(body, outfit: str, n: int = 200, seed: int = 1234, out_dir: Path = Path("eval/results")) -> Path:
+    """garment-resize-<outfit>.{json,md}."""
+    rows, ms = resize_rows(body, outfit, n, seed)
+    o, _, name = trained_outfit(body, store.pbns_path(outfit))
+    meta = json.loads(paths.load_checkpoint(store.resizer_path(name), "recon garment resize")["meta_json"])
+    res = {"outfit": name, "conditions": n, "seed": seed, "rows": rows, "ms_per_outfit_batched": ms,
+           "train_seconds": meta["train_seconds"], "threads": meta.get("threads", 2),
+           "check": {"function": "recon.garment.evaluate:resize_check",
+                     "kwargs": {"outfit": name, "n": CHECK_CONDITIONS}, "values": resize_check(name, CHECK_CONDITIONS)}}
+    return report.write(Path(out_dir) / f"garment-resize-{name}", res, render_resize(res))
+
+
+def render_resize(res: dict) -> str:
+    """The Markdown of a garment-resize-<outfit>.json."""
+    threads = res.get("threads", 2)  # files from before it was recorded: 2 threads
+    return "\n".join([
+        f"Outfit resizing, {res['outfit']}: {res['conditions']} held-out (shape, tightness) conditions (seed "
+        f"{res['seed']}; shapes from the anny phenotype sampler, tightness gamma = offsets of "
+        f"{', '.join(TIGHTNESS_PHENOTYPES)} in {TIGHTNESS_RANGE}), rest pose on the body of each shape. Collision = "
+        "cloth vertices inside the body; edge = mean |edge length - E_T edge length|. `recon garment resize` then "
+        "`recon garment eval`.", "",
+        report.table([[k, r["collision_pct"], r["edge_mm"]] for k, r in res["rows"].items()],
+                     ["method", "collision %", "edge error mm"], ["", ".2f", ".2f"]), "",
+        f"Resizer: trained in {res['train_seconds'] / 60:.1f} min on {threads} CPU thread{'s' * (threads > 1)}; "
+        f"{res['ms_per_outfit_batched']:.3f} ms per outfit (network only, batched)."])
 
 
 # --- against a physics simulation (thesis Table 5.1) ------------------------------------------
@@ -215,11 +287,12 @@ def reference_poses(pool_size: int, min_pose_distance: float, indices) -> torch.
 
 
 @torch.no_grad()
-def _score_rows(model: PBNS, ck: dict, body_faces, rot: torch.Tensor, posed: tuple, sim: torch.Tensor
-                ) -> tuple[dict, np.ndarray]:
+def score_rows(model: PBNS, ck: dict, body_faces, rot: torch.Tensor, posed: tuple, sim: torch.Tensor | None
+               ) -> tuple[dict, np.ndarray]:
     """Per model (skinning, PBNS with its seconds for the pose, PBNS + collision resolution, the
-    drape ``sim`` (1, N, 3) itself): physical metrics and Euclidean error to ``sim``; and the
-    skinned outfit (N, 3), which is where a drape of this pose starts. ``posed``: posed_bodies()."""
+    drape ``sim`` (1, N, 3) itself when given): physical metrics and Euclidean error to ``sim``;
+    and the skinned outfit (N, 3), which is where a drape of this pose starts. ``posed``:
+    posed_bodies()."""
     bv, bn, bt = posed
     t = time.perf_counter()
     pv = model.pose(rot, bt)
@@ -227,10 +300,12 @@ def _score_rows(model: PBNS, ck: dict, body_faces, rot: torch.Tensor, posed: tup
     sk = model.skin(model.rest, bt)
     pr = CollisionResolver(model.faces.numpy(), ck["layer"].numpy())(pv, bv, body_faces)
     rows = {}
-    for name, v in (("skinning only (dT = 0)", sk), ("PBNS", pv), ("PBNS + collision resolution", pr),
-                    ("newton VBD drape", sim)):
+    for name, v in zip(MODELS + ("newton VBD drape",), (sk, pv, pr, sim), strict=True):
+        if v is None:
+            continue
         rows[name] = physical_metrics(v, model.faces.numpy(), model.rest, bv, bn)
-        rows[name]["error_mm"] = float((v[0] - sim[0]).norm(dim=-1).mean()) * 1000
+        if sim is not None:
+            rows[name]["error_mm"] = float((v[0] - sim[0]).norm(dim=-1).mean()) * 1000
     rows["PBNS"]["seconds"] = pbns_s
     return rows, sk[0].numpy()
 
@@ -240,13 +315,9 @@ def _drape_one(args) -> dict:
     """One held-out pose: drape with newton (reference.drape), metrics of skinning, PBNS and the
     simulation, Euclidean error of each to the simulation. Runs in a worker process."""
     outfit, index, n_poses, min_dist, frames = args
-    from recon.body import default_body
-    from recon.garment import reference
-    from recon.garment.templates import make_outfit
-
-    torch.set_num_threads(1)
+    torch.set_num_threads(1)  # one worker process per core
     body = default_body()
-    model, ck = PBNS.load(WEIGHTS_DIR / f"pbns_{outfit}.pt")
+    model, ck = PBNS.load(store.pbns_path(outfit))
     rot = reference_poses(n_poses, min_dist, [index])
     posed = posed_bodies(body, rot, ck["shape"][None])
     bv, _, bt = posed
@@ -255,7 +326,7 @@ def _drape_one(args) -> dict:
     r = reference.drape(bv[0].numpy(), body.faces.numpy(), model.rest.numpy(), sk[0].numpy(), model.faces.numpy(),
                         pinned, reference.DrapeConfig(frames=frames))
     sim = torch.from_numpy(r["vertices"]).float()[None]
-    rows, _ = _score_rows(model, ck, body.faces, rot, posed, sim)
+    rows, _ = score_rows(model, ck, body.faces, rot, posed, sim)
     rows["newton VBD drape"]["seconds"] = r["seconds"]
     return {"pose": index, "frames": r["frames"], "settled": r["settled"], "last_move_mm": r["last_move_mm"],
             "rows": rows, "vertices": r["vertices"].astype(np.float32), "start": sk[0].numpy().astype(np.float32)}
@@ -277,8 +348,6 @@ def error_to_drapes(model: PBNS, outfit: str, shape: torch.Tensor, body=None, la
     sim = torch.from_numpy(d["vertices"])
     if sim.shape[1] != model.rest.shape[0]:
         return None
-    from recon.body import default_body
-
     body = body or default_body()
     rot = reference_poses(int(d["pool_size"]), float(d["min_pose_distance"]), torch.from_numpy(d["poses"]))
     bv, _, bt = posed_bodies(body, rot, shape.reshape(1, -1))
@@ -292,17 +361,12 @@ def error_to_drapes(model: PBNS, outfit: str, shape: torch.Tensor, body=None, la
             {} if pr is None else {"pbns_resolved_mm": err(pr)})
 
 
-def reference_and_report(outfit: str, poses: int, out_dir: Path, frames: int = 60, workers: int = 1,
-                         pool_size: int = 500) -> Path:
+def reference_and_report(outfit: str, poses: int = 4, out_dir: Path = Path("eval/results"), frames: int = 60,
+                         workers: int = 1, pool_size: int = 500) -> Path:
     """PBNS vs a newton SolverVBD drape on the first ``poses`` of the balanced test poses; writes
     garment-reference-<outfit>.{json,md}. Needs the optional ``newton`` package."""
-    from concurrent.futures import ProcessPoolExecutor
-    from multiprocessing import get_context
-
-    from recon.garment import reference
-
     if not reference.available():
-        raise RuntimeError('the reference simulation needs newton: pip install "newton==1.8.0" (see README)')
+        raise ReconError('the reference simulation needs newton: pip install "recon[sim]" (docs/garments.md)')
     min_dist = TEST_POSE_DISTANCE  # the drapes are picks of the held-out test pool
     jobs = [(outfit, i, pool_size, min_dist, frames) for i in range(poses)]
     if workers > 1:
@@ -320,7 +384,7 @@ def reference_and_report(outfit: str, poses: int, out_dir: Path, frames: int = 6
             np.savez(f, vertices=drapes, start=starts, poses=np.arange(poses), pool_size=pool_size,
                      min_pose_distance=min_dist)
     paths.atomic_write(drapes_path(outfit), save)
-    result = {"outfit": outfit, "poses": per_pose, "frames_cap": frames,
+    result = {"outfit": outfit, "poses": per_pose, "frames_cap": frames, "pool_size": pool_size,
               "settled": int(sum(p["settled"] for p in per_pose)), "config": reference.DrapeConfig().__dict__}
     return _write_reference(result, out_dir)
 
@@ -330,57 +394,69 @@ def rescore_reference(outfit: str, out_dir: Path, max_start_shift_mm: float = 2.
     rewrite garment-reference-<outfit>.{json,md}: for a retrained network whose skinned start
     (the drape's initial state, set by the trained blend weights) is within
     ``max_start_shift_mm`` (mean) of the one the drapes were simulated from."""
-    from recon.body import default_body
-
-    stem = Path(out_dir) / f"garment-reference-{outfit}"
-    old = json.loads(stem.with_suffix(".json").read_text())
+    old = report.read(Path(out_dir) / f"garment-reference-{outfit}")
+    if not drapes_path(outfit).exists():
+        raise MissingFile(f"{drapes_path(outfit)} not found: run `recon garment reference --outfit {outfit}` first")
     d = np.load(drapes_path(outfit))
     if "start" not in d.files:
-        raise RuntimeError(f"{drapes_path(outfit)} predates stored starts: re-run `recon garment reference`")
+        raise ReconError(f"{drapes_path(outfit)} predates stored starts: re-run `recon garment reference`")
     body = default_body()
-    model, ck = PBNS.load(WEIGHTS_DIR / f"pbns_{outfit}.pt")
+    model, ck = PBNS.load(store.pbns_path(outfit))
     shift = []
-    for p, sim, start in zip(old["poses"], d["vertices"], d["start"]):
+    for p, sim, start in zip(old["poses"], d["vertices"], d["start"], strict=True):
         rot = reference_poses(int(d["pool_size"]), float(d["min_pose_distance"]), [p["pose"]])
         posed = posed_bodies(body, rot, ck["shape"][None])
-        rows, sk = _score_rows(model, ck, body.faces, rot, posed, torch.from_numpy(sim)[None])
+        rows, sk = score_rows(model, ck, body.faces, rot, posed, torch.from_numpy(sim)[None])
         shift.append(float(np.linalg.norm(sk - start, axis=-1).mean()) * 1000)
         rows["newton VBD drape"]["seconds"] = p["rows"]["newton VBD drape"]["seconds"]
         p["rows"] = rows
     if max(shift) > max_start_shift_mm:
-        raise RuntimeError(f"the skinned start moved {max(shift):.2f} mm from the drapes' (> {max_start_shift_mm}): "
-                           "re-run `recon garment reference`")
+        raise ReconError(f"the skinned start moved {max(shift):.2f} mm from the drapes' (> {max_start_shift_mm}): "
+                         "re-run `recon garment reference`")
     return _write_reference(old | {"rescored_start_shift_mm": shift}, out_dir)
 
 
-def _write_reference(result: dict, out_dir: Path) -> Path:
-    """garment-reference-<outfit>.{json,md} from per-pose rows (+ their means)."""
-    from recon.garment import reference
+def reference_check(outfit: str, pose: int, pool_size: int = 500) -> dict:
+    """The check slice of garment-reference-<outfit>.json: the physical metrics of skinning, PBNS
+    and PBNS + collision resolution on its first pose (the drape itself is not recomputed)."""
+    body = default_body()
+    model, ck = PBNS.load(store.pbns_path(outfit))
+    rot = reference_poses(pool_size, TEST_POSE_DISTANCE, [pose])
+    rows, _ = score_rows(model, ck, body.faces, rot, posed_bodies(body, rot, ck["shape"][None]), None)
+    return {name: {k: v for k, v in m.items() if k != "seconds"} for name, m in rows.items()}
 
-    outfit, per_pose, frames, poses = result["outfit"], result["poses"], result["frames_cap"], len(result["poses"])
+
+def _write_reference(result: dict, out_dir: Path) -> Path:
+    """garment-reference-<outfit>.{json,md} from per-pose rows (+ their means and a check slice)."""
+    outfit, per_pose = result["outfit"], result["poses"]
     names = list(per_pose[0]["rows"])
     keys = list(per_pose[0]["rows"][names[0]])
     mean = {n: {k: float(np.mean([p["rows"][n][k] for p in per_pose if k in p["rows"][n]]))
                 for k in keys + ["seconds"] if any(k in p["rows"][n] for p in per_pose)} for n in names}
-    result = result | {"mean": mean}
-    out_dir.mkdir(parents=True, exist_ok=True)
-    stem = out_dir / f"garment-reference-{outfit}"
-    paths.atomic_write(stem.with_suffix(".json"), lambda t: Path(t).write_text(json.dumps(result, indent=1)))
-    lines = [f"# {outfit}: PBNS against a physics drape (newton 1.8.0 SolverVBD), {poses} held-out poses", "",
-             "| model | error to sim mm | collision % | edge mm | edge % | bend | seconds / pose |",
-             "|---|---|---|---|---|---|---|"]
-    for n, m in mean.items():
-        sec = f"{m['seconds']:.3g}" if "seconds" in m else ""
-        lines.append(f"| {n} | {m['error_mm']:.1f} | {m['collision_pct']:.2f} | {m['edge_mm']:.2f} | "
-                     f"{m['edge_pct']:.2f} | {m['bend']:.4f} | {sec} |")
-    lines += ["", f"Drape: quasi-static (velocities zeroed each substep), {reference.DrapeConfig.substeps} substeps x "
-              f"{reference.DrapeConfig.iterations} iterations per 1/30 s frame, settled when the 99th percentile of "
-              f"per-frame particle motion < {reference.DrapeConfig.settle_mm} mm, else stopped at {frames} frames: "
-              f"{result['settled']} of {poses} settled. Start: the skinned rest outfit; pinned vertices fixed. "
-              "PBNS seconds: one pose, 1 thread; sim seconds: CPU, 1 thread each. "
-              + (f"PBNS rows re-scored against the cached drapes after retraining (the skinned start moved "
-                 f"{np.mean(result['rescored_start_shift_mm']):.2f} mm on average from the one simulated). "
-                 if "rescored_start_shift_mm" in result else "") +
-              "Thesis Table 5.1 (PBNS vs its simulator): 0.45 % collision, 0.66 mm edge error."]
-    paths.atomic_write(stem.with_suffix(".md"), lambda t: Path(t).write_text("\n".join(lines) + "\n"))
-    return stem.with_suffix(".md")
+    first = per_pose[0]
+    check = {"function": "recon.garment.evaluate:reference_check",
+             "kwargs": {"outfit": outfit, "pose": first["pose"], "pool_size": result.get("pool_size", 500)},
+             "values": {n: {k: v for k, v in first["rows"][n].items() if k not in ("error_mm", "seconds")}
+                        for n in MODELS}}
+    result = result | {"mean": mean, "check": check}
+    return report.write(Path(out_dir) / f"garment-reference-{outfit}", result, render_reference(result))
+
+
+def render_reference(result: dict) -> str:
+    """The Markdown of a garment-reference-<outfit>.json."""
+    poses, mean, frames = len(result["poses"]), result["mean"], result["frames_cap"]
+    rows = [[n, m["error_mm"], m["collision_pct"], m["edge_mm"], m["edge_pct"], m["bend"],
+             f"{m['seconds']:.3g}" if "seconds" in m else ""] for n, m in mean.items()]
+    rescored = ("PBNS rows re-scored against the cached drapes after retraining (the skinned start moved "
+                f"{np.mean(result['rescored_start_shift_mm']):.2f} mm on average from the one simulated). "
+                if "rescored_start_shift_mm" in result else "")
+    cfg = reference.DrapeConfig
+    return "\n".join([
+        f"# {result['outfit']}: PBNS against a physics drape (newton 1.8.0 SolverVBD), {poses} held-out poses", "",
+        report.table(rows, ["model", "error to sim mm", "collision %", "edge mm", "edge %", "bend", "seconds / pose"],
+                     ["", ".1f", ".2f", ".2f", ".2f", ".4f", ""]), "",
+        f"Drape: quasi-static (velocities zeroed each substep), {cfg.substeps} substeps x {cfg.iterations} iterations "
+        f"per 1/30 s frame, settled when the 99th percentile of per-frame particle motion < {cfg.settle_mm} mm, else "
+        f"stopped at {frames} frames: {result['settled']} of {poses} settled. Start: the skinned rest outfit; pinned "
+        "vertices fixed. PBNS seconds: one pose, 1 thread; sim seconds: CPU, 1 thread each. " + rescored +
+        "Thesis Table 5.1 (PBNS vs its simulator): 0.45 % collision, 0.66 mm edge error."])

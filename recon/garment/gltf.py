@@ -13,10 +13,12 @@ import struct
 from pathlib import Path
 
 import numpy as np
+import roma
 import torch
 
 from recon import paths
 from recon.body import skeleton
+from recon.garment.pbns import pose_features
 
 FLOAT, UBYTE, USHORT, UINT = 5126, 5121, 5123, 5125
 
@@ -50,8 +52,6 @@ def _top4(weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _quat_xyzw(r: torch.Tensor) -> np.ndarray:
-    import roma
-
     return roma.rotmat_to_unitquat(r).numpy().astype(np.float32)  # roma: (x, y, z, w) like glTF
 
 
@@ -106,8 +106,6 @@ def write_animated_glb(path: Path, body, shape: torch.Tensor, rotmats: torch.Ten
         mesh_nodes.append(skinned_mesh("outfit", rest_c, model.faces.numpy(), model.weights.detach().numpy(),
                                        (0.3, 0.45, 0.75, 1.0), targets=d))
         with torch.no_grad():
-            from recon.garment.pbns import pose_features
-
             morph_weights = model.mlp(pose_features(rotmats)).numpy().astype(np.float32)  # (T, |X|)
 
     # animation: per-joint rotations, root translation, outfit morph weights

@@ -1,6 +1,8 @@
 """PBNS potential energies (thesis 5.3.4). Each term is a module with its own config; the
-training loss is their plain sum. All take the posed outfit (B, N, 3) in metres, body frame
-(+Y up: gravity acts along -Y)."""
+training loss (``Criterion``) is their plain sum and keeps each term for logging. All take the
+posed outfit (B, N, 3) in metres, body frame (+Y up: gravity acts along -Y). The geometric
+quantities (strain, bending, penetration) are recon.garment.metrics', shared with the
+evaluation."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -10,27 +12,8 @@ import torch
 from torch import nn
 
 from recon.garment import mesh as gm
-
-
-def nearest(points: torch.Tensor, query: torch.Tensor, k: int = 1) -> torch.Tensor:
-    """Indices of the k nearest of ``points`` (B, P, 3) for every ``query`` (B, Q, 3): (B, Q) for
-    k = 1, else (B, Q, k). Exact (KD-tree), no gradient."""
-    from scipy.spatial import cKDTree
-
-    p, q = points.detach().cpu().numpy(), query.detach().cpu().numpy()
-    idx = np.stack([cKDTree(p[b]).query(q[b], k=k, workers=-1)[1] for b in range(len(p))])
-    return torch.from_numpy(idx).to(query.device)
-
-
-def nearest_among(points: torch.Tensor, query: torch.Tensor, candidates: torch.Tensor) -> torch.Tensor:
-    """Nearest of ``points`` among per-query candidate indices (B, Q, K) -> (B, Q); no gradient.
-    Training precomputes candidates once per pose (a KD-tree per step would dominate the cost)."""
-    with torch.no_grad():
-        b, q, k = candidates.shape
-        c = candidates.long().reshape(b, q * k)
-        pc = torch.gather(points, 1, c[..., None].expand(-1, -1, 3)).view(b, q, k, 3)
-        best = (pc - query[:, :, None]).norm(dim=-1).argmin(-1)
-        return torch.gather(candidates.long(), 2, best[..., None])[..., 0]
+from recon.garment.mesh import nearest, nearest_among
+from recon.garment.metrics import bending, penetration, strain
 
 
 @dataclass
@@ -41,10 +24,10 @@ class EdgeConfig:
 class EdgeLoss(nn.Module):
     """lambda_e * mean_e (|e| - |e_T|)^2, optionally weighted per edge (fabric)."""
 
-    def __init__(self, rest: torch.Tensor, faces: np.ndarray, cfg: EdgeConfig = EdgeConfig(),
+    def __init__(self, rest: torch.Tensor, faces: np.ndarray, cfg: EdgeConfig | None = None,
                  fabric: torch.Tensor | None = None):
         super().__init__()
-        self.cfg = cfg
+        self.cfg = cfg or EdgeConfig()
         e = torch.from_numpy(gm.unique_edges(faces))
         self.register_buffer("edges", e)
         self.register_buffer("rest_len", (rest[e[:, 0]] - rest[e[:, 1]]).norm(dim=-1))
@@ -55,8 +38,7 @@ class EdgeLoss(nn.Module):
     def strain(self, v: torch.Tensor, rest_len: torch.Tensor | None = None) -> torch.Tensor:
         """Signed edge-length error (B, E), metres; ``rest_len`` (B, E) overrides the template's
         lengths per sample (resizing: each body size has its own rest garment)."""
-        l0 = self.rest_len if rest_len is None else rest_len
-        return (v[:, self.edges[:, 0]] - v[:, self.edges[:, 1]]).norm(dim=-1) - l0
+        return strain(v, self.edges, self.rest_len if rest_len is None else rest_len)
 
     def forward(self, v, rest_len: torch.Tensor | None = None):
         return self.scale * self.cfg.weight * (self.w * self.strain(v, rest_len) ** 2).mean(1)
@@ -70,9 +52,9 @@ class BendConfig:
 class BendLoss(nn.Module):
     """lambda_b * mean over adjacent faces ||n_i - n_j||^2 (Laplacian of face normals, hinge-like)."""
 
-    def __init__(self, faces: np.ndarray, cfg: BendConfig = BendConfig(), fabric: torch.Tensor | None = None):
+    def __init__(self, faces: np.ndarray, cfg: BendConfig | None = None, fabric: torch.Tensor | None = None):
         super().__init__()
-        self.cfg = cfg
+        self.cfg = cfg or BendConfig()
         self.register_buffer("faces", torch.from_numpy(np.ascontiguousarray(faces)).long())
         self.register_buffer("adj", torch.from_numpy(np.array(gm.face_adjacency(faces))).long())
         if fabric is None:
@@ -83,8 +65,7 @@ class BendLoss(nn.Module):
         self.register_buffer("w", w)
 
     def energy(self, v):
-        n = gm.face_normals(v, self.faces)
-        return (self.w * ((n[:, self.adj[:, 0]] - n[:, self.adj[:, 1]]) ** 2).sum(-1)).mean(1)
+        return bending(v, self.faces, self.adj, self.w)
 
     def forward(self, v):
         return self.cfg.weight * self.energy(v)
@@ -104,16 +85,10 @@ class CollisionLoss(nn.Module):
     """Eq. 5.5 with nearest-neighbour correspondences: body for every vertex, then (cloth-to-cloth)
     the previous layers for outer-layer vertices; both vertices of a cloth pair get the force."""
 
-    def __init__(self, layer: np.ndarray, cfg: CollisionConfig = CollisionConfig()):
+    def __init__(self, layer: np.ndarray, cfg: CollisionConfig | None = None):
         super().__init__()
-        self.cfg = cfg
+        self.cfg = cfg or CollisionConfig()
         self.register_buffer("layer", torch.from_numpy(np.asarray(layer)).long())
-
-    @staticmethod
-    def penetration(v, surf, surf_normals, idx, eps):
-        d = ((v - torch.gather(surf, 1, idx[..., None].expand(-1, -1, 3)))
-             * torch.gather(surf_normals, 1, idx[..., None].expand(-1, -1, 3))).sum(-1)
-        return torch.clamp(d - eps, max=0.0)
 
     def pairs(self):
         """(inner vertex ids, outer vertex ids) for each outer layer."""
@@ -125,7 +100,7 @@ class CollisionLoss(nn.Module):
         for the nearest-neighbour search; exact KD-tree search when None. body_inside (B, V) bool:
         body vertices inside the body, whose neighbourhood exerts no force (skip_self_intersection)."""
         idx = nearest(body_v, v) if body_cand is None else nearest_among(body_v, v, body_cand)
-        pen = self.penetration(v, body_v, body_n.detach(), idx, self.cfg.eps)
+        pen = penetration(v, body_v, body_n.detach(), idx, self.cfg.eps)
         if body_inside is not None and self.cfg.skip_self_intersection:
             pen = torch.where(torch.gather(body_inside, 1, idx), torch.zeros_like(pen), pen)
         total = (pen ** 2).mean(1)
@@ -135,7 +110,7 @@ class CollisionLoss(nn.Module):
             for k, (inner, outer) in enumerate(pairs):
                 vi, vo = v[:, inner], v[:, outer]
                 idx = nearest(vi, vo) if cloth_cand is None else nearest_among(vi, vo, cloth_cand[k])
-                p = self.penetration(vo, vi, n[:, inner], idx, self.cfg.eps)
+                p = penetration(vo, vi, n[:, inner], idx, self.cfg.eps)
                 # layers overlap only in part (a top over the trousers' waist): far pairs are not contacts
                 gap = (vo - torch.gather(vi, 1, idx[..., None].expand(-1, -1, 3))).norm(dim=-1).detach()
                 p = torch.where(gap < self.cfg.cloth_reach, p, torch.zeros_like(p))
@@ -149,9 +124,9 @@ class GravityConfig:
 
 
 class GravityLoss(nn.Module):
-    def __init__(self, cfg: GravityConfig = GravityConfig(), fabric_mass: torch.Tensor | None = None):
+    def __init__(self, cfg: GravityConfig | None = None, fabric_mass: torch.Tensor | None = None):
         super().__init__()
-        self.cfg = cfg
+        self.cfg = cfg or GravityConfig()
         self.register_buffer("m", torch.ones(1) if fabric_mass is None else fabric_mass)
 
     def forward(self, v):
@@ -164,12 +139,33 @@ class PinConfig:
 
 
 class PinLoss(nn.Module):
-    def __init__(self, pinned: np.ndarray, cfg: PinConfig = PinConfig()):
+    def __init__(self, pinned: np.ndarray, cfg: PinConfig | None = None):
         super().__init__()
-        self.cfg = cfg
+        self.cfg = cfg or PinConfig()
         self.register_buffer("pinned", torch.from_numpy(np.asarray(pinned)).bool())
 
     def forward(self, dt):
         if not self.pinned.any():
             return dt.new_zeros(dt.shape[0])
         return self.cfg.weight * (dt[:, self.pinned] ** 2).sum(-1).mean(1)
+
+
+class Criterion(nn.Module):
+    """The PBNS loss: the sum of the energies (Eq. 5.3); ``terms`` keeps each one for logging.
+    ``cfg`` carries one config per term (``edge``, ``bend``, ``collision``, ``gravity``, ``pin``:
+    GarmentTrainConfig, ResizeConfig)."""
+
+    def __init__(self, outfit, rest: torch.Tensor, cfg):
+        super().__init__()
+        self.edge = EdgeLoss(rest, outfit.faces, cfg.edge)
+        self.bend = BendLoss(outfit.faces, cfg.bend)
+        self.collision = CollisionLoss(outfit.layer, cfg.collision)
+        self.gravity = GravityLoss(cfg.gravity)
+        self.pin = PinLoss(outfit.pinned, cfg.pin)
+        self.register_buffer("faces", torch.from_numpy(np.ascontiguousarray(outfit.faces)).long())
+
+    def forward(self, v, dt, body_v, body_n, body_cand=None, cloth_cand=None, rest_len=None, body_inside=None):
+        self.terms = {"edge": self.edge(v, rest_len), "bend": self.bend(v),
+                      "collision": self.collision(v, body_v, body_n, self.faces, body_cand, cloth_cand, body_inside),
+                      "gravity": self.gravity(v), "pin": self.pin(dt)}
+        return sum(self.terms.values())

@@ -1,9 +1,13 @@
 """Small triangle-mesh helpers the garment code needs and trimesh does not give directly:
-level-set cuts, ordered boundary loops, unique edges and face adjacency as tensors."""
+level-set cuts, ordered boundary loops, unique edges and face adjacency, normals as tensors, and
+nearest-neighbour correspondences (scipy KD-trees)."""
 from __future__ import annotations
 
 import numpy as np
+import scipy.sparse as sp
 import torch
+import trimesh
+from scipy.spatial import cKDTree
 
 
 def cut(vertices: np.ndarray, faces: np.ndarray, field: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -50,8 +54,6 @@ def compact(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.nda
 
 def largest_component_faces(faces: np.ndarray) -> np.ndarray:
     """The faces of the largest edge-connected component, vertex ids unchanged."""
-    import trimesh
-
     adjacency = trimesh.Trimesh(faces=faces, process=False).face_adjacency
     labels = trimesh.graph.connected_component_labels(adjacency, node_count=len(faces))
     return faces[labels == np.bincount(labels).argmax()]
@@ -86,8 +88,6 @@ def unique_edges(faces: np.ndarray) -> np.ndarray:
 def neighbour_mean(faces: np.ndarray, n: int):
     """(n, n) sparse matrix taking per-vertex values to the mean over each vertex's edge neighbours
     (zero for a vertex on no edge)."""
-    import scipy.sparse as sp
-
     e = unique_edges(faces)
     a = sp.coo_matrix((np.ones(2 * len(e)), (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])), shape=(n, n)).tocsr()
     deg = np.maximum(np.asarray(a.sum(1)).ravel(), 1)
@@ -104,8 +104,6 @@ def smooth_vertex_values(x: np.ndarray, faces: np.ndarray, iterations: int) -> n
 
 def face_adjacency(faces: np.ndarray) -> np.ndarray:
     """(A, 2) pairs of faces sharing an edge."""
-    import trimesh
-
     return trimesh.Trimesh(np.zeros((int(faces.max()) + 1, 3)), faces, process=False).face_adjacency
 
 
@@ -124,3 +122,22 @@ def vertex_normals(v: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
     for k in range(3):
         out.index_add_(1, faces[:, k], n)
     return out / out.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+
+
+def nearest(points: torch.Tensor, query: torch.Tensor, k: int = 1) -> torch.Tensor:
+    """Indices of the k nearest of ``points`` (B, P, 3) for every ``query`` (B, Q, 3): (B, Q) for
+    k = 1, else (B, Q, k). Exact (KD-tree), no gradient."""
+    p, q = points.detach().cpu().numpy(), query.detach().cpu().numpy()
+    idx = np.stack([cKDTree(p[b]).query(q[b], k=k, workers=-1)[1] for b in range(len(p))])
+    return torch.from_numpy(idx).to(query.device)
+
+
+def nearest_among(points: torch.Tensor, query: torch.Tensor, candidates: torch.Tensor) -> torch.Tensor:
+    """Nearest of ``points`` among per-query candidate indices (B, Q, K) -> (B, Q); no gradient.
+    Training precomputes candidates once per pose (a KD-tree per step would dominate the cost)."""
+    with torch.no_grad():
+        b, q, k = candidates.shape
+        c = candidates.long().reshape(b, q * k)
+        pc = torch.gather(points, 1, c[..., None].expand(-1, -1, 3)).view(b, q, k, 3)
+        best = (pc - query[:, :, None]).norm(dim=-1).argmin(-1)
+        return torch.gather(candidates.long(), 2, best[..., None])[..., 0]

@@ -14,8 +14,11 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from scipy.spatial import cKDTree
 from torch import nn
 
+from recon import paths
+from recon.garment.mesh import smooth_vertex_values
 from recon.garment.templates import Outfit, RestBody
 
 
@@ -58,8 +61,9 @@ VERTEX_MAJOR_CHUNK_FLOATS = 1 << 18
 
 
 class PBNS(nn.Module):
-    def __init__(self, rest: torch.Tensor, faces: torch.Tensor, weights: torch.Tensor, cfg: PBNSConfig = PBNSConfig()):
+    def __init__(self, rest: torch.Tensor, faces: torch.Tensor, weights: torch.Tensor, cfg: PBNSConfig | None = None):
         super().__init__()
+        cfg = cfg or PBNSConfig()
         self.cfg = cfg
         self.register_buffer("rest", rest.float())  # (N, 3) outfit in rest pose, body frame
         self.register_buffer("faces", faces.long())
@@ -154,17 +158,13 @@ class PBNS(nn.Module):
 
     # --- persistence ----------------------------------------------------------------------------
     def save(self, path: Path, extra: dict) -> None:
-        from recon import paths
-
         sd = self.state_dict()
         sd["D"] = sd["D"].half()  # halves the file; dT moves 1 um on average, 0.01 mm at most (64 test poses)
         state = {"cfg": asdict(self.cfg), "state": sd} | extra
         paths.atomic_write(Path(path), lambda t: torch.save(state, t))
 
     @classmethod
-    def load(cls, path: Path) -> tuple["PBNS", dict]:
-        from recon import paths
-
+    def load(cls, path: Path) -> tuple[PBNS, dict]:
         ck = paths.load_checkpoint(path, "recon garment train")
         sd = ck["state"]
         m = cls(sd["rest"], sd["faces"], torch.softmax(sd["weight_logits"], -1), PBNSConfig(**ck["cfg"]))
@@ -174,12 +174,8 @@ class PBNS(nn.Module):
 
 def initial_weights(rb: RestBody, outfit: Outfit, diffusion: int = 0) -> np.ndarray:
     """Blend weights of the nearest rest-body vertex, optionally diffused over the outfit mesh."""
-    from scipy.spatial import cKDTree
-
     _, idx = cKDTree(rb.v).query(outfit.vertices)
     w = rb.weights[idx].astype(np.float64)
     if diffusion > 0:
-        from recon.garment.mesh import smooth_vertex_values
-
         w = smooth_vertex_values(w, outfit.faces, diffusion)
     return (w / w.sum(1, keepdims=True)).astype(np.float32)

@@ -1,29 +1,32 @@
-"""Reference cloth simulation with newton 1.8.0 SolverVBD, to compare PBNS against physics
-(thesis Table 5.1). Optional extra: ``pip install "recon[sim]"`` (newton==1.8.0, warp-lang).
+"""Reference cloth simulation with newton 1.8.0 SolverVBD, to compare PBNS against physics (thesis
+Table 5.1). Optional extra: ``pip install "recon[sim]"`` (newton==1.8.0, warp-lang).
 
 Protocol (quasi-static drape on a static body, CPU): the body in the target pose is a static
-mesh collider. The cloth keeps the outfit's rest shape as its rest state (edge lengths,
-triangle shapes) and starts from the skinning-only garment (rest outfit + linear blend skinning
-to the pose: no PBNS deformation, so the reference owes nothing to the network). Pinned
-vertices stay at their skinned positions. Gravity pulls, body contact pushes out.
+mesh collider. The cloth keeps the outfit's rest shape as its rest state (edge lengths, triangle
+shapes) and starts from the skinning-only garment (rest outfit + linear blend skinning to the
+pose: no PBNS deformation, so the reference owes nothing to the network). Pinned vertices stay
+at their skinned positions. Gravity pulls, body contact pushes out.
 
 Quasi-static: velocities are reset to zero after every substep, so each substep is one implicit
 relaxation step of gravity + elasticity + contact. Dynamic VBD (velocities kept) does not hold a
 1-cm-resolution garment on the body at 5-10 iterations: the cloth keeps falling at nearly
 free-fall and the collar stretches up to 3.5x over the shoulders (measured; likely because
-Gauss-Seidel carries the shoulders' support only a few rings of vertices per iteration). The drape stops when the particles moved less than
-``settle_mm`` in the last frame (99th percentile over particles: a few light particles at
-sliver triangles keep jittering by millimetres) or after ``frames`` frames.
+Gauss-Seidel carries the shoulders' support only a few rings of vertices per iteration). The
+drape stops when the particles moved less than ``settle_mm`` in the last frame (99th percentile
+over particles: a few light particles at sliver triangles keep jittering by millimetres) or
+after ``frames`` frames.
 
 Body sign: a posed body self-intersects (armpits, groin), which breaks ray-parity inside tests;
 the collider uses the pseudo-normal sign instead.
 """
 from __future__ import annotations
 
+import importlib.util
 import time
 from dataclasses import dataclass
 
 import numpy as np
+import warp as wp
 
 
 @dataclass
@@ -46,20 +49,17 @@ class DrapeConfig:
 
 
 def available() -> bool:
-    try:
-        import newton  # noqa: F401
-    except ImportError:
-        return False
-    return True
+    """Whether the optional newton package (extra ``sim``) is installed."""
+    return importlib.util.find_spec("newton") is not None
 
 
 def drape(body_vertices: np.ndarray, body_faces: np.ndarray, rest: np.ndarray, start: np.ndarray, faces: np.ndarray,
-          pinned: np.ndarray, cfg: DrapeConfig = DrapeConfig(), log=None) -> dict:
+          pinned: np.ndarray, cfg: DrapeConfig | None = None, log=None) -> dict:
     """Settle a garment (rest shape ``rest``, initial positions ``start``) on a static body.
     Returns {"vertices": (N, 3), "frames", "settled", "final_speed", "seconds"}."""
-    import warp as wp
+    import newton  # noqa: PLC0415 - optional extra (sim), imported only when a drape runs
 
-    import newton
+    cfg = cfg or DrapeConfig()
 
     wp.config.quiet = True
     t0 = time.time()
@@ -78,7 +78,8 @@ def drape(body_vertices: np.ndarray, body_faces: np.ndarray, rest: np.ndarray, s
     ref.add_cloth_mesh(vertices=[wp.vec3(*p) for p in rest.astype(np.float32)], **cloth)
     p0, t0_, e0 = builder.particle_count, len(builder.tri_poses), len(builder.edge_rest_angle)
     builder.add_cloth_mesh(vertices=[wp.vec3(*p) for p in start.astype(np.float32)], **cloth)
-    assert len(builder.tri_poses) - t0_ == len(ref.tri_poses) and len(builder.edge_rest_angle) - e0 == len(ref.edge_rest_angle)
+    assert len(builder.tri_poses) - t0_ == len(ref.tri_poses)
+    assert len(builder.edge_rest_angle) - e0 == len(ref.edge_rest_angle)
     builder.tri_poses[t0_:] = ref.tri_poses
     builder.tri_areas[t0_:] = ref.tri_areas
     builder.edge_rest_angle[e0:] = ref.edge_rest_angle

@@ -1,4 +1,5 @@
 """Outfit resizing with PBNS (thesis 5.5.6): body shape + tightness -> rest-pose outfit.
+Trained by ``recon garment resize`` (recon.garment.train), evaluated by recon.garment.evaluate.
 
 The pose input of PBNS is replaced by the body shape beta concatenated with the outfit
 tightness gamma (R^2) and skinning is removed:
@@ -17,32 +18,20 @@ should hang). gamma > 0 is looser.
 from __future__ import annotations
 
 import json
-import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import torch
+from scipy.spatial import cKDTree
 from torch import nn
 
 from recon import paths
 from recon.garment import losses as L
-from recon.garment import mesh as gm
-from recon.garment.mesh import smooth_vertex_values, vertex_normals
-from recon.garment.templates import PRESETS
-from recon.garment.train import Criterion, weights_path
+from recon.garment.mesh import smooth_vertex_values
 
-RESIZE_WEIGHTS = str(Path(__file__).resolve().parent / "weights" / "resize_{outfit}.pt")
 TIGHTNESS_PHENOTYPES = ("weight", "height")  # what gamma offsets (anny), like CLOTH3D's beta_0, beta_1
 TIGHTNESS_RANGE = ((-0.1, 0.3), (-0.05, 0.1))  # sampling range per component, biased to loose (CLOTH3D)
-
-
-def resize_weights_path(name: str, pbns_path: Path | None = None) -> Path:
-    """The resizer of an outfit: shipped beside the presets, else beside its PBNS weights
-    (default: where ``recon garment train`` wrote them)."""
-    if name in PRESETS:
-        return Path(RESIZE_WEIGHTS.format(outfit=name))
-    return Path(pbns_path or weights_path(name)).parent / f"resize_{name}.pt"
 
 
 @dataclass
@@ -69,8 +58,9 @@ class ResizeConfig:
 class Resizer(nn.Module):
     """[beta, gamma] -> 4 x 32 MLP -> X -> X . D: rest-pose correction of E_T (no skinning)."""
 
-    def __init__(self, num_vertices: int, num_inputs: int, cfg: ResizeConfig = ResizeConfig()):
+    def __init__(self, num_vertices: int, num_inputs: int, cfg: ResizeConfig | None = None):
         super().__init__()
+        cfg = cfg or ResizeConfig()
         dims = [num_inputs] + [cfg.hidden] * cfg.layers
         mlp: list[nn.Module] = []
         for a, b in zip(dims[:-1], dims[1:]):
@@ -89,8 +79,6 @@ class Transfer:
     nearest body vertex, Laplacian-smoothed so body detail does not print through."""
 
     def __init__(self, body, rest: np.ndarray, faces: np.ndarray, shape0: torch.Tensor, smooth: int = 10):
-        from scipy.spatial import cKDTree
-
         self.body, self.rest, self.faces, self.smooth = body, rest, faces, smooth
         with torch.no_grad():
             self.v0 = body.rest_geometry(shape0.reshape(1, -1).to(body.mean_shape))[0][0].numpy()
@@ -115,107 +103,14 @@ class Transfer:
         return self.resize(self.target(shape, tightness))
 
 
-def sample_conditions(body, n: int, seed: int) -> tuple[torch.Tensor, torch.Tensor]:
-    from recon.poses.sampler import ShapeSampler
-
-    shape = ShapeSampler(body, seed=seed).sample(n).float()
-    rng = np.random.default_rng(seed)
-    tight = np.stack([rng.uniform(lo, hi, n) for lo, hi in TIGHTNESS_RANGE], 1)
-    return shape, torch.from_numpy(tight).float()
-
-
-class _Data:
-    """Per condition: E_T vertices, its edge lengths, rest body of shape beta + normals, candidates."""
-
-    def __init__(self, body, transfer: Transfer, shape, tight, edges: torch.Tensor, k: int):
-        with torch.no_grad():
-            bv = torch.cat([body.rest_geometry(shape[i:i + 64].to(body.mean_shape))[0] for i in range(0, len(shape), 64)])
-        self.shape, self.tight = shape, tight
-        self.base = torch.from_numpy(np.concatenate([transfer(shape[i:i + 64], tight[i:i + 64])
-                                                     for i in range(0, len(shape), 64)]))
-        self.rest_len = (self.base[:, edges[:, 0]] - self.base[:, edges[:, 1]]).norm(dim=-1)
-        self.bv, self.bn = bv.float(), vertex_normals(bv.float(), body.faces)
-        self.cand = L.nearest(self.bv, self.base, k).to(torch.int16 if bv.shape[1] < 32767 else torch.int32)
-
-
-def rest_metrics(v: torch.Tensor, base: torch.Tensor, faces: np.ndarray, bv, bn) -> dict:
-    """Vertices inside the body (%) and mean |edge - E_T edge| (mm)."""
-    from recon.garment.evaluate import physical_metrics
-
-    m = physical_metrics(v, faces, base, bv, bn)
-    return {k: m[k] for k in ("collision_pct", "edge_mm")}
-
-
-def _outfit_for(body, pbns_path: Path):
-    from recon.garment.pbns import PBNS
-    from recon.garment.templates import make_outfit
-
-    model, ck = PBNS.load(pbns_path)
-    meta = json.loads(ck["meta_json"])
-    outfit = make_outfit(body, meta.get("source", meta["outfit"]), ck["shape"][None])  # source: a preset or a mesh
-    if not np.allclose(outfit.vertices, model.rest.numpy(), atol=1e-5):
-        raise RuntimeError(f"the {meta['outfit']} template changed since {pbns_path} was trained: retrain it")
-    return outfit, ck["shape"], meta["outfit"]
-
-
-def train(body, pbns_path: Path, out: Path, cfg: ResizeConfig = ResizeConfig(), log=print) -> dict:
-    """Train the resizer of a trained PBNS outfit; writes ``out`` (+ .json with the curve)."""
-    from tqdm import tqdm
-
-    torch.manual_seed(cfg.seed)
-    t0 = time.time()
-    outfit, shape0, name = _outfit_for(body, Path(pbns_path))
-    transfer = Transfer(body, outfit.vertices, outfit.faces, shape0, cfg.smooth)
-    crit = Criterion(outfit, torch.from_numpy(outfit.vertices), cfg)
-    tr = _Data(body, transfer, *sample_conditions(body, cfg.samples, cfg.seed), crit.edge.edges, cfg.candidates)
-    va = _Data(body, transfer, *sample_conditions(body, cfg.val_samples, cfg.seed + 1), crit.edge.edges, 1)
-    net = Resizer(len(outfit.vertices), body.num_shape_params + 2, cfg)
-    opt = torch.optim.Adam([{"params": [net.D], "lr": cfg.lr_psd},
-                            {"params": [p for n, p in net.named_parameters() if n != "D"], "lr": cfg.lr}])
-    steps = cfg.epochs * (cfg.samples // cfg.batch)
-    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, steps)
-    log(f"resizer {name}: {len(outfit.vertices)} vertices, {cfg.samples} train / {cfg.val_samples} val conditions; "
-        f"set-up {time.time() - t0:.1f} s")
-    base_val = rest_metrics(va.base, va.base, outfit.faces, va.bv, va.bn)
-    curve = []
-    bar = tqdm(total=steps, desc=f"resize {name}", unit="step")
-    for ep in range(cfg.epochs):
-        order = torch.randperm(cfg.samples)
-        for b in range(cfg.samples // cfg.batch):
-            i = order[b * cfg.batch:(b + 1) * cfg.batch]
-            dv = net(tr.shape[i], tr.tight[i])
-            v = tr.base[i] + dv
-            loss = crit(v, dv, tr.bv[i], tr.bn[i], tr.cand[i], rest_len=tr.rest_len[i]).mean()
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
-            sched.step()
-            bar.update(1)
-        with torch.no_grad():
-            v = va.base + net(va.shape, va.tight)
-        row = {"epoch": ep + 1, "seconds": round(time.time() - t0, 1)} | {
-            f"val_{k}": x for k, x in rest_metrics(v, va.base, outfit.faces, va.bv, va.bn).items()}
-        curve.append(row)
-        bar.set_postfix(coll=f"{row['val_collision_pct']:.2f}%", edge=f"{row['val_edge_mm']:.2f}mm")
-    bar.close()
-    meta = {"outfit": name, "pbns": Path(pbns_path).name, "config": asdict(cfg), "train_seconds": round(time.time() - t0, 1),
-            "threads": torch.get_num_threads(),
-            "tightness_phenotypes": TIGHTNESS_PHENOTYPES, "tightness_range": TIGHTNESS_RANGE,
-            "val_transfer_only": base_val, "curve": curve}
-    state = {"state": net.state_dict(), "shape0": shape0, "num_inputs": body.num_shape_params + 2,
-             "num_vertices": len(outfit.vertices), "meta_json": json.dumps(meta)}
-    paths.atomic_write(Path(out), lambda t: torch.save(state, t))
-    paths.atomic_write(Path(out).with_suffix(".json"), lambda t: Path(t).write_text(json.dumps(meta, indent=1)))
-    return meta
-
-
 class OutfitResizer:
     """Trained resizer: ``rest(shape, tightness)`` -> (B, N, 3) rest outfit on that body."""
 
     def __init__(self, body, path: Path, rest: np.ndarray, faces: np.ndarray):
         ck = paths.load_checkpoint(path, "recon garment resize")
         meta = json.loads(ck["meta_json"])
-        cfg = ResizeConfig(**{k: v for k, v in meta["config"].items() if k in ("hidden", "layers", "embedding", "smooth")})
+        net_keys = ("hidden", "layers", "embedding", "smooth")
+        cfg = ResizeConfig(**{k: v for k, v in meta["config"].items() if k in net_keys})
         self.net = Resizer(ck["num_vertices"], ck["num_inputs"], cfg).eval()
         self.net.load_state_dict(ck["state"])
         self.transfer = Transfer(body, rest, faces, ck["shape0"], cfg.smooth)
@@ -226,37 +121,3 @@ class OutfitResizer:
         tightness = torch.zeros(len(shape), 2) if tightness is None else tightness.reshape(-1, 2).float()
         base = torch.from_numpy(self.transfer(shape, tightness))
         return base + self.net(shape, tightness) if corrected else base
-
-
-def evaluate(body, outfit: str, n: int = 200, seed: int = 1234, out_dir: Path = Path("eval/results")) -> Path:
-    """Held-out (shape, tightness) conditions: E_T alone vs E_T + resizer, rest pose on the
-    body of that shape. Writes ``garment-resize-<outfit>.md``/``.json``."""
-    o, _, outfit = _outfit_for(body, weights_path(outfit))
-    path = resize_weights_path(outfit)
-    rz = OutfitResizer(body, path, o.vertices, o.faces)
-    data = _Data(body, rz.transfer, *sample_conditions(body, n, seed), torch.from_numpy(gm.unique_edges(o.faces)), 1)
-    t = time.perf_counter()
-    with torch.no_grad():
-        dv = rz.net(data.shape, data.tight)
-    ms = (time.perf_counter() - t) * 1000 / n
-    rows = {}
-    loose = data.tight[:, 0] >= 0
-    for subset, m in (("all", torch.ones_like(loose)), ("loose (gamma_weight >= 0)", loose), ("tight (gamma_weight < 0)", ~loose)):
-        for name, v in (("transfer only (CLOTH3D E_T)", data.base), ("E_T + resizer (PBNS 5.5.6)", data.base + dv)):
-            rows[f"{name}, {subset}"] = rest_metrics(v[m], data.base[m], o.faces, data.bv[m], data.bn[m])
-    meta = json.loads(torch.load(path, map_location="cpu", weights_only=True)["meta_json"])
-    res = {"outfit": outfit, "conditions": n, "seed": seed, "rows": rows, "ms_per_outfit_batched": ms,
-           "train_seconds": meta["train_seconds"]}
-    out_dir.mkdir(parents=True, exist_ok=True)
-    paths.atomic_write(out_dir / f"garment-resize-{outfit}.json", lambda f: Path(f).write_text(json.dumps(res, indent=1)))
-    lines = [f"Outfit resizing, {outfit}: {n} held-out (shape, tightness) conditions (seed {seed}; shapes from the "
-             f"anny phenotype sampler, tightness gamma = offsets of {', '.join(TIGHTNESS_PHENOTYPES)} in "
-             f"{TIGHTNESS_RANGE}), rest pose on the body of each shape. Collision = cloth vertices inside the "
-             "body; edge = mean |edge length - E_T edge length|. `recon garment resize` then `recon garment eval`.",
-             "", "| method | collision % | edge error mm |", "|---|---|---|"]
-    lines += [f"| {k} | {r['collision_pct']:.2f} | {r['edge_mm']:.2f} |" for k, r in rows.items()]
-    threads = meta.get("threads", 2)  # files from before it was recorded: 2 threads
-    lines += ["", f"Resizer: trained in {meta['train_seconds'] / 60:.1f} min on {threads} CPU thread{'s' * (threads > 1)}; "
-              f"{ms:.3f} ms per outfit (network only, batched)."]
-    paths.atomic_write(out_dir / f"garment-resize-{outfit}.md", lambda f: Path(f).write_text("\n".join(lines) + "\n"))
-    return out_dir / f"garment-resize-{outfit}.md"

@@ -1,46 +1,36 @@
-"""Where a posed body passes through itself (thigh into belly in deep hip flexion, arm into
-the chest).
+"""Where a posed body passes through itself (thigh into belly in deep hip flexion, arm into the
+chest).
 
 Linear blend skinning lets body parts interpenetrate in strong flexion. Cloth between two such
 parts cannot be outside both, so a cloth collision metric or loss is ill-defined there (thesis
-5.4.3 trains and tests PBNS on poses "that do not produce self-collisions"). ``SkinSelfIntersection``
-finds the surface vertices that lie inside the body: each vertex, moved ``offset`` along its
-normal, is tested with the generalised winding number of the closed surface (warp's BVH mesh
-query, CPU; ~30 ms per pose on one thread). Contacts the rest pose already has (between the fingers, ears) are not counted, and
-only the vertices of the garment region (the skin of the torso, hips, upper legs and arms: the
-vertices whose dominant bone is not the head, neck, hands or feet) are tested.
-Unlike the pose sampler's sphere test (recon.poses.collision: cheap, conservative, blind to
-adjacent parts), this one sees the thigh pressing into the belly.
+5.4.3 trains and tests PBNS on poses "that do not produce self-collisions").
+``SkinSelfIntersection`` finds the surface vertices that lie inside the body: each vertex, moved
+``offset`` along its normal, is tested with the generalised winding number of the closed surface
+(warp's BVH mesh query, CPU; ~30 ms per pose on one thread). Contacts the rest pose already has
+(between the fingers, ears) are not counted, and only the vertices of the garment region (the
+skin of the torso, hips, upper legs and arms: the vertices whose dominant bone is not the head,
+neck, hands or feet) are tested. Unlike the pose sampler's sphere test (recon.poses.collision:
+cheap, conservative, blind to adjacent parts), this one sees the thigh pressing into the belly.
 """
 from __future__ import annotations
 
 import numpy as np
 import torch
+import warp as wp
 
 from recon.body.skeleton import JOINT_NAMES
 from recon.garment.mesh import largest_component_faces, vertex_normals
 
 # skin that garments never cover: left out of the test (faces and fingers have many rest contacts)
 UNCOVERED = ("head", "neck", "wrist", "hand", "ankle", "foot")
+wp.config.quiet = True
 
-_KERNEL = None
 
-
-def _kernel():
-    """The winding-number sign query, compiled once per process (cached by warp on disk)."""
-    global _KERNEL
-    if _KERNEL is None:
-        import warp as wp
-
-        wp.config.quiet = True
-
-        @wp.kernel
-        def inside_sign(mesh: wp.uint64, pts: wp.array(dtype=wp.vec3), out: wp.array(dtype=float)):
-            i = wp.tid()
-            out[i] = wp.mesh_query_point_sign_winding_number(mesh, pts[i], 1.0e3).sign
-
-        _KERNEL = inside_sign
-    return _KERNEL
+@wp.kernel
+def _inside_sign(mesh: wp.uint64, pts: wp.array(dtype=wp.vec3), out: wp.array(dtype=float)):
+    """The winding-number sign of each point against a closed mesh (compiled on first use, cached by warp)."""
+    i = wp.tid()
+    out[i] = wp.mesh_query_point_sign_winding_number(mesh, pts[i], 1.0e3).sign
 
 
 class SkinSelfIntersection:
@@ -67,11 +57,9 @@ class SkinSelfIntersection:
         self.region = self.region[~self._inside(rest)[0]]  # rest contacts are part of the body's design
 
     def _inside(self, vertices: torch.Tensor, chunk: int = 64) -> np.ndarray:
-        import warp as wp
-
         v = torch.as_tensor(vertices, dtype=torch.float32).detach().cpu()
         faces = torch.from_numpy(self.faces).long()
-        kernel, out = _kernel(), np.zeros((len(v), len(self.region)), bool)
+        kernel, out = _inside_sign, np.zeros((len(v), len(self.region)), bool)
         idx = wp.array(self.faces.ravel(), dtype=int, device="cpu")
         res = wp.zeros(len(self.region), dtype=float, device="cpu")
         for c in range(0, len(v), chunk):  # normals of a few thousand poses at once would take GBs

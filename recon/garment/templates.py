@@ -18,8 +18,11 @@ from pathlib import Path
 
 import numpy as np
 import torch
+import trimesh
+from scipy.spatial import cKDTree
 
 from recon.body import skeleton
+from recon.errors import MissingFile, ReconError
 from recon.garment import mesh as gm
 
 J = {n: i for i, n in enumerate(skeleton.JOINT_NAMES)}
@@ -162,9 +165,9 @@ def outfit_specs(outfit: str) -> list[GarmentSpec]:
     p = Path(outfit)
     if p.suffix.lower() in MESH_SUFFIXES:
         if not p.is_file():
-            raise FileNotFoundError(f"garment mesh {outfit} not found")
+            raise MissingFile(f"garment mesh {outfit} not found")
         return [GarmentSpec("obj", outfit_name(outfit), path=str(p.resolve()))]
-    raise KeyError(f"unknown outfit {outfit!r}; presets: {', '.join(PRESETS)}, or a garment mesh "
+    raise ReconError(f"unknown outfit {outfit!r}; presets: {', '.join(PRESETS)}, or a garment mesh "
                    f"({', '.join(MESH_SUFFIXES)}) in the body frame")
 
 
@@ -253,16 +256,12 @@ def _fields(rb: RestBody, spec: GarmentSpec, pelvis_y: float) -> tuple[np.ndarra
 def _subdivide(v: np.ndarray, f: np.ndarray, max_edge: float) -> tuple[np.ndarray, np.ndarray]:
     """1-to-4 midpoint subdivision of the whole garment until its median edge is < max_edge
     (anny's torso and limbs are coarse: ~2-3 cm edges)."""
-    import trimesh
-
     while np.median(np.linalg.norm(np.diff(v[gm.unique_edges(f)], axis=1)[:, 0], axis=1)) > max_edge:
         v, f = trimesh.remesh.subdivide(v, f)
     return v, f
 
 
 def _smooth(v: np.ndarray, f: np.ndarray, iterations: int) -> np.ndarray:
-    import trimesh
-
     if iterations <= 0:
         return v
     m = trimesh.Trimesh(v.copy(), f, process=False)
@@ -285,7 +284,8 @@ def _waist_loop(rb: RestBody, y: float, margin: float, n: int | None = None) -> 
     prof = _max_profile(r, phi, angles)
     ok = prof > 0  # angle bins without body samples: interpolate around the loop
     prof = np.interp(angles, angles[ok], prof[ok], period=2 * np.pi)
-    return np.stack([c[0] + (prof + margin) * np.sin(angles), np.full(n, y), c[2] + (prof + margin) * np.cos(angles)], 1)
+    r = prof + margin
+    return np.stack([c[0] + r * np.sin(angles), np.full(n, y), c[2] + r * np.cos(angles)], 1)
 
 
 def _polar(p: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -334,8 +334,6 @@ def _skirt(rb: RestBody, spec: GarmentSpec, top: np.ndarray, pelvis_y: float, to
 
 
 def _finish(rb: RestBody, spec: GarmentSpec, v: np.ndarray, f: np.ndarray, pinned: np.ndarray) -> Garment:
-    import trimesh
-
     # consistent winding (a sewn dress joins two pieces), then outwards (normals away from the body)
     m = trimesh.Trimesh(v, f, process=False)
     trimesh.repair.fix_winding(m)
@@ -350,17 +348,15 @@ def _finish(rb: RestBody, spec: GarmentSpec, v: np.ndarray, f: np.ndarray, pinne
 
 
 def _from_file(rb: RestBody, spec: GarmentSpec) -> Garment:
-    import trimesh
-
     if not spec.path:
-        raise ValueError("a garment of kind 'obj' needs a path")
+        raise ReconError("a garment of kind 'obj' needs a path")
     m = trimesh.load(spec.path, force="mesh", process=True)
     if not isinstance(m, trimesh.Trimesh) or len(m.faces) == 0:
-        raise ValueError(f"{spec.path}: no triangle mesh found")
+        raise ReconError(f"{spec.path}: no triangle mesh found")
     v, f = gm.largest_component(np.asarray(m.vertices, np.float64), np.asarray(m.faces))
     body_box = (rb.v.min(0) - 0.3, rb.v.max(0) + 0.3)
     if (v < body_box[0]).any() or (v > body_box[1]).any():
-        raise ValueError(f"{spec.path}: the garment is not around the rest body (body frame, metres, +Y up?)")
+        raise ReconError(f"{spec.path}: the garment is not around the rest body (body frame, metres, +Y up?)")
     pin = v[:, 1].max() < rb.j[J["spine3"]][1] if spec.pin_waist is None else spec.pin_waist
     pinned = v[:, 1] > v[:, 1].max() - 0.03 if pin else np.zeros(len(v), bool)
     return _finish(rb, spec, v, f, pinned)
@@ -375,8 +371,6 @@ def hangs_free(rb: RestBody, g: Garment) -> bool:
 
 
 def _nearest(points: np.ndarray, query: np.ndarray):
-    from scipy.spatial import cKDTree
-
     return cKDTree(points).query(query)
 
 

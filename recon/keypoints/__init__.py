@@ -1,5 +1,30 @@
-"""Keypoint sources for the image pipeline: MediaPipe Pose (optional extra) + the learned adapter
-from its landmarks to our J+ (24 joints + 18 surface landmarks)."""
-from recon.keypoints.mediapipe import MediaPipePose, MPPose, available
+"""Keypoint sources of the image pipeline: ``source(rgb, K) -> Keypoints | None``.
 
-__all__ = ["MediaPipePose", "MPPose", "available"]
+``base`` (what a source returns), ``mediapipe`` (MediaPipe Pose, optional extra), ``adapter``
+(the learned map from MediaPipe's landmarks to our J+), ``sources`` (``MediaPipeSource``,
+``BackboneSource``), ``train`` (collecting MediaPipe's output on renders and training the
+adapter).
+"""
+from __future__ import annotations
+
+from recon.errors import ReconError
+from recon.keypoints.base import Keypoints, KeypointSource
+from recon.keypoints.mediapipe import MediaPipePose, MPPose, available
+from recon.keypoints.sources import BackboneSource, MediaPipeSource
+
+SOURCES = ("mediapipe", "backbone")
+
+
+def make_source(name: str = "mediapipe", body=None, device: str = "cpu", flip: bool | None = None) -> KeypointSource:
+    """Keypoint source by name: "mediapipe" (default) or "backbone". ``flip`` (test-time mirror
+    averaging, see each source): None = the source's default, on for MediaPipe (cheap next to
+    the fit), off for the backbone (its 100 ms latency goal)."""
+    if name == "mediapipe":
+        return MediaPipeSource(flip=True if flip is None else flip)
+    if name == "backbone":
+        return BackboneSource(body, device=device, flip=bool(flip))
+    raise ReconError(f"unknown keypoint source {name!r}; choose one of {', '.join(SOURCES)}")
+
+
+__all__ = ["SOURCES", "BackboneSource", "Keypoints", "KeypointSource", "MPPose", "MediaPipePose", "MediaPipeSource",
+           "available", "make_source"]

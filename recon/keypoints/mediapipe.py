@@ -1,10 +1,14 @@
 """MediaPipe Pose (0.10.21, offline models in the wheel) as a person detector and 2D/3D keypoint
-source. Optional extra: scripts/setup.sh installs it (``--no-deps``, see TECH_NOTES)."""
+source. Optional extra: scripts/setup.sh installs it without its dependency pins (numpy<2,
+protobuf<5 and jax conflict with ours; docs/install.md)."""
 from __future__ import annotations
 
+import importlib.util
 from dataclasses import dataclass
 
 import numpy as np
+
+from recon.errors import ReconError
 
 NUM_MP = 33  # MediaPipe Pose landmarks
 
@@ -25,21 +29,19 @@ class MPPose:
 
 
 def available() -> bool:
-    try:
-        import mediapipe  # noqa: F401
-    except ImportError:
-        return False
-    return True
+    """Whether the optional mediapipe package is installed."""
+    return importlib.util.find_spec("mediapipe") is not None
 
 
 class MediaPipePose:
     """One person per image: ``MediaPipePose()(rgb) -> MPPose | None`` (None: nobody found)."""
 
     def __init__(self, complexity: int = 1, segmentation: bool = True, min_confidence: float = 0.5):
-        try:
-            import mediapipe as mp
-        except ImportError as e:
-            raise RuntimeError("mediapipe is not installed (scripts/setup.sh installs mediapipe==0.10.21)") from e
+        if not available():
+            raise ReconError("mediapipe is not installed: scripts/setup.sh installs mediapipe==0.10.21 "
+                             "(or use `recon run --source backbone`)")
+        import mediapipe as mp  # noqa: PLC0415 - optional extra, imported only when used
+
         self.pose = mp.solutions.pose.Pose(static_image_mode=True, model_complexity=complexity,
                                            enable_segmentation=segmentation,
                                            min_detection_confidence=min_confidence)

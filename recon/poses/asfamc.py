@@ -10,11 +10,12 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from recon.errors import ReconError
 from recon.poses.motion import SourceMotion
 
 
-class ASFError(ValueError):
-    pass
+class ASFError(ReconError):
+    """The file is not a readable ASF/AMC motion; the message says where."""
 
 
 def read_asf(path: str | Path) -> dict:

@@ -6,11 +6,12 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from recon.errors import ReconError
 from recon.poses.motion import SourceMotion, forward_kinematics
 
 
-class BVHError(ValueError):
-    pass
+class BVHError(ReconError):
+    """The file is not a readable BVH motion; the message says where."""
 
 
 def _parse_hierarchy(tokens: list[str]):

@@ -1,22 +1,32 @@
-"""Build and load the retargeted mocap pose set (../shared/data/mocap -> recon cache).
+"""The retargeted mocap pose set: shipped with the package, rebuilt from raw clips on demand.
 
 Every supported clip is parsed (BVH or ASF/AMC), retargeted to the body model's rest
 skeleton (recon.poses.retarget), resampled to 30 fps (slerp) and stored in one compact
 .npz: local joint rotations as float32 axis-angle (N, 24, 3), pelvis translation (N, 3) and a
 clip table. Splits are by CMU subject so that no performer of val/test is seen in training.
+
+The set built from ``../shared/data/mocap`` ships as ``recon/data/poses/mocap-anny-v1.npz``
+(sources and licences beside it) and is what every sampler, benchmark and result uses;
+``recon poses build`` rebuilds it from the raw clips (``$RECON_SHARED_DIR/data/mocap``) into the
+cache, and ``$RECON_POSES`` points recon at another file.
 """
 from __future__ import annotations
 
 import csv
 import json
 import logging
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import torch
 from scipy.spatial.transform import Rotation
+from tqdm import tqdm
 
 from recon import paths
+from recon.body import default_body
+from recon.errors import MissingFile, ReconError
 from recon.poses.asfamc import read_asf_amc
 from recon.poses.bvh import read_bvh
 from recon.poses.retarget import PRIMARY_CHILD, Retargeter
@@ -31,6 +41,8 @@ SPLIT_SUBJECTS = {"test": {"3", "9", "12", "14"}, "val": {"2", "6", "10"}}
 # video capture, whose rest pose is not a standing pose.
 SKIPPED_SOURCES = {"deepmimic_humanoid3d"}
 SKIPPED_PATHS = {"animateddrawings_bvh/rokoko/jesse_dance.bvh"}
+POSES_NAME = f"mocap-anny-v{CACHE_VERSION}.npz"
+SHIPPED = paths.DATA_DIR / "poses" / POSES_NAME
 
 
 def split_of(subject: str) -> str:
@@ -69,21 +81,26 @@ def read_clip(mocap_root: Path, row: dict):
     return motion
 
 
-def cache_path() -> Path:
-    return paths.cache_dir() / f"mocap-anny-v{CACHE_VERSION}.npz"
+def built_path() -> Path:
+    """Where ``recon poses build`` writes a rebuilt set by default (the recon cache)."""
+    return paths.cache_dir() / POSES_NAME
+
+
+def poses_path() -> Path:
+    """The pose set in use: $RECON_POSES if set, else the shipped one."""
+    return Path(os.environ.get("RECON_POSES", SHIPPED))
 
 
 def build(body=None, mocap_root: Path | None = None, out: Path | None = None, limit: int | None = None) -> Path:
-    """Retarget every supported clip and write the pose cache atomically. Returns its path."""
-    import torch
-    from tqdm import tqdm
-
-    from recon.body import default_body
-
+    """Retarget every supported clip of ``mocap_root`` (default ``$RECON_SHARED_DIR/data/mocap``;
+    clips listed in its ``metadata/clips.csv``) and write the pose set atomically to ``out``
+    (default ``built_path()``). Returns its path."""
     mocap_root = Path(mocap_root or paths.shared_dir() / "data" / "mocap")
     table = mocap_root / "metadata" / "clips.csv"
     if not table.exists():
-        raise FileNotFoundError(f"{table} not found: set RECON_SHARED_DIR to the folder holding data/mocap")
+        raise MissingFile(f"{table} not found: the raw clips live in ../shared/data/mocap beside the repository "
+                          "(or set RECON_SHARED_DIR); recon ships the retargeted set itself, so only a rebuild "
+                          "needs them")
     body = body or default_body()
     with torch.no_grad():
         rest = body()
@@ -96,7 +113,7 @@ def build(body=None, mocap_root: Path | None = None, out: Path | None = None, li
         try:
             motion = read_clip(mocap_root, row)
             res = rt.retarget(motion)
-        except (ValueError, KeyError, OSError) as e:  # report and keep going
+        except (ReconError, OSError) as e:  # report and keep going
             log.warning("skipping %s: %s", row["path"], e)
             continue
         rot, tr = resample(res.rotmats, res.transl, motion.fps)
@@ -111,7 +128,7 @@ def build(body=None, mocap_root: Path | None = None, out: Path | None = None, li
         rots.append(Rotation.from_matrix(rot.reshape(-1, 3, 3)).as_rotvec().reshape(-1, 24, 3))
         trs.append(tr)
         clip_ids.append(np.full(rot.shape[0], len(clips) - 1, dtype=np.int32))
-    out = Path(out or cache_path())
+    out = Path(out or built_path())
     arrays = dict(rotvec=np.concatenate(rots).astype(np.float32), transl=np.concatenate(trs).astype(np.float32),
                   clip=np.concatenate(clip_ids), clips=np.array(json.dumps(clips)), fps=np.array(FPS))
     paths.atomic_write(out, lambda tmp: np.savez_compressed(open(tmp, "wb"), **arrays))
@@ -128,19 +145,18 @@ class MocapPoses:
     clips: list[dict]
 
     @classmethod
-    def load(cls, split: str | None = None, path: Path | None = None, build_if_missing: bool = True) -> "MocapPoses":
-        path = Path(path or cache_path())
+    def load(cls, split: str | None = None, path: Path | None = None) -> MocapPoses:
+        """The pose set (``path``, else ``poses_path()``), whole or one split."""
+        path = Path(path or poses_path())
         if not path.exists():
-            if not build_if_missing:
-                raise FileNotFoundError(f"{path} missing: run `recon poses build`")
-            build(out=path)
+            raise MissingFile(f"pose set {path} not found: reinstall recon, or rebuild it with `recon poses build`")
         with np.load(path, allow_pickle=False) as z:
             m = cls(z["rotvec"], z["transl"], z["clip"], json.loads(str(z["clips"])))
         return m if split is None else m.split(split)
 
-    def split(self, name: str) -> "MocapPoses":
+    def split(self, name: str) -> MocapPoses:
         if name not in ("train", "val", "test"):
-            raise ValueError(f"unknown split {name!r}: use train, val or test")
+            raise ReconError(f"unknown split {name!r}: use train, val or test")
         keep = np.array([c["split"] == name for c in self.clips])
         mask = keep[self.clip]
         return MocapPoses(self.rotvec[mask], self.transl[mask], self.clip[mask], self.clips)

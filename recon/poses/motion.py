@@ -33,7 +33,7 @@ class SourceMotion:
         except ValueError:
             raise KeyError(f"source skeleton has no joint {name!r}") from None
 
-    def subset(self, frames: np.ndarray) -> "SourceMotion":
+    def subset(self, frames: np.ndarray) -> SourceMotion:
         return SourceMotion(self.names, self.parents, self.positions[frames], self.rotations[frames],
                             self.rest_positions, self.rest_rotations, self.fps)
 

@@ -21,6 +21,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from recon.body import skeleton
+from recon.errors import ReconError
 from recon.poses.motion import SourceMotion
 
 N = skeleton.JOINT_NAMES
@@ -105,7 +106,7 @@ def detect_skeleton(names: list[str]) -> str:
         return "daz"
     if "Spine3" in s and "LeftUpLeg" in s:
         return "mixamo"
-    raise ValueError(f"unsupported source skeleton (joints: {', '.join(names[:12])}, ...)")
+    raise ReconError(f"unsupported source skeleton (joints: {', '.join(names[:12])}, ...)")
 
 
 def _swing(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -182,7 +183,7 @@ class Retargeter:
         up = _snap(rp["head"] - rp["pelvis"])
         left = _snap(rp["left_hip"] - rp["right_hip"])
         if abs(up @ left) > 0.5:
-            raise ValueError("could not infer the source's up and left axes from its rest pose")
+            raise ReconError("could not infer the source's up and left axes from its rest pose")
         align = np.stack([left, up, np.cross(left, up)])
         P, Pr, S = {}, {}, {}
         for n, s in table.items():
@@ -205,9 +206,9 @@ class Retargeter:
             d_t = _unit(self.rest[child] - self.rest[name])
             d_s = _unit(P[child] - P[name])
             if name in FRAME_JOINTS:
-                l, r = FRAME_JOINTS[name]
-                f_t = _frame(d_t, self.rest[l] - self.rest[r])
-                f_s = _frame(d_s, P[l] - P[r])
+                lj, rj = FRAME_JOINTS[name]
+                f_t = _frame(d_t, self.rest[lj] - self.rest[rj])
+                f_s = _frame(d_s, P[lj] - P[rj])
                 G[:, j] = f_s @ f_t.T
             else:
                 d_s0 = _unit(Pr[child] - Pr[name])

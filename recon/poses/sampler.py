@@ -14,9 +14,11 @@ from __future__ import annotations
 
 import numpy as np
 import torch
+from anny.shape_distribution import SimpleShapeDistribution
 from scipy.spatial.transform import Rotation
 
 from recon.body import lbs, skeleton
+from recon.errors import ReconError
 from recon.poses.collision import SelfIntersection
 from recon.poses.mocap import MocapPoses
 
@@ -26,7 +28,7 @@ class JointLimits:
         self.lo, self.hi = lo, hi  # (24, 3) degrees, intrinsic XYZ
 
     @classmethod
-    def from_poses(cls, rotvec: np.ndarray, margin_deg: float = 10.0, q: float = 0.1) -> "JointLimits":
+    def from_poses(cls, rotvec: np.ndarray, margin_deg: float = 10.0, q: float = 0.1) -> JointLimits:
         e = Rotation.from_rotvec(rotvec.reshape(-1, 3)).as_euler("XYZ", degrees=True).reshape(-1, 24, 3)
         lo = np.percentile(e, q, axis=0) - margin_deg
         hi = np.percentile(e, 100 - q, axis=0) + margin_deg
@@ -54,7 +56,7 @@ class PoseSampler:
         self.limits = JointLimits.from_poses(mocap.split("train").rotvec)
         self.poses = mocap.split(split)
         if len(self.poses) == 0:
-            raise ValueError(f"mocap split {split!r} is empty")
+            raise ReconError(f"mocap split {split!r} is empty")
         self.noise = np.radians(noise_deg)
         self.mirror, self.random_yaw = mirror, random_yaw
         self.collide = SelfIntersection(body, tol=tol)
@@ -101,8 +103,6 @@ class ShapeSampler:
         self.age_range = age_range
         self._dist = None
         if hasattr(body, "anny"):
-            from anny.shape_distribution import SimpleShapeDistribution
-
             a = body.anny
             self._dist = SimpleShapeDistribution(
                 a, morphological_age_distribution=torch.distributions.Uniform(

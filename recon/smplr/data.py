@@ -12,8 +12,11 @@ import logging
 import numpy as np
 import torch
 from scipy.spatial.transform import Rotation
+from tqdm import tqdm
 
 from recon import paths
+from recon.body import lbs
+from recon.poses.sampler import PoseSampler, ShapeSampler
 
 log = logging.getLogger(__name__)
 
@@ -26,11 +29,6 @@ def view_rotations(n: int, rng: np.random.Generator) -> np.ndarray:
 
 
 def generate(body, split: str, n: int, seed: int, noise_deg: float, chunk: int = 2048) -> dict[str, torch.Tensor]:
-    from tqdm import tqdm
-
-    from recon.body import lbs
-    from recon.poses.sampler import PoseSampler, ShapeSampler
-
     ps = PoseSampler(body, split=split, noise_deg=noise_deg, seed=seed)
     ss = ShapeSampler(body, seed=seed + 1)
     rng = np.random.default_rng(seed + 2)

@@ -6,22 +6,26 @@ the DAE, and 2D lifting. Errors in mm, root (pelvis) aligned; PA = after similar
 """
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import torch
 
-from recon import metrics, paths
+from recon import metrics, report
+from recon.poses.mocap import SPLIT_SUBJECTS
 from recon.smplr import noise
 from recon.smplr.data import load_or_generate
-from recon.smplr.model import SMPLR, _procrustes
+from recon.smplr.model import SMPLR, align_body
+from recon.timing import median_ms
 
-GROUP_ABBR = {"head": "Hd", "torso": "Ts", "shoulder": "Sr", "elbow": "Ew", "wrist": "Wt", "hip": "Hp", "knee": "Kn", "foot": "Ft"}
+GROUP_ABBR = {"head": "Hd", "torso": "Ts", "shoulder": "Sr", "elbow": "Ew", "wrist": "Wt", "hip": "Hp", "knee": "Kn",
+              "foot": "Ft"}
 NOISE_MM = 40.0
 TEST_SEED = 777
+CHECK_SAMPLES = 64  # the slice of the table tests/test_results.py recomputes
 
 
-def _rows(model: SMPLR, data, chunk: int = 250) -> dict[str, dict]:
+def rows(model: SMPLR, data, chunk: int = 250) -> dict[str, dict]:
+    """The table's rows (mm, pelvis-aligned) for the held-out samples ``data``."""
     body = model.body
     gen = torch.Generator().manual_seed(TEST_SEED)
     n = data["points"].shape[0]
@@ -42,7 +46,7 @@ def _rows(model: SMPLR, data, chunk: int = 250) -> dict[str, dict]:
         "2D lifting, DAE-2D, Procrustes": dict(inp="clean", mode="2d", proc=True),
     }
     inputs = {"clean": data["points"], "noisy": noisy, "structured": structured}
-    acc = {k: {"joint": [], "lm": [], "pve": [], "pa": [], "bone": [], "gender": [], "input": [], "fed": []} for k in specs}
+    acc = {k: {m: [] for m in ("joint", "lm", "pve", "pa", "bone", "gender", "input", "fed")} for k in specs}
     with torch.no_grad():
         for i in range(0, n, chunk):
             sl = slice(i, min(i + chunk, n))
@@ -59,17 +63,19 @@ def _rows(model: SMPLR, data, chunk: int = 250) -> dict[str, dict]:
                     shape = data["shape"][sl]
                 o = body(rot, shape, transl=out.body.joints[:, 0])
                 if sp.get("proc"):
-                    o = _procrustes(o, out.points_in)
+                    o = align_body(o, out.points_in)
                 a = acc[name]
                 a["joint"].append(metrics.per_point_error(o.joints, gt.joints))
                 a["lm"].append((o.landmarks - o.joints[:, :1] - gt.landmarks + gt.joints[:, :1]).norm(dim=-1))
                 a["pve"].append((o.vertices - o.joints[:, :1] - gt.vertices + gt.joints[:, :1]).norm(dim=-1).mean(1))
-                a["pa"].append(metrics.per_point_error(metrics.procrustes_align(o.joints, gt.joints), gt.joints, None).mean(1))
+                aligned = metrics.procrustes_align(o.joints, gt.joints)
+                a["pa"].append(metrics.per_point_error(aligned, gt.joints, None).mean(1))
                 a["bone"].append(metrics.bone_length_error(o.joints, gt.joints, per_sample=True))
                 a["gender"].append(((shape[:, 0] > 0.5) == (data["shape"][sl, 0] > 0.5)).float())
                 fed = out.points_in - out.points_in[:, :1] - data["points"][sl] + data["points"][sl, :1]
                 a["fed"].append(fed.norm(dim=-1).mean(1))
-                a["input"].append((x - data["points"][sl]).norm(dim=-1).mean(1) if mode == "3d" else torch.zeros(x.shape[0]))
+                given = (x - data["points"][sl]).norm(dim=-1).mean(1) if mode == "3d" else torch.zeros(x.shape[0])
+                a["input"].append(given)
     table = {}
     for name, a in acc.items():
         je = torch.cat(a["joint"]) * 1000
@@ -83,42 +89,42 @@ def _rows(model: SMPLR, data, chunk: int = 250) -> dict[str, dict]:
     return table
 
 
-def _latency(model: SMPLR, points: torch.Tensor, repeats: int = 50) -> dict[str, float]:
+def _latency(model: SMPLR, points: torch.Tensor) -> dict[str, float]:
     x = points[:1]
-
-    from recon.bench.timing import median_ms
-
-    def med(fn):
-        return median_ms(fn, repeats)
-
     with torch.no_grad():
-        nets = med(lambda: model.regress(model.dae3d(x - x[:, :1])))
-        full = med(lambda: model(x))
+        nets = median_ms(lambda: model.regress(model.dae3d(x - x[:, :1])))
+        full = median_ms(lambda: model(x))
     return {"networks (DAE+Omega+Psi) ms": nets, "full SMPLR incl. mesh ms": full}
 
 
+def check(n: int = CHECK_SAMPLES, weights: Path | None = None) -> dict[str, dict]:
+    """The table on the first ``n`` held-out samples (a set of its own, generated like the full one)."""
+    model = SMPLR.load(path=weights)
+    return rows(model, load_or_generate(model.body, "test", n, TEST_SEED, 0.0))
+
+
 def evaluate_and_report(n: int = 2000, out_dir: Path = Path("eval/results"), weights: Path | None = None) -> Path:
-    torch.set_num_threads(1)
+    """``recon smplr eval``: the table on ``n`` held-out samples -> ``smplr_anny.{json,md}``."""
     model = SMPLR.load(path=weights)
     data = load_or_generate(model.body, "test", n, TEST_SEED, 0.0)
-    table = _rows(model, data)
-    lat = _latency(model, data["points"])
-    from recon.poses.mocap import SPLIT_SUBJECTS
+    table = rows(model, data)
+    result = {"samples": n, "split": f"test (CMU subjects {', '.join(sorted(SPLIT_SUBJECTS['test']))})",
+              "noise_mm": NOISE_MM, "rows": table, "latency_batch1_cpu_ms": _latency(model, data["points"]),
+              "threads": torch.get_num_threads(),
+              "check": {"function": "recon.smplr.evaluate:check", "kwargs": {"n": CHECK_SAMPLES},
+                        "values": table if n == CHECK_SAMPLES else check(CHECK_SAMPLES, weights)}}
+    return report.write(Path(out_dir) / "smplr_anny", result, render(result))
 
-    result = {"samples": n, "split": "test (CMU subjects %s)" % ", ".join(sorted(SPLIT_SUBJECTS["test"])),
-              "noise_mm": NOISE_MM, "rows": table, "latency_batch1_cpu_1thread": lat}
-    out_dir.mkdir(parents=True, exist_ok=True)
-    js, md = out_dir / "smplr_anny.json", out_dir / "smplr_anny.md"
-    paths.atomic_write(js, lambda t: Path(t).write_text(json.dumps(result, indent=1)))
-    cols = list(GROUP_ABBR.values()) + ["Jt", "PA-Jt", "Lm", "PVE", "Bn", "gender acc", "input err", "J+ to Omega/Psi err"]
-    lines = [f"SMPLR on {n} held-out samples ({result['split']}; poses unperturbed, shapes from the anny prior, "
-             f"random camera views). Errors in mm, pelvis-aligned; PA = Procrustes-aligned joints; "
-             f"'input err' = mean J+ error given to SMPLR; "
-             f"'J+ to Omega/Psi err' = after the DAE (pelvis-aligned).", "",
-             "| model | " + " | ".join(cols) + " |", "|---|" + "---|" * len(cols)]
-    for name, row in table.items():
-        lines.append(f"| {name} | " + " | ".join(f"{row[c]:.3f}" if c == "gender acc" else f"{row[c]:.1f}" for c in cols) + " |")
-    lines += ["", "Latency, batch 1, CPU, 1 thread: " + ", ".join(f"{k}: {v:.2f}" for k, v in lat.items())]
-    paths.atomic_write(md, lambda t: Path(t).write_text("\n".join(lines) + "\n"))
-    print("\n".join(lines))
-    return md
+
+def render(result: dict) -> str:
+    """The Markdown of a ``smplr_anny.json``."""
+    cols = [*GROUP_ABBR.values(), "Jt", "PA-Jt", "Lm", "PVE", "Bn", "gender acc", "input err", "J+ to Omega/Psi err"]
+    fmt = [""] + [".3f" if c == "gender acc" else ".1f" for c in cols]
+    lat = result["latency_batch1_cpu_ms"]
+    return "\n".join([
+        f"SMPLR on {result['samples']} held-out samples ({result['split']}; poses unperturbed, shapes from the anny "
+        "prior, random camera views). Errors in mm, pelvis-aligned; PA = Procrustes-aligned joints; 'input err' = "
+        "mean J+ error given to SMPLR; 'J+ to Omega/Psi err' = after the DAE (pelvis-aligned). `recon smplr eval`.", "",
+        report.table([[name] + [row[c] for c in cols] for name, row in result["rows"].items()], ["model"] + cols, fmt),
+        "", f"Latency, batch 1, CPU, {result['threads']} thread(s): "
+        + ", ".join(f"{k}: {v:.2f}" for k, v in lat.items())])

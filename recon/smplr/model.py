@@ -1,14 +1,22 @@
-"""SMPLR inference: J+ (3D or 2D) -> [DAE] -> Omega/Psi -> body model -> mesh [-> Procrustes]."""
+"""SMPLR inference: J+ (3D or 2D) -> [DAE] -> Omega/Psi -> body model -> mesh [-> Procrustes].
+
+``SMPLR.forward`` reads J+ in the view frame it was trained in; ``SMPLR.lift_and_place`` takes
+camera-frame J+ and 2D keypoints and returns bodies placed in the camera: what the image
+pipeline and the benchmark methods call.
+"""
 from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
 import torch
 from torch import nn
 
-from recon import paths
-from recon.body import BodyOutput
+from recon import camera, paths
+from recon.body import BodyOutput, default_body
+from recon.errors import ReconError
+from recon.metrics import similarity_transform
 from recon.smplr import features
 from recon.smplr.networks import DAEConfig, DenoisingAutoencoder, PoseNet, ShapeNet
 
@@ -23,6 +31,19 @@ class SMPLROutput:
     points_in: torch.Tensor  # (B, 42, 3) J+ fed to Omega/Psi (after the DAE if used)
 
 
+@dataclass
+class PlacedBodies:
+    """SMPLR's bodies placed in a camera (``SMPLR.lift_and_place``). OpenCV camera frame, metres."""
+
+    vertices: np.ndarray | None  # (B, V, 3); None with points_only
+    joints: np.ndarray  # (B, 24, 3)
+    landmarks: np.ndarray  # (B, 18, 3)
+    rotmats: torch.Tensor  # (B, 24, 3, 3) local rotations; the root's maps the body frame to the camera's
+    shape: torch.Tensor  # (B, S)
+    translation: np.ndarray  # (B, 3) pelvis position
+    points_in: np.ndarray  # (B, 42, 3) the J+ Omega/Psi read (after the DAE), pelvis-relative
+
+
 class SMPLR(nn.Module):
     def __init__(self, body, omega: PoseNet, psi: ShapeNet, dae3d: DenoisingAutoencoder | None = None,
                  dae2d: DenoisingAutoencoder | None = None):
@@ -31,14 +52,12 @@ class SMPLR(nn.Module):
         self.register_buffer("template", features.template_distances(body), persistent=False)
 
     @classmethod
-    def load(cls, body=None, path: str | Path | None = None) -> "SMPLR":
-        """Load trained weights (``torch.load(weights_only=True)``)."""
-        from recon.body import default_body
-
+    def load(cls, body=None, path: str | Path | None = None) -> SMPLR:
+        """Load trained weights (``torch.load(weights_only=True)``; float16 files are read as float32)."""
         body = body or default_body()
         ck = paths.load_checkpoint(path or WEIGHTS, "recon smplr train")
         if ck["num_shape"] != body.num_shape_params:
-            raise ValueError(f"weights expect {ck['num_shape']} shape parameters, body has {body.num_shape_params}")
+            raise ReconError(f"weights expect {ck['num_shape']} shape parameters, body has {body.num_shape_params}")
         omega = PoseNet(**ck["omega_cfg"])
         psi = ShapeNet(ck["num_shape"], **ck["psi_cfg"])
         omega.load_state_dict(ck["omega"])
@@ -54,7 +73,8 @@ class SMPLR(nn.Module):
 
     def regress(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """J+ (B, 42, 3), pelvis-centred -> (rotmats, shape)."""
-        return self.omega(features.normalized_relative(points)), self.psi(features.relative_distances(points, self.template))
+        return (self.omega(features.normalized_relative(points)),
+                self.psi(features.relative_distances(points, self.template)))
 
     def forward(self, points: torch.Tensor, mode: str = "3d", denoise: bool = True, procrustes: bool = False,
                 points_only: bool = False) -> SMPLROutput:
@@ -77,7 +97,7 @@ class SMPLR(nn.Module):
         x = points - root
         if mode == "2d":
             if self.dae2d is None:
-                raise RuntimeError("these weights have no 2D-lifting DAE")
+                raise ReconError("these weights have no 2D-lifting DAE")
             x = self.dae2d(features.centre(x, planar=True))
             root = root * root.new_tensor([1.0, 1.0, 0.0])
         elif denoise and self.dae3d is not None:
@@ -86,13 +106,43 @@ class SMPLR(nn.Module):
         rot, shape = self.regress(x)
         out = self.body(rot, shape, transl=root[:, 0], points_only=points_only)
         if procrustes:
-            out = _procrustes(out, x + root)
+            out = align_body(out, x + root)
         return SMPLROutput(rot, shape, out, x + root)
 
+    @torch.no_grad()
+    def lift_and_place(self, points, points2d, k, weights=None, mode: str = "3d", denoise: bool = True,
+                       points_only: bool = False) -> PlacedBodies:
+        """Camera-frame J+ -> SMPLR -> bodies placed in the camera.
 
-def _procrustes(out: BodyOutput, target: torch.Tensor) -> BodyOutput:
-    from recon.metrics import similarity_transform
+        Args:
+            points: (B, 42, 3) J+ in the OpenCV camera frame, metres (any translation: only the
+                shape of J+ is used). In mode "2d", (x, y) = normalised image coordinates times a
+                metric depth and z = 0 (orthographic, metric), lifted by the DAE-2D.
+            points2d: (B, 42, 2) the same points in pixels; the body's translation minimises its
+                reprojection error onto them (``recon.camera.place``), weighted by ``weights`` (B, 42).
+            k: (3, 3) or (B, 3, 3) intrinsics.
+        """
+        pts = np.asarray(points, dtype=np.float64)
+        uv = np.asarray(points2d, dtype=np.float64)
+        ks = np.broadcast_to(np.asarray(k, dtype=np.float64), (len(pts), 3, 3))
+        x = torch.tensor(camera.to_view(pts - pts[:, :1]), dtype=torch.float32, device=self.template.device)
+        o = self(x, mode=mode, denoise=denoise, points_only=points_only)
+        j = camera.to_opencv(o.body.joints.cpu().numpy())
+        lm = camera.to_opencv(o.body.landmarks.cpu().numpy())
+        v = None if points_only else camera.to_opencv(o.body.vertices.cpu().numpy())
+        t = np.stack([camera.place(np.concatenate([j[n], lm[n]]) - j[n, :1], uv[n], ks[n],
+                                   None if weights is None else weights[n]) for n in range(len(pts))])
+        shift = t[:, None] - j[:, :1]  # pelvis to t
+        rot = o.rotmats.clone()
+        rot[:, 0] = camera.rotation_to_opencv(rot[:, 0])
+        return PlacedBodies(vertices=None if v is None else v + shift, joints=j + shift, landmarks=lm + shift,
+                            rotmats=rot, shape=o.shape, translation=t,
+                            points_in=camera.to_opencv(o.points_in.cpu().numpy()))
 
+
+def align_body(out: BodyOutput, target: torch.Tensor) -> BodyOutput:
+    """The body similarity-aligned (scale, rotation, translation) onto the J+ ``target``
+    (ALL_Proc of the thesis)."""
     s, r, t = similarity_transform(out.points, target)
     f = lambda p: s[:, None, None] * (p @ r.transpose(-1, -2)) + t[:, None]  # noqa: E731
     sr = s[:, None, None, None] * r[:, None]

@@ -21,7 +21,8 @@ LIMBS = {
     "left_leg": ["left_knee", "left_ankle", "left_foot", "left_knee_front", "left_toe_tip"],
     "right_leg": ["right_knee", "right_ankle", "right_foot", "right_knee_front", "right_toe_tip"],
 }
-LIMB_ROOT = {"left_arm": "left_shoulder", "right_arm": "right_shoulder", "left_leg": "left_hip", "right_leg": "right_hip"}
+LIMB_ROOT = {"left_arm": "left_shoulder", "right_arm": "right_shoulder", "left_leg": "left_hip",
+             "right_leg": "right_hip"}
 
 
 def gaussian(points, sigma_max: float = 0.06, gen: torch.Generator | None = None, sigma: float | None = None):

@@ -3,14 +3,14 @@
 Stages (thesis 2.3-2.4): ``dae3d`` and ``dae2d`` (L1 on J+ under mixed noise / with depth
 zeroed), ``psi`` (L1 on shape), ``omega`` (L1 on rotation matrices), then ``finetune``
 (L_R + L_beta + L1 on J+ through the body model). Each stage keeps the checkpoint with the
-best validation loss and resumes from its last state if interrupted.
+best validation loss (``<cache>/smplr-train/<stage>/best.pt``) and resumes from its last state
+if interrupted (``recon.training.Trainer``).
 """
 from __future__ import annotations
 
 import json
 import logging
-import math
-import time
+import zlib
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -18,9 +18,12 @@ import torch
 from torch import nn
 
 from recon import paths
+from recon.body import default_body
+from recon.errors import MissingFile
 from recon.smplr import features, noise
 from recon.smplr.data import load_or_generate
 from recon.smplr.networks import DAEConfig, DenoisingAutoencoder, PoseNet, ShapeNet, global_to_local, local_to_global
+from recon.training import Schedule, Trainer
 
 log = logging.getLogger(__name__)
 
@@ -44,15 +47,21 @@ class TrainConfig:
     seed: int = 0
 
 
+STAGES = ("dae3d", "dae2d", "psi", "omega", "finetune")
+MIN_LR = 1e-5  # the cosine schedule's end
+
+
 def work_dir() -> Path:
     d = paths.cache_dir() / "smplr-train"
     d.mkdir(parents=True, exist_ok=True)
     return d
 
 
-def _cosine(opt, step, total, lr):
-    for g in opt.param_groups:
-        g["lr"] = 1e-5 + 0.5 * (lr - 1e-5) * (1 + math.cos(math.pi * min(step, total) / total))
+def _best(stage: str) -> dict:
+    path = work_dir() / stage / "best.pt"
+    if not path.exists():
+        raise MissingFile(f"no trained {stage} in {path.parent}: run `recon smplr train --stages {stage}` first")
+    return torch.load(path, map_location="cpu", weights_only=True)
 
 
 def _augment(points, gen, sigma_mm):
@@ -75,7 +84,7 @@ class Stage:
             self.nets["omega"] = PoseNet(cfg.omega_width, cfg.omega_blocks, cfg.omega_global)
         if name == "finetune":  # start from the isolated stages
             for k in ("psi", "omega"):
-                self.nets[k].load_state_dict(torch.load(work_dir() / f"{k}.best.pt", weights_only=True)["state"])
+                self.nets[k].load_state_dict(_best(k)[k])
 
     def loss(self, batch, gen, train: bool):
         pts, rot, shape = batch["points"], batch["rotmats"], batch["shape"]
@@ -103,76 +112,53 @@ class Stage:
         return total
 
 
-def train_stage(name: str, cfg: TrainConfig, body, train, val) -> dict:
+def train_stage(name: str, cfg: TrainConfig, body, train, val, progress: bool = True) -> dict:
+    """Train one stage (resuming from ``work_dir()/name`` if it was interrupted); returns its log."""
     torch.manual_seed(cfg.seed)
-    gen = torch.Generator().manual_seed(cfg.seed + hash(name) % 1000)
-    template = features.template_distances(body)
-    st = Stage(name, cfg, body, template)
-    params = [p for n in st.nets.values() for p in n.parameters()]
-    opt = torch.optim.Adam(params, lr=cfg.lr if name != "finetune" else cfg.lr * 0.1)
-    total = cfg.steps[name]
-    state_path = work_dir() / f"{name}.state.pt"
-    step, best, history = 0, float("inf"), []
-    if state_path.exists():  # resume
-        s = torch.load(state_path, weights_only=True)
-        for k, n in st.nets.items():
-            n.load_state_dict(s["nets"][k])
-        opt.load_state_dict(s["opt"])
-        step, best, history = s["step"], s["best"], s["history"]
-        log.info("%s: resuming at step %d", name, step)
-    n_train = train["points"].shape[0]
-    t0 = time.time()
-    from tqdm import tqdm
+    gen = torch.Generator().manual_seed(cfg.seed + zlib.crc32(name.encode()) % 1000)
+    st = Stage(name, cfg, body, features.template_distances(body))
+    lr = cfg.lr if name != "finetune" else cfg.lr * 0.1
+    opt = torch.optim.Adam([p for n in st.nets.values() for p in n.parameters()], lr=lr)
+    trainer = Trainer(st.nets, opt, cfg.steps[name], schedule=Schedule(floor=MIN_LR / lr), eval_every=cfg.eval_every,
+                      out_dir=work_dir() / name, select="val_loss", generators=[gen], desc=f"train {name}",
+                      config={"stage": name, **asdict(cfg)}, progress=progress)
+    n_train, n_val = train["points"].shape[0], val["points"].shape[0]
 
-    bar = tqdm(total=total, initial=step, desc=f"train {name}", unit="step", mininterval=10)
-    while step < total:
+    def batches():
+        while True:
+            idx = torch.randint(0, n_train, (cfg.batch,), generator=gen)
+            yield {k: v[idx] for k, v in train.items()}
+
+    def step(batch):
         for n in st.nets.values():
             n.train()
-        idx = torch.randint(0, n_train, (cfg.batch,), generator=gen)
-        loss = st.loss({k: v[idx] for k, v in train.items()}, gen, True)
-        _cosine(opt, step, total, opt.defaults["lr"])
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-        step += 1
-        bar.update(1)
-        if step % cfg.eval_every == 0 or step == total:
-            for n in st.nets.values():
-                n.eval()
-            vgen = torch.Generator().manual_seed(123)
-            with torch.no_grad():
-                vl = sum(float(st.loss({k: v[i:i + 1024] for k, v in val.items()}, vgen, False)) *
-                         min(1024, val["points"].shape[0] - i) for i in range(0, val["points"].shape[0], 1024))
-            vl /= val["points"].shape[0]
-            history.append({"step": step, "train_loss": loss.item(), "val_loss": vl, "time_s": time.time() - t0})
-            bar.set_postfix(train=f"{loss.item():.4f}", val=f"{vl:.4f}")
-            if vl < best:
-                best = vl
-                for k, n in st.nets.items():
-                    paths.atomic_write(work_dir() / f"{k}.best.pt" if name != "finetune" else work_dir() / f"ft_{k}.best.pt",
-                                       lambda tmp, n=n: torch.save({"state": n.state_dict()}, tmp))
-            paths.atomic_write(state_path, lambda tmp: torch.save(
-                {"nets": {k: n.state_dict() for k, n in st.nets.items()}, "opt": opt.state_dict(),
-                 "step": step, "best": best, "history": history}, tmp))
-    bar.close()
-    return {"stage": name, "best_val_loss": best, "steps": total, "history": history}
+        return st.loss(batch, gen, True)
+
+    @torch.no_grad()
+    def validate() -> dict:
+        for n in st.nets.values():
+            n.eval()
+        vgen = torch.Generator().manual_seed(123)
+        total = sum(float(st.loss({k: v[i:i + 1024] for k, v in val.items()}, vgen, False)) * min(1024, n_val - i)
+                    for i in range(0, n_val, 1024))
+        return {"val_loss": total / n_val}
+
+    log = trainer.fit(batches(), step, validate)
+    return {"stage": name, "best_val_loss": log["best"], "steps": log["steps"], "history": log["history"]}
 
 
 def export(cfg: TrainConfig, body, out: Path) -> Path:
-    """Bundle the best networks into one weights file (loaded by SMPLR.load)."""
-    w = work_dir()
-    missing = [k for k in ("omega", "psi") if not (w / f"{k}.best.pt").exists()]
-    if missing:
-        raise FileNotFoundError(f"no trained {missing} in {w}: run `recon smplr train` first")
+    """Bundle the best networks of every stage into one weights file (loaded by SMPLR.load):
+    Omega and Psi from the fine-tuning stage when it ran, else from their own stages."""
     ck = {"num_shape": body.num_shape_params, "train_config": json.dumps(asdict(cfg)),
           "omega_cfg": {"width": cfg.omega_width, "blocks": cfg.omega_blocks, "global_rot": cfg.omega_global},
           "psi_cfg": {"width": cfg.psi_width}}
-    for k, f in (("omega", "ft_omega"), ("psi", "ft_psi")):
-        src = w / f"{f}.best.pt" if (w / f"{f}.best.pt").exists() else w / f"{k}.best.pt"
-        ck[k] = torch.load(src, weights_only=True)["state"]
+    tuned = (work_dir() / "finetune" / "best.pt").exists()
+    for k in ("omega", "psi"):
+        ck[k] = _best("finetune" if tuned else k)[k]
     for k in ("dae3d", "dae2d"):
-        if (w / f"{k}.best.pt").exists():
-            ck[k] = torch.load(w / f"{k}.best.pt", weights_only=True)["state"]
+        if (work_dir() / k / "best.pt").exists():
+            ck[k] = _best(k)[k]
             ck[k + "_cfg"] = asdict(DAEConfig(lifting=k == "dae2d"))
     paths.atomic_write(out, lambda tmp: torch.save(ck, tmp))
     return out
@@ -180,14 +166,8 @@ def export(cfg: TrainConfig, body, out: Path) -> Path:
 
 def run(stages: list[str], cfg: TrainConfig | None = None) -> list[dict]:
     """Train the given stages in order (each resumes if interrupted); returns their logs."""
-    from recon.body import default_body
-
     cfg = cfg or TrainConfig()
     body = default_body()
     train = load_or_generate(body, "train", cfg.train_size, cfg.seed, cfg.pose_noise_deg)
     val = load_or_generate(body, "val", cfg.val_size, cfg.seed + 100, 0.0)
-    logs = []
-    for s in stages:
-        logs.append(train_stage(s, cfg, body, train, val))
-        paths.atomic_write(work_dir() / f"{s}.log.json", lambda tmp: Path(tmp).write_text(json.dumps(logs[-1], indent=1)))
-    return logs
+    return [train_stage(s, cfg, body, train, val) for s in stages]

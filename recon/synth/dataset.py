@@ -9,15 +9,19 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
+import multiprocessing as mp
 from dataclasses import asdict
 from pathlib import Path
 
 import cv2
 import numpy as np
+import torch
+from tqdm import tqdm
 
 from recon import paths
-from recon.synth.scene import SynthConfig
+from recon.body import default_body
+from recon.errors import MissingFile, ReconError
+from recon.synth.scene import SceneSampler, SynthConfig
 
 # Fixed benchmark splits: poses of held-out mocap subjects (recon.poses.mocap.SPLIT_SUBJECTS).
 BENCHMARKS = {
@@ -30,7 +34,7 @@ ARRAY_KEYS = ("K", "R", "t", "points3d", "points2d", "pose", "shape", "vertices"
 
 def bench_dir(name: str) -> Path:
     if name not in BENCHMARKS:
-        raise KeyError(f"unknown benchmark {name!r}; known: {', '.join(BENCHMARKS)}")
+        raise ReconError(f"unknown benchmark {name!r}; known: {', '.join(BENCHMARKS)}")
     return paths.cache_dir() / "synth" / name
 
 
@@ -58,7 +62,7 @@ def _decode(key: str, b: np.ndarray) -> np.ndarray:
     return a
 
 
-def _pack(samples: list[dict], store_vertices: bool) -> dict[str, np.ndarray]:
+def pack(samples: list[dict], store_vertices: bool) -> dict[str, np.ndarray]:
     out: dict[str, np.ndarray] = {}
     for key in IMAGE_KEYS:
         blobs = [np.frombuffer(_encode(key, s[key]), np.uint8) for s in samples]
@@ -75,19 +79,14 @@ _WORKER = {}
 
 
 def _init_worker(split: str, seed: int, cfg: dict) -> None:
-    import torch
-
-    torch.set_num_threads(1)
-    from recon.body import default_body
-    from recon.synth.scene import SceneSampler
-
+    torch.set_num_threads(1)  # one process per core
     _WORKER["scene"] = SceneSampler(default_body(), split, seed, SynthConfig(**cfg))
 
 
 def _write_shard(args) -> tuple[int, str]:
     shard, start, stop, out_dir, store_vertices = args
     scene = _WORKER["scene"]
-    arrays = _pack([scene.sample(i) for i in range(start, stop)], store_vertices)
+    arrays = pack([scene.sample(i) for i in range(start, stop)], store_vertices)
     path = Path(out_dir) / f"shard-{shard:05d}.npz"
     paths.atomic_write(path, lambda tmp: np.savez(open(tmp, "wb"), **arrays))
     return shard, _sha256(path)
@@ -105,10 +104,6 @@ def _sha256(path: Path) -> str:
 def generate(out_dir: Path, split: str, seed: int, n: int, shard_size: int = 250, workers: int = 2,
              cfg: SynthConfig | None = None, store_vertices: bool = True, progress: bool = True) -> Path:
     """Generate (or finish generating) ``n`` samples into ``out_dir``."""
-    import multiprocessing as mp
-
-    from tqdm import tqdm
-
     cfg = cfg or SynthConfig()
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -118,7 +113,7 @@ def generate(out_dir: Path, split: str, seed: int, n: int, shard_size: int = 250
     man_path = out_dir / "manifest.json"
     manifest = json.loads(man_path.read_text()) if man_path.exists() else {**meta, "shards": {}}
     if any(manifest.get(k) != v for k, v in meta.items() if k != "n"):
-        raise ValueError(f"{out_dir} holds a dataset made with other settings; use another folder")
+        raise ReconError(f"{out_dir} holds a dataset made with other settings; use another folder")
     manifest["n"] = n
     todo = []
     for shard, start in enumerate(range(0, n, shard_size)):
@@ -163,26 +158,36 @@ def compare_with_reference(name: str) -> list[int]:
 
 
 class SynthDataset:
-    """Random access to a generated folder: ``ds[i]`` -> dict of decoded arrays."""
+    """Random access to a generated folder: ``ds[i]`` -> dict of decoded arrays. ``keys``: only
+    these (default: all); the last ``cache`` shards stay in memory, each with only those keys, so
+    shuffled reading of a few keys (training crops) does not reload whole shards."""
 
-    def __init__(self, root: str | Path):
+    def __init__(self, root: str | Path, keys: tuple[str, ...] | None = None, cache: int = 4):
         self.root = Path(root)
+        self.keys, self.cache_size = keys, cache
         man = self.root / "manifest.json"
         if not man.exists():
-            raise FileNotFoundError(f"{self.root} has no manifest.json: generate it with `recon synth`")
+            raise MissingFile(f"{self.root} has no manifest.json: generate it with `recon synth generate`, or "
+                              "`recon synth bench NAME` for a fixed benchmark")
         self.manifest = json.loads(man.read_text())
         self.shard_size = self.manifest["shard_size"]
         self.n = min(self.manifest["n"], len(self.manifest["shards"]) * self.shard_size)
-        self._cache: tuple[int, dict] | None = None
+        self._cache: dict[int, dict] = {}
 
     def __len__(self) -> int:
         return self.n
 
+    def _wanted(self, member: str) -> bool:
+        key = member.removesuffix("_png").removesuffix("_offsets")
+        return self.keys is None or key in self.keys
+
     def _shard(self, k: int) -> dict:
-        if self._cache is None or self._cache[0] != k:
+        if k not in self._cache:
+            if len(self._cache) >= self.cache_size:
+                self._cache.pop(next(iter(self._cache)))  # the oldest
             with np.load(self.root / f"shard-{k:05d}.npz") as z:
-                self._cache = (k, {key: z[key] for key in z.files})
-        return self._cache[1]
+                self._cache[k] = {m: z[m] for m in z.files if self._wanted(m)}
+        return self._cache[k]
 
     def __getitem__(self, i: int) -> dict[str, np.ndarray]:
         if not 0 <= i < self.n:
@@ -191,8 +196,9 @@ class SynthDataset:
         j = i % self.shard_size
         out = {}
         for key in IMAGE_KEYS:
-            off = z[key + "_offsets"]
-            out[key] = _decode(key, z[key + "_png"][off[j]:off[j + 1]])
+            if key + "_png" in z:
+                off = z[key + "_offsets"]
+                out[key] = _decode(key, z[key + "_png"][off[j]:off[j + 1]])
         for key in ARRAY_KEYS:
             if key in z:
                 out[key] = z[key][j]
@@ -203,5 +209,3 @@ class SynthDataset:
         return [int(k) for k, h in self.manifest["shards"].items()
                 if _sha256(self.root / f"shard-{int(k):05d}.npz") != h]
 
-
-os.environ.setdefault("PYOPENGL_PLATFORM", "egl")

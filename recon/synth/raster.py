@@ -5,7 +5,10 @@ Used for dataset rendering and silhouette IoU; pyrender (recon.viz) stays for de
 """
 from __future__ import annotations
 
+import moderngl
 import numpy as np
+
+from recon.errors import ReconError
 
 VERT = """
 #version 330
@@ -60,12 +63,10 @@ class Rasterizer:
     """Render triangle meshes given in camera coordinates; reuse one instance per process."""
 
     def __init__(self, width: int = 256, height: int = 256):
-        import moderngl
-
         try:
             self.ctx = moderngl.create_standalone_context(backend="egl")
-        except Exception as e:  # noqa: BLE001
-            raise RuntimeError(f"no EGL OpenGL context ({e}); run scripts/setup.sh (libegl1, libgl1-mesa-dri)") from e
+        except Exception as e:  # noqa: BLE001 - moderngl raises plain Exceptions
+            raise ReconError(f"no EGL OpenGL context ({e}); run scripts/setup.sh (libegl1, libgl1-mesa-dri)") from e
         self.w, self.h = width, height
         self.prog = self.ctx.program(vertex_shader=VERT, fragment_shader=FRAG)
         self.color = self.ctx.renderbuffer((width, height), 4)
@@ -94,9 +95,12 @@ class Rasterizer:
         self.ctx.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
         self.fbo.clear(0.0, 0.0, 0.0, 0.0)
         vao.render()
-        rgb = np.frombuffer(self.fbo.read(components=3, attachment=0), np.uint8).reshape(self.h, self.w, 3)[::-1]
-        labels_img = np.frombuffer(self.fbo.read(components=1, attachment=1, dtype="i4"), np.int32).reshape(self.h, self.w)[::-1]
-        depth = np.frombuffer(self.fbo.read(components=1, attachment=2, dtype="f4"), np.float32).reshape(self.h, self.w)[::-1]
+        def read(attachment, components, dtype, np_dtype):  # OpenGL rows run bottom-up
+            raw = self.fbo.read(components=components, attachment=attachment, dtype=dtype)
+            return np.frombuffer(raw, np_dtype).reshape(self.h, self.w, components)[::-1]
+
+        rgb = read(0, 3, "f1", np.uint8)
+        labels_img, depth = read(1, 1, "i4", np.int32)[..., 0], read(2, 1, "f4", np.float32)[..., 0]
         vao.release(), vbo.release(), lbo.release(), ibo.release()
         mask = depth > 0
         labels_img = np.where(mask, labels_img, -1)

@@ -10,16 +10,19 @@ Camera: OpenCV (x right, y down, z forward). Body frame -> camera: X_cam = R @ X
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cache
 
 import cv2
 import numpy as np
+import skimage.data
 import torch
 from scipy.spatial.transform import Rotation
 
+from recon import camera
 from recon.body import skeleton
+from recon.poses.sampler import PoseSampler, ShapeSampler
+from recon.synth.raster import Rasterizer
 
-BODY_TO_CAMERA_FRONT = np.diag([1.0, -1.0, -1.0])  # camera on +Z looking at the subject's front
 BACKGROUNDS = ("brick", "chelsea", "coffee", "grass", "gravel", "rocket", "cat", "clock", "coins", "colorwheel",
                "moon", "page", "text", "hubble_deep_field", "immunohistochemistry", "retina", "checkerboard")
 SKIN_TONES = np.array([[0.96, 0.80, 0.69], [0.90, 0.70, 0.56], [0.78, 0.57, 0.42], [0.62, 0.44, 0.30],
@@ -43,10 +46,8 @@ class SynthConfig:
     pose_noise_deg: float = 8.0
 
 
-@lru_cache(maxsize=None)
+@cache
 def _background_image(name: str) -> np.ndarray:
-    import skimage.data
-
     im = getattr(skimage.data, name)()
     if im.ndim == 2:
         im = np.repeat(im[..., None], 3, axis=2)
@@ -99,13 +100,15 @@ def vertex_colours(rng: np.random.Generator, rest_vertices: np.ndarray, parts: n
     return np.clip(col, 0, 1).astype(np.float32)
 
 
-def camera(rng: np.random.Generator, cfg: SynthConfig, body_height: float):
+def sample_camera(rng: np.random.Generator, cfg: SynthConfig, body_height: float):
+    """Intrinsics K and the body -> camera rotation R and translation t of one sample: the camera
+    faces the subject's front (``recon.camera.HALF_TURN_X``), tilted by elevation and roll."""
     f = rng.uniform(*cfg.focal_range)
     fill = rng.uniform(*cfg.fill_range)
     dist = f * body_height / (fill * cfg.size)
     elev = np.clip(rng.normal(0, cfg.elevation_sigma_deg), -35, 35)
     roll = np.clip(rng.normal(0, cfg.roll_sigma_deg), -15, 15)
-    r = Rotation.from_euler("zx", [roll, elev], degrees=True).as_matrix() @ BODY_TO_CAMERA_FRONT
+    r = Rotation.from_euler("zx", [roll, elev], degrees=True).as_matrix() @ camera.HALF_TURN_X
     shift = rng.uniform(-0.08, 0.08, 2) * cfg.size * dist / f  # metres
     t = np.array([shift[0], shift[1], dist])
     k = np.array([[f, 0, cfg.size / 2], [0, f, cfg.size / 2], [0, 0, 1.0]])
@@ -125,7 +128,8 @@ def occlude(rng: np.random.Generator, rgb: np.ndarray, mask: np.ndarray) -> np.n
         colour = tuple(float(v) for v in rng.uniform(0, 255, 3))
         shape = np.zeros_like(occ)
         if rng.random() < 0.5:
-            cv2.ellipse(shape, (int(cx), int(cy)), (rad, int(rad * rng.uniform(0.3, 1.5))), float(rng.uniform(0, 180)), 0, 360, 1, -1)
+            axes = (rad, int(rad * rng.uniform(0.3, 1.5)))
+            cv2.ellipse(shape, (int(cx), int(cy)), axes, float(rng.uniform(0, 180)), 0, 360, 1, -1)
         else:
             cv2.rectangle(shape, (int(cx - rad), int(cy - rad // 2)), (int(cx + rad), int(cy + rad // 2)), 1, -1)
         rgb[shape > 0] = colour
@@ -140,10 +144,8 @@ class SceneSampler:
     poses, 4,096 shapes), batch-sampled for speed; sample i picks from them with its own RNG
     and adds a random yaw, so it stays reproducible on its own."""
 
-    def __init__(self, body, split: str, seed: int, cfg: SynthConfig = SynthConfig(), pool: int = 4096):
-        from recon.poses.sampler import PoseSampler, ShapeSampler
-        from recon.synth.raster import Rasterizer
-
+    def __init__(self, body, split: str, seed: int, cfg: SynthConfig | None = None, pool: int = 4096):
+        cfg = cfg or SynthConfig()
         self.body, self.split, self.seed, self.cfg = body, split, seed, cfg
         self.pose_pool = PoseSampler(body, split=split, noise_deg=cfg.pose_noise_deg, seed=seed).sample(pool)
         self.shape_pool = ShapeSampler(body, seed=seed).sample(4096)
@@ -160,11 +162,11 @@ class SceneSampler:
         with torch.no_grad():
             out = self.body(pose, shape)
         v = out.vertices[0].numpy().astype(np.float64)
-        k, r, t = camera(rng, self.cfg, float(v[:, 1].max() - v[:, 1].min()))
-        cam = lambda p: p @ r.T + t  # noqa: E731
+        k, r, t = sample_camera(rng, self.cfg, float(v[:, 1].max() - v[:, 1].min()))
+        to_cam = lambda p: p @ r.T + t  # noqa: E731
         colours = vertex_colours(rng, out.rest_vertices[0].numpy(), self.parts)
         light = rng.normal(0, 1, 3) * [1, 1, 0.3] + [0, 0, 1.0]
-        rgb, labels, depth = self.raster.render(cam(v), self.faces, k, colours, self.parts, light_dir=-light,
+        rgb, labels, depth = self.raster.render(to_cam(v), self.faces, k, colours, self.parts, light_dir=-light,
                                                 ambient=rng.uniform(0.3, 0.6))
         sil = labels >= 0
         img = background(rng, self.cfg.size)
@@ -172,13 +174,12 @@ class SceneSampler:
         occ = occlude(rng, img, sil) if rng.random() < self.cfg.occluder_prob else np.zeros_like(sil)
         grain = rng.standard_normal(img.shape, dtype=np.float32) * np.float32(rng.uniform(0, 6))
         img = np.clip(img.astype(np.float32) * np.float32(rng.uniform(0.8, 1.2)) + grain, 0, 255)
-        pts = cam(out.points[0].numpy().astype(np.float64))
-        uv = pts @ k.T
+        pts = to_cam(out.points[0].numpy().astype(np.float64))
         return {
             "rgb": img.astype(np.uint8), "mask": sil & ~occ, "silhouette": sil,
             "parts": np.where(sil, labels + 1, 0).astype(np.uint8), "depth": depth.astype(np.float16),
             "K": k.astype(np.float32), "R": r.astype(np.float32), "t": t.astype(np.float32),
-            "points3d": pts.astype(np.float32), "points2d": (uv[:, :2] / uv[:, 2:]).astype(np.float32),
+            "points3d": pts.astype(np.float32), "points2d": camera.project(pts, k).astype(np.float32),
             "pose": pose[0].numpy(), "shape": shape[0].numpy(),
             "vertices": (v - v[:1] * 0 - out.joints[0, :1].numpy()).astype(np.float16),
         }

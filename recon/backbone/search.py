@@ -1,0 +1,143 @@
+"""The backbone's crop search: finding the person in a photo without ground truth.
+
+The network was trained on metric crops (2.5 m around the mean joint, ``recon.backbone.crop``),
+so it must be shown the person at that scale. ``CropSearch.locate`` runs ``passes`` passes:
+the first over the whole image (its first hourglass only: it only locates), then metric crops
+centred on the predicted joints at the depth where the template's bone lengths match the
+predicted 2D bones (``recon.camera.depth_from_bones``, each bone foreshortened as the previous
+pass predicted it in 3D), times a factor per pass calibrated on synth-val (``calibrate``), the
+last pass optionally averaged with its mirror image. Variants and their accuracy:
+eval/results/backbone-crop-search.md.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from recon import camera, paths
+from recon.backbone.crop import EXTENT_M, Crop
+from recon.backbone.model import WEIGHTS, Backbone
+from recon.body import default_body
+from recon.smplr.features import template_distances
+from recon.synth.dataset import BENCHMARKS, SynthDataset, bench_dir
+from recon.synth.scene import SceneSampler
+
+DEPTH_METHOD = "foreshortened"  # the crop-depth estimate that calibration writes
+CHECK_FIRST, CHECK_IMAGES = 300, 8  # the synth-val slice tests/test_results.py recomputes
+
+
+def crop_from_keypoints(uv: np.ndarray, k: np.ndarray, template: np.ndarray, depth_scale: float = 1.0,
+                        points: np.ndarray | None = None) -> Crop:
+    """Metric crop around 2D joints: centre = mean of the 24 joints back-projected at the
+    bone-length depth (foreshortened by ``points``, see ``recon.camera.depth_from_bones``)
+    times ``depth_scale``."""
+    z = camera.depth_from_bones(uv, k, template, points) * depth_scale
+    return Crop.around(camera.unproject(uv[:24].mean(0), z, k), k)
+
+
+def whole_image_crop(shape: tuple[int, ...], k: np.ndarray) -> Crop:
+    """Square crop over the whole image (first pass before the person is located)."""
+    h, w = shape[:2]
+    side = float(max(h, w))
+    return Crop((w - side) / 2, (h - side) / 2, side, float(k[0, 0] * EXTENT_M / side), k)
+
+
+class CropSearch:
+    """``CropSearch(backbone, template).locate(rgb, K) -> (J+ (42, 3) camera frame, 2D (42, 2),
+    confidences (42,), last crop)``.
+
+    Args:
+        net: the trained network; its ``depth_scale`` holds the calibrated factors per pass.
+        template: the template body's 41 J+ bone lengths (``recon.smplr.features.template_distances``).
+        passes: passes in all (the first one whole-image).
+        quick_locate: the whole-image pass through the first hourglass only (the shipped factors
+            are calibrated for it); False runs the whole network there.
+        flip: average the last pass with its mirror image (~2.5 mm of P1 for ~30 ms).
+    """
+
+    def __init__(self, net: Backbone, template: np.ndarray, passes: int = 3, quick_locate: bool = True,
+                 flip: bool = False):
+        self.net, self.template = net, np.asarray(template, dtype=np.float64)
+        self.passes, self.quick_locate, self.flip = passes, quick_locate, flip
+
+    @classmethod
+    def load(cls, body=None, weights=None, device: str = "cpu", jit: bool = True, **kwargs) -> CropSearch:
+        return cls(Backbone.load(weights, device, jit), template_distances(body or default_body()).cpu().numpy(),
+                   **kwargs)
+
+    def depth_points(self, pts: np.ndarray) -> np.ndarray | None:
+        """The predicted J+ that foreshorten the bones of the crop-depth estimate, or None for
+        weights calibrated for plain bone lengths."""
+        return pts if self.net.depth_method == "foreshortened" else None
+
+    def locate(self, rgb: np.ndarray, k: np.ndarray, depth_scale=None, passes: int | None = None):
+        """Run the passes (default ``self.passes``); returns the last pass' (J+ camera frame, 2D,
+        confidences, crop). ``depth_scale`` overrides the calibrated factors (calibration)."""
+        scale = self.net.depth_scale if depth_scale is None else depth_scale
+        crop = whole_image_crop(rgb.shape, k)
+        passes = self.passes if passes is None else passes
+        for p in range(passes):
+            last = p == passes - 1
+            pts, uv, conf = self.net.predict([rgb], [crop], locate=self.quick_locate and p == 0 and passes > 1,
+                                             flip=self.flip and last)
+            if not last:  # bone-length depth, times the factor calibrated on synth-val
+                crop = crop_from_keypoints(uv[0], k, self.template, scale[min(p, len(scale) - 1)],
+                                           self.depth_points(pts[0]))
+        return pts[0], uv[0], conf[0], crop
+
+
+def calibrate_depth_scale(search: CropSearch, samples, passes: int = 2) -> tuple[float, ...]:
+    """Median (true crop depth / estimated crop depth) after each of the first ``passes`` passes
+    of ``search`` over ``samples`` (dicts with rgb, K, points3d), for the estimate
+    ``search.net.depth_method`` names. Run on synth-val; the factors absorb the template's size
+    against the sampled bodies and the network's pull towards the crop centre (which shrinks 2D
+    bones when the person is small in the first pass)."""
+    scale: list[float] = []
+    for p in range(passes):
+        ratios = []
+        for s in samples:
+            k = s["K"].astype(np.float64)
+            # the crop of pass p + 2 is the raw estimate after pass p + 1 (each pass as at run time)
+            _, _, _, crop = search.locate(s["rgb"], k, depth_scale=scale + [1.0], passes=p + 2)
+            ratios.append(float(s["points3d"][:24].astype(np.float64).mean(0)[2]) / crop.zc)
+        scale.append(float(np.median(ratios)))
+    return tuple(scale)
+
+
+def calibrated(ck: dict, calibrate_on: int = 300, body=None) -> dict:
+    """``ck`` (a weights checkpoint) with crop-depth factors for ``DEPTH_METHOD`` calibrated on
+    the first ``calibrate_on`` images of the stored synth-val benchmark."""
+    ck = ck | {"crop_depth_method": DEPTH_METHOD, "crop_depth_scale": (1.0, 1.0)}
+    search = CropSearch(Backbone.from_checkpoint(ck), template_distances(body or default_body()).cpu().numpy())
+    ds = SynthDataset(bench_dir("synth-val"))
+    return ck | {"crop_depth_scale": calibrate_depth_scale(search, [ds[i] for i in range(calibrate_on)])}
+
+
+def calibrate(weights: Path, out: Path | None = None, calibrate_on: int = 300) -> Path:
+    """``recon backbone calibrate``: (re)calibrate the crop-depth factors of a weights file for
+    ``DEPTH_METHOD``; writes ``out`` (default: in place, atomically)."""
+    weights = Path(weights)
+    ck = calibrated(paths.load_checkpoint(weights, "recon backbone train + export"), calibrate_on)
+    out = Path(out or weights)
+    paths.atomic_write(out, lambda t: torch.save(ck, t))
+    return out
+
+
+def check(first: int = CHECK_FIRST, n: int = CHECK_IMAGES) -> dict:
+    """The shipped search (``recon run --source backbone``'s) on synth-val images first ..
+    first + n - 1, rendered on the fly: per image, the pelvis-aligned joint MPJPE (mm) after its
+    passes and |log(true / crop depth)| of its last crop."""
+    body = default_body()
+    b = BENCHMARKS["synth-val"]
+    scenes = SceneSampler(body, b["split"], b["seed"])
+    search = CropSearch.load(body, WEIGHTS)
+    errs, depth = [], []
+    for i in range(first, first + n):
+        s = scenes.sample(i)
+        pts, _, _, crop = search.locate(s["rgb"], s["K"].astype(np.float64))
+        gt = s["points3d"].astype(np.float64)
+        errs.append(float(np.linalg.norm((pts[:24] - pts[:1]) - (gt[:24] - gt[:1]), axis=1).mean() * 1000))
+        depth.append(float(abs(np.log(gt[:24].mean(0)[2] / crop.zc))))
+    return {"mpjpe_mm": errs, "depth_log_err": depth}

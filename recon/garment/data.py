@@ -1,0 +1,91 @@
+"""What PBNS and the resizer are trained and evaluated on: balanced mocap pose sets, the posed
+bodies, and (shape, tightness) conditions with their transferred rest outfits."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import roma
+import torch
+
+from recon.errors import ReconError
+from recon.garment.mesh import nearest, vertex_normals
+from recon.garment.pbns import PBNS
+from recon.garment.resize import TIGHTNESS_RANGE, Transfer
+from recon.garment.templates import Outfit, make_outfit
+from recon.poses.mocap import MocapPoses
+from recon.poses.sampler import ShapeSampler
+
+
+def balanced_poses(rotvec: np.ndarray, n: int, min_distance: float, seed: int) -> np.ndarray:
+    """Greedy subset in random order: keep a pose if it differs from every kept one by at least
+    ``min_distance`` rad in some non-root parameter (thesis 5.4.3)."""
+    rng = np.random.default_rng(seed)
+    flat = rotvec[:, 1:].reshape(len(rotvec), -1)
+    kept: list[int] = []
+    buf = np.empty((n, flat.shape[1]), flat.dtype)
+    for i in rng.permutation(len(flat)):
+        if kept and np.abs(buf[:len(kept)] - flat[i]).max(1).min() < min_distance:
+            continue
+        buf[len(kept)] = flat[i]
+        kept.append(i)
+        if len(kept) == n:
+            break
+    return np.array(kept)
+
+
+def pose_set(split: str, n: int, min_distance: float, seed: int) -> torch.Tensor:
+    """(n, 24, 3, 3) balanced mocap poses of a split, root translation dropped."""
+    m = MocapPoses.load(split)
+    idx = balanced_poses(m.rotvec, n, min_distance, seed)
+    return roma.rotvec_to_rotmat(torch.from_numpy(m.rotvec[idx]).float())
+
+
+def posed_bodies(body, rotmats: torch.Tensor, shape: torch.Tensor, chunk: int = 64):
+    """Body vertices, vertex normals and joint transforms for all poses (no gradient)."""
+    vs, ns, ts = [], [], []
+    with torch.no_grad():
+        for i in range(0, len(rotmats), chunk):
+            r = rotmats[i:i + chunk]
+            o = body(r, shape.expand(len(r), -1))
+            vs.append(o.vertices)
+            ns.append(vertex_normals(o.vertices, body.faces))
+            ts.append(o.transforms)
+    return torch.cat(vs), torch.cat(ns), torch.cat(ts)
+
+
+def sample_conditions(body, n: int, seed: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """n (shape, tightness) conditions: shapes from the body's prior, tightness uniform in
+    TIGHTNESS_RANGE."""
+    shape = ShapeSampler(body, seed=seed).sample(n).float()
+    rng = np.random.default_rng(seed)
+    tight = np.stack([rng.uniform(lo, hi, n) for lo, hi in TIGHTNESS_RANGE], 1)
+    return shape, torch.from_numpy(tight).float()
+
+
+class Conditions:
+    """Per (shape, tightness) condition: the transferred rest outfit E_T and its edge lengths, the
+    rest body of that shape with normals, and nearest-body-vertex candidates of E_T."""
+
+    def __init__(self, body, transfer: Transfer, shape, tight, edges: torch.Tensor, k: int):
+        with torch.no_grad():
+            bv = torch.cat([body.rest_geometry(shape[i:i + 64].to(body.mean_shape))[0]
+                            for i in range(0, len(shape), 64)])
+        self.shape, self.tight = shape, tight
+        self.base = torch.from_numpy(np.concatenate([transfer(shape[i:i + 64], tight[i:i + 64])
+                                                     for i in range(0, len(shape), 64)]))
+        self.rest_len = (self.base[:, edges[:, 0]] - self.base[:, edges[:, 1]]).norm(dim=-1)
+        self.bv, self.bn = bv.float(), vertex_normals(bv.float(), body.faces)
+        self.cand = nearest(self.bv, self.base, k).to(torch.int16 if bv.shape[1] < 32767 else torch.int32)
+
+
+def trained_outfit(body, pbns_path: Path) -> tuple[Outfit, torch.Tensor, str]:
+    """The template a PBNS file was trained on (rebuilt, and checked against the file), its
+    body shape and the outfit's name."""
+    model, ck = PBNS.load(pbns_path)
+    meta = json.loads(ck["meta_json"])
+    outfit = make_outfit(body, meta.get("source", meta["outfit"]), ck["shape"][None])  # source: a preset or a mesh
+    if not np.allclose(outfit.vertices, model.rest.numpy(), atol=1e-5):
+        raise ReconError(f"the {meta['outfit']} template changed since {pbns_path} was trained: retrain it")
+    return outfit, ck["shape"], meta["outfit"]

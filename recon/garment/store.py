@@ -1,0 +1,39 @@
+"""Where outfit weights live: the shipped presets beside this package, your own garments in the
+cache. Every module that reads or writes PBNS or resizer weights asks here."""
+from __future__ import annotations
+
+from pathlib import Path
+
+from recon import paths
+from recon.garment.templates import PRESETS, outfit_name
+
+SHIPPED_DIR = Path(__file__).resolve().parent / "weights"
+
+
+def user_dir() -> Path:
+    """Where outfits trained from your own garment meshes go (``<cache>/garments``)."""
+    return paths.cache_dir() / "garments"
+
+
+def pbns_path(outfit: str) -> Path:
+    """PBNS weights of a preset (shipped), of your own garment (by name or mesh path), or a .pt path."""
+    if outfit.endswith(".pt"):
+        return Path(outfit)
+    name = outfit_name(outfit)
+    return (SHIPPED_DIR if name in PRESETS else user_dir()) / f"pbns_{name}.pt"
+
+
+def resizer_path(outfit: str, pbns: str | Path | None = None) -> Path:
+    """The resizer of an outfit: shipped for the presets (their templates never change), else
+    beside its PBNS weights (``pbns``, default where ``recon garment train`` writes them)."""
+    name = outfit_name(outfit)
+    if name in PRESETS:
+        return SHIPPED_DIR / f"resize_{name}.pt"
+    return Path(pbns or pbns_path(name)).parent / f"resize_{name}.pt"
+
+
+def trained_outfits() -> list[str]:
+    """Names of every outfit with PBNS weights: the shipped presets, then your own."""
+    found = sorted(p.stem[5:] for p in SHIPPED_DIR.glob("pbns_*.pt"))
+    own = user_dir()
+    return found + sorted(p.stem[5:] for p in own.glob("pbns_*.pt")) if own.exists() else found
