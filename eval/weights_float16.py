@@ -9,8 +9,6 @@ moves by as much as the published rounding; the trainers write what this table a
 """
 from __future__ import annotations
 
-import importlib
-import json
 import tempfile
 from pathlib import Path
 
@@ -51,10 +49,7 @@ def largest_changes(expected, actual, path=""):
 
 def recompute(name: str) -> tuple[float, str]:
     """The largest change of a results file's check slice, and where."""
-    check = report.read(RESULTS / name)["check"]
-    module, fn = check["function"].split(":")
-    got = json.loads(json.dumps(getattr(importlib.import_module(module), fn)(**check["kwargs"])))
-    return max(largest_changes(check["values"], got))
+    return max(largest_changes(*report.recompute_check(RESULTS / name)))
 
 
 def main() -> None:

@@ -31,7 +31,7 @@ from pathlib import Path
 import torch
 import trimesh
 
-from recon import paths
+from recon import paths, report
 from recon.backbone import search as backbone_search
 from recon.backbone import train as backbone_train
 from recon.backbone.hourglass import SIZES, STEMS
@@ -58,7 +58,7 @@ from recon.smplr.data import load_or_generate
 from recon.smplr.model import WEIGHTS as SMPLR_WEIGHTS
 from recon.synth import dataset
 
-RESULTS = "eval/results"
+RESULTS = str(report.RESULTS)
 
 
 def default(owner, name: str):

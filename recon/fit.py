@@ -42,6 +42,7 @@ class FittedBody:
     vertices: np.ndarray  # (V, 3) camera frame, metres
     joints: np.ndarray  # (24, 3)
     landmarks: np.ndarray  # (18, 3)
+    silhouette: float  # the mask weight the fit used (``mask_weight``)
 
 
 class SilhouetteTarget:
@@ -185,4 +186,4 @@ def fit_body(body, cfg: FitConfig, rot: torch.Tensor, shape: torch.Tensor, t: np
         shp = shape0 + shaped(dshape)
         o = body(r[None], shp, transl=tt[None])
     v, j, lm = (x[0].cpu().numpy().astype(np.float64) for x in (o.vertices, o.joints, o.landmarks))
-    return FittedBody(r.cpu(), shp[0].cpu(), tt.detach().cpu().numpy().astype(np.float64), v, j, lm)
+    return FittedBody(r.cpu(), shp[0].cpu(), tt.detach().cpu().numpy().astype(np.float64), v, j, lm, weight)

@@ -21,7 +21,7 @@ import torch
 from recon import camera
 from recon.body import default_body, skeleton
 from recon.errors import ReconError
-from recon.fit import FitConfig, fit_body, mask_weight
+from recon.fit import FitConfig, fit_body
 from recon.keypoints import Keypoints, KeypointSource, make_source
 from recon.smplr import SMPLR
 
@@ -148,16 +148,18 @@ class Reconstructor:
             timings = {"keypoints": t_kp[i], "smplr": t_smplr}
             rot, shape, t = placed.rotmats[n], placed.shape[n], placed.translation[n]
             v, j, lm = placed.vertices[n], placed.joints[n], placed.landmarks[n]
+            silhouette = 0.0
             if self.fit.steps:
                 t1 = time.perf_counter()
                 f = fit_body(self.body, self.fit, rot, shape, t, kp, k, images[i].shape, self.device)
                 rot, shape, t, v, j, lm = f.rotmats, f.shape, f.translation, f.vertices, f.joints, f.landmarks
+                silhouette = f.silhouette
                 timings["refine"] = (time.perf_counter() - t1) * 1000
             results[i] = Reconstruction(
                 image_size=tuple(images[i].shape[:2]), K=k, vertices=v, joints=j, landmarks=lm,
                 rotmats=rot.cpu().numpy(), shape=shape.cpu().numpy(), translation=t, keypoints=kp,
                 shape_names=tuple(getattr(self.body, "shape_names", ())), timings_ms=timings,
-                fit={"steps": self.fit.steps, "silhouette": mask_weight(self.fit, kp) if self.fit.steps else 0.0})
+                fit={"steps": self.fit.steps, "silhouette": silhouette})
         return results
 
     def posed_body(self, rec: Reconstruction):

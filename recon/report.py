@@ -7,6 +7,7 @@ Every evaluation writes ``<name>.json`` (what code and tests read back) and ``<n
 from __future__ import annotations
 
 import datetime
+import importlib
 import json
 import os
 import platform
@@ -17,6 +18,8 @@ import torch
 from tabulate import tabulate
 
 from recon.paths import write_text
+
+RESULTS = Path("eval/results")  # where evaluations write by default (relative to the working folder)
 
 
 def table(rows: Sequence[Sequence], headers: Sequence[str], floatfmt: str | Sequence[str] = ".1f") -> str:
@@ -43,6 +46,15 @@ def write(stem: str | Path, data, markdown: str) -> Path:
 def read(stem: str | Path):
     """The JSON of a results file (``stem`` with or without a suffix)."""
     return json.loads(Path(stem).with_suffix(".json").read_text())
+
+
+def recompute_check(stem: str | Path) -> tuple:
+    """(the committed check slice of a results file, the same slice recomputed now): each results
+    JSON's ``check`` names the function and arguments that compute its values."""
+    check = read(stem)["check"]
+    module, name = check["function"].split(":")
+    actual = getattr(importlib.import_module(module), name)(**check["kwargs"])
+    return check["values"], json.loads(json.dumps(actual))  # as stored: tuples become lists
 
 
 def machine() -> dict:

@@ -215,31 +215,22 @@ class Trainer:
         return {"steps": self.step, "best": self.best, "history": self.history, "seconds": self.seconds}
 
 
-def epoch_batches(n: int, batch: int, start_step: int = 0, generator: torch.Generator | None = None,
-                  epochs: int | None = None):
+def epoch_batches(n: int, batch: int, start_step: int = 0,
+                  generator: torch.Generator | np.random.Generator | None = None, epochs: int | None = None):
     """Index batches (LongTensor) of a permutation of range(n) per epoch, the incomplete last
     batch dropped, from optimiser step ``start_step`` on (resume). The permutation of an epoch
-    is drawn when the epoch starts (torch's global generator, or ``generator``), so a resumed
-    run draws what the uninterrupted one would have."""
+    is drawn when the epoch starts, from torch's global generator or ``generator`` (torch or
+    numpy), so a run resumed at an epoch boundary (where the trainers here validate and
+    checkpoint) draws what the uninterrupted one would have."""
     per = n // batch
     if per == 0:
         raise ReconError(f"{n} training samples cannot fill one batch of {batch}")
     epoch, offset = divmod(start_step, per)
     while epochs is None or epoch < epochs:
-        order = torch.randperm(n, generator=generator)
-        for b in range(offset, per):
-            yield order[b * batch:(b + 1) * batch]
-        epoch, offset = epoch + 1, 0
-
-
-def numpy_epoch_batches(n: int, batch: int, rng: np.random.Generator, start_step: int = 0):
-    """``epoch_batches`` with a numpy generator's permutation."""
-    per = n // batch
-    if per == 0:
-        raise ReconError(f"{n} training samples cannot fill one batch of {batch}")
-    epoch, offset = divmod(start_step, per)
-    while True:
-        order = torch.from_numpy(rng.permutation(n))
+        if isinstance(generator, np.random.Generator):
+            order = torch.from_numpy(generator.permutation(n))
+        else:
+            order = torch.randperm(n, generator=generator)
         for b in range(offset, per):
             yield order[b * batch:(b + 1) * batch]
         epoch, offset = epoch + 1, 0

@@ -13,6 +13,7 @@ from recon.backbone.volumetric import soft_argmax_3d, volumetric_ce
 from recon.body import lbs
 from recon.fit import SilhouetteTarget
 from recon.garment import losses as L
+from recon.garment.mesh import nearest
 from recon.garment.metrics import penetration
 
 F64 = torch.float64
@@ -94,6 +95,6 @@ def test_the_collision_energy(sheet):
     cloth = torch.tensor([[[0.05, 0.05, -0.010], [0.1, 0.2, 0.03], [0.2, 0.1, 0.001], [0.25, 0.25, -0.02]]],
                          dtype=F64, requires_grad=True)
     coll = L.CollisionLoss(np.zeros(4, int)).double()
-    idx = L.nearest(body_v, cloth)
+    idx = nearest(body_v, cloth)
     assert gradcheck(lambda c: penetration(c, body_v, body_n, idx, 0.004), (cloth,))
     assert gradcheck(lambda c: coll(c, body_v, body_n, torch.from_numpy(faces[:2])), (cloth,))

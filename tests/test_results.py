@@ -1,12 +1,12 @@
 """Committed results stay tied to the code: each results JSON names a function that recomputes a
 small slice of it (``check``), and its Markdown is the rendering of its JSON."""
-import importlib
 import json
 import math
 from pathlib import Path
 
 import pytest
 
+from recon import report
 from recon.bench import runner
 from recon.garment import evaluate as garment_eval
 from recon.smplr import evaluate as smplr_eval
@@ -46,10 +46,7 @@ def test_every_evaluation_result_carries_a_check():
 @pytest.mark.slow
 @pytest.mark.parametrize("path", CHECKED, ids=[p.stem for p in CHECKED])
 def test_a_slice_of_each_committed_result_is_what_the_code_computes(path):
-    check = json.loads(path.read_text())["check"]
-    module, name = check["function"].split(":")
-    actual = json.loads(json.dumps(getattr(importlib.import_module(module), name)(**check["kwargs"])))
-    diff = differences(check["values"], actual)
+    diff = differences(*report.recompute_check(path))
     assert not diff, f"{path.name}: {len(diff)} values differ, e.g. " + "; ".join(diff[:5])
 
 

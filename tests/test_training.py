@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from recon.errors import ReconError
-from recon.training import Schedule, Trainer, epoch_batches, numpy_epoch_batches
+from recon.training import Schedule, Trainer, epoch_batches
 
 
 def test_schedules():
@@ -117,7 +117,7 @@ def test_epoch_batches_resume_where_they_stopped():
     torch.set_rng_state(state)  # the state at the start of epoch 0 ...
     assert [b.tolist() for b in epoch_batches(10, 3, start_step=1, epochs=1)] == whole[1:3]  # ... skips a batch
     rng = np.random.default_rng(5)
-    it = numpy_epoch_batches(7, 2, rng)
+    it = epoch_batches(7, 2, generator=rng)
     assert len({tuple(next(it).tolist()) for _ in range(3)}) == 3
     with pytest.raises(ReconError, match="cannot fill one batch"):
         next(epoch_batches(2, 3))

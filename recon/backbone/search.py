@@ -54,7 +54,8 @@ class CropSearch:
         passes: passes in all (the first one whole-image).
         quick_locate: the whole-image pass through the first hourglass only (the shipped factors
             are calibrated for it); False runs the whole network there.
-        flip: average the last pass with its mirror image (~2.5 mm of P1 for ~30 ms).
+        flip: average the last pass with its mirror image (gain: backbone-crop-search.md; cost:
+            bench-pipeline.md, both in eval/results).
     """
 
     def __init__(self, net: Backbone, template: np.ndarray, passes: int = 3, quick_locate: bool = True,

@@ -142,8 +142,9 @@ class CropDataset(Dataset):
 
 
 def _scene_sampler(split: str, seed: int) -> SceneSampler:
-    torch.set_num_threads(1)  # many workers: one thread each, or OpenCV/BLAS thread pools oversubscribe the CPU
-    cv2.setNumThreads(1)
+    if get_worker_info() is not None:  # many workers: one thread each, or OpenCV/BLAS pools oversubscribe the CPU
+        torch.set_num_threads(1)
+        cv2.setNumThreads(1)
     return SceneSampler(create(), split, seed)
 
 

@@ -85,7 +85,7 @@ def check(bench: str, methods: list[str], n: int = CHECK_IMAGES) -> dict:
             for m in methods for r in [run_method(m, samples, body, progress=False)]}
 
 
-def evaluate(bench: str, methods: list[str], n: int | None = None, out_dir: Path = Path("eval/results")) -> Path:
+def evaluate(bench: str, methods: list[str], n: int | None = None, out_dir: Path = report.RESULTS) -> Path:
     """``recon eval``: run ``methods`` on the benchmark (its first ``n`` images) and merge them into
     ``<out_dir>/<bench>.{json,md}`` (re-run methods replaced in place)."""
     if bench not in BENCHMARKS:

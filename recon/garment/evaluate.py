@@ -172,7 +172,7 @@ def evaluate(body, outfit: str, n_poses: int = 500, weights: Path | None = None)
             "body_self_intersection_pct": {"median": float(t.body_self.median()), "mean": float(t.body_self.mean())}}
 
 
-def evaluate_and_report(body, outfits: list[str], n_poses: int = 500, out_dir: Path = Path("eval/results")) -> Path:
+def evaluate_and_report(body, outfits: list[str], n_poses: int = 500, out_dir: Path = report.RESULTS) -> Path:
     """``recon garment eval``: garment-pbns.{json,md} (your own garments: a file of their own)."""
     results = [evaluate(body, o, n_poses) for o in outfits]
     names = [r["outfit"] for r in results]
@@ -224,9 +224,10 @@ def render_pbns(data: dict) -> str:
 
 # --- resizers (thesis 5.5.6) ----------------------------------------------------------------------
 
-def resize_rows(body, outfit: str, n: int, seed: int = 1234) -> tuple[dict, float]:
+def resize_rows(body, outfit: str, n: int, seed: int = 1234) -> tuple[dict, float, str]:
     """Held-out (shape, tightness) conditions: E_T alone vs E_T + resizer, rest pose on the
-    body of that shape, per subset (all, loose, tight); and the resizer's ms per outfit."""
+    body of that shape, per subset (all, loose, tight); the resizer's ms per outfit; the
+    outfit's name."""
     o, _, name = trained_outfit(body, store.pbns_path(outfit))
     rz = OutfitResizer(body, store.resizer_path(name), o.vertices, o.faces)
     data = Conditions(body, rz.transfer, *sample_conditions(body, n, seed), torch.from_numpy(unique_edges(o.faces)), 1)
@@ -241,7 +242,7 @@ def resize_rows(body, outfit: str, n: int, seed: int = 1234) -> tuple[dict, floa
     for subset, m in subsets:
         for model, v in (("transfer only (CLOTH3D E_T)", data.base), ("E_T + resizer (PBNS 5.5.6)", data.base + dv)):
             rows[f"{model}, {subset}"] = rest_metrics(v[m], data.base[m], o.faces, data.bv[m], data.bn[m])
-    return rows, ms
+    return rows, ms, name
 
 
 def resize_check(outfit: str, n: int = CHECK_CONDITIONS) -> dict:
@@ -249,10 +250,9 @@ def resize_check(outfit: str, n: int = CHECK_CONDITIONS) -> dict:
     return resize_rows(default_body(), outfit, n)[0]
 
 
-def evaluate_resizer(body, outfit: str, n: int = 200, seed: int = 1234, out_dir: Path = Path("eval/results")) -> Path:
+def evaluate_resizer(body, outfit: str, n: int = 200, seed: int = 1234, out_dir: Path = report.RESULTS) -> Path:
     """garment-resize-<outfit>.{json,md}."""
-    rows, ms = resize_rows(body, outfit, n, seed)
-    o, _, name = trained_outfit(body, store.pbns_path(outfit))
+    rows, ms, name = resize_rows(body, outfit, n, seed)
     meta = json.loads(paths.load_checkpoint(store.resizer_path(name), "recon garment resize")["meta_json"])
     res = {"outfit": name, "conditions": n, "seed": seed, "rows": rows, "ms_per_outfit_batched": ms,
            "train_seconds": meta["train_seconds"], "threads": meta.get("threads", 2),
@@ -315,7 +315,6 @@ def _drape_one(args) -> dict:
     """One held-out pose: drape with newton (reference.drape), metrics of skinning, PBNS and the
     simulation, Euclidean error of each to the simulation. Runs in a worker process."""
     outfit, index, n_poses, min_dist, frames = args
-    torch.set_num_threads(1)  # one worker process per core
     body = default_body()
     model, ck = PBNS.load(store.pbns_path(outfit))
     rot = reference_poses(n_poses, min_dist, [index])
@@ -361,7 +360,7 @@ def error_to_drapes(model: PBNS, outfit: str, shape: torch.Tensor, body=None, la
             {} if pr is None else {"pbns_resolved_mm": err(pr)})
 
 
-def reference_and_report(outfit: str, poses: int = 4, out_dir: Path = Path("eval/results"), frames: int = 60,
+def reference_and_report(outfit: str, poses: int = 4, out_dir: Path = report.RESULTS, frames: int = 60,
                          workers: int = 1, pool_size: int = 500) -> Path:
     """PBNS vs a newton SolverVBD drape on the first ``poses`` of the balanced test poses; writes
     garment-reference-<outfit>.{json,md}. Needs the optional ``newton`` package."""
@@ -370,7 +369,9 @@ def reference_and_report(outfit: str, poses: int = 4, out_dir: Path = Path("eval
     min_dist = TEST_POSE_DISTANCE  # the drapes are picks of the held-out test pool
     jobs = [(outfit, i, pool_size, min_dist, frames) for i in range(poses)]
     if workers > 1:
-        with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as ex:
+        # one torch thread per worker process (one process per core)
+        with ProcessPoolExecutor(workers, mp_context=get_context("spawn"), initializer=torch.set_num_threads,
+                                 initargs=(1,)) as ex:
             per_pose = list(ex.map(_drape_one, jobs))
     else:
         per_pose = [_drape_one(j) for j in jobs]

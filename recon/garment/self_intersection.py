@@ -59,7 +59,7 @@ class SkinSelfIntersection:
     def _inside(self, vertices: torch.Tensor, chunk: int = 64) -> np.ndarray:
         v = torch.as_tensor(vertices, dtype=torch.float32).detach().cpu()
         faces = torch.from_numpy(self.faces).long()
-        kernel, out = _inside_sign, np.zeros((len(v), len(self.region)), bool)
+        out = np.zeros((len(v), len(self.region)), bool)
         idx = wp.array(self.faces.ravel(), dtype=int, device="cpu")
         res = wp.zeros(len(self.region), dtype=float, device="cpu")
         for c in range(0, len(v), chunk):  # normals of a few thousand poses at once would take GBs
@@ -67,7 +67,7 @@ class SkinSelfIntersection:
             probe = (vc[:, self.region] + self.offset * vertex_normals(vc, faces)[:, self.region]).numpy()
             for b in range(len(vc)):
                 mesh = wp.Mesh(points=wp.array(vc[b].numpy(), dtype=wp.vec3, device="cpu"), indices=idx)
-                wp.launch(kernel, dim=len(self.region), device="cpu",
+                wp.launch(_inside_sign, dim=len(self.region), device="cpu",
                           inputs=[mesh.id, wp.array(probe[b], dtype=wp.vec3, device="cpu"), res])
                 out[c + b] = res.numpy() < 0
         return out

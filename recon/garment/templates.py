@@ -168,7 +168,7 @@ def outfit_specs(outfit: str) -> list[GarmentSpec]:
             raise MissingFile(f"garment mesh {outfit} not found")
         return [GarmentSpec("obj", outfit_name(outfit), path=str(p.resolve()))]
     raise ReconError(f"unknown outfit {outfit!r}; presets: {', '.join(PRESETS)}, or a garment mesh "
-                   f"({', '.join(MESH_SUFFIXES)}) in the body frame")
+                     f"({', '.join(MESH_SUFFIXES)}) in the body frame")
 
 
 def outfit_name(outfit: str) -> str:

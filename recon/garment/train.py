@@ -72,6 +72,14 @@ def edge_scale(warmup: float, step: int, steps: int) -> float:
     return warmup ** max(0.0, 1.0 - 2.0 * step / steps)
 
 
+def _adam(net: torch.nn.Module, lr: float, lr_psd: float) -> torch.optim.Adam:
+    """Adam with the PSD matrix D (PBNS or resizer) at its own rate: Adam moves every entry of D by
+    ~lr per step, and dT = X . D sums 32 of them, so D gets a smaller rate than the MLP or the
+    cloth jumps by centimetres per step (measured: diverges)."""
+    return torch.optim.Adam([{"params": [net.D], "lr": lr_psd},
+                             {"params": [p for n, p in net.named_parameters() if n != "D"], "lr": lr}])
+
+
 def run_dir_for(out: Path) -> Path:
     """Where an interrupted training of ``out`` keeps its state (removed once ``out`` is written)."""
     return out.parent / f".{out.stem}.run"
@@ -92,7 +100,6 @@ def build(body, cfg: GarmentTrainConfig, shape: torch.Tensor | None = None):
     return outfit, model, shape
 
 
-
 @torch.no_grad()
 def candidates(model: PBNS, crit: L.Criterion, rot, bt, bv, k: int, chunk: int = 64):
     """Per pose, the k nearest body vertices (and inner-layer vertices) of every vertex of the
@@ -105,7 +112,6 @@ def candidates(model: PBNS, crit: L.Criterion, rot, bt, bv, k: int, chunk: int =
         for j, (inner, outer) in enumerate(crit.collision.pairs()):
             cloth_c[j].append(nearest(v[:, inner], v[:, outer], k).to(torch.int32))
     return torch.cat(body_c), [torch.cat(c) for c in cloth_c]
-
 
 
 @torch.no_grad()
@@ -143,10 +149,7 @@ def train(body, cfg: GarmentTrainConfig | None = None, out: Path | None = None, 
     crit = L.Criterion(outfit, model.rest, cfg)
     body_c, cloth_c = candidates(model, crit, poses, bt, bv, cfg.candidates)
     inside = SkinSelfIntersection(body, shape)(bv) if cfg.collision.skip_self_intersection else None
-    # Adam moves every entry of D by ~lr per step, and dT = X . D sums 32 of them: D gets a
-    # smaller rate than the MLP or the cloth jumps by centimetres per step (measured: diverges).
-    opt = torch.optim.Adam([{"params": [model.D], "lr": cfg.lr_psd},
-                            {"params": [p for n, p in model.named_parameters() if n != "D"], "lr": cfg.lr}])
+    opt = _adam(model, cfg.lr, cfg.lr_psd)
     per_epoch = len(tr_idx) // cfg.batch
     steps = cfg.epochs * per_epoch
     name = outfit_name(cfg.outfit)
@@ -194,8 +197,7 @@ def train_resizer(body, pbns_path: Path, out: Path | None = None, cfg: ResizeCon
     tr = Conditions(body, transfer, *sample_conditions(body, cfg.samples, cfg.seed), crit.edge.edges, cfg.candidates)
     va = Conditions(body, transfer, *sample_conditions(body, cfg.val_samples, cfg.seed + 1), crit.edge.edges, 1)
     net = Resizer(len(outfit.vertices), body.num_shape_params + 2, cfg)
-    opt = torch.optim.Adam([{"params": [net.D], "lr": cfg.lr_psd},
-                            {"params": [p for n, p in net.named_parameters() if n != "D"], "lr": cfg.lr}])
+    opt = _adam(net, cfg.lr, cfg.lr_psd)
     per_epoch = cfg.samples // cfg.batch
     log(f"resizer {name}: {len(outfit.vertices)} vertices, {cfg.samples} train / {cfg.val_samples} val conditions; "
         f"set-up {time.time() - t0:.1f} s")

@@ -20,8 +20,8 @@ from recon.keypoints.mediapipe import MediaPipePose
 class MediaPipeSource:
     """MediaPipe Pose landmarks -> our J+ via the learned adapter (recon.keypoints.adapter).
     ``flip``: also run on the mirrored image and average the two J+ (mirrored back, left and
-    right swapped), unless the mirrored run finds nobody or someone else: ~4 mm of P1 on
-    synth-val for one more MediaPipe call (~25 ms)."""
+    right swapped), unless the mirrored run finds nobody or someone else: one more MediaPipe call
+    (its gain: eval/results/pipeline-fit-choices.md; its cost: eval/results/bench-pipeline.md)."""
 
     name = "mediapipe"
 

@@ -22,9 +22,11 @@ from recon.errors import MissingFile
 from recon.keypoints.adapter import MP_MIRROR, WEIGHTS, AdapterConfig, KeypointAdapter, assemble_features, normalise_2d
 from recon.keypoints.mediapipe import NUM_MP, MediaPipePose
 from recon.synth.dataset import SynthDataset
-from recon.training import Schedule, Trainer, numpy_epoch_batches
+from recon.training import Schedule, Trainer, epoch_batches
 
 STORE_DTYPE = torch.float32  # float16 would move published numbers: eval/results/weights-float16.md
+
+
 def collect(root: Path, out: Path, shards: list[int] | None = None, truncate: float = 0.0) -> list[Path]:
     """Run MediaPipe over ``recon synth`` shards of ``root``; one npz per shard in ``out``
     (written atomically, skipped when present: resumable and splittable over processes).
@@ -152,7 +154,7 @@ def train(train_dirs: list[Path], val_dir: Path, out: Path = WEIGHTS, cfg: Adapt
         return {"val_mpjpe_mm": float((y3 - v3)[:, :24].norm(dim=-1).mean()) * 1000,
                 "val_2d_scaled": float((y2 - v2).norm(dim=-1).mean())}
 
-    log = trainer.fit(numpy_epoch_batches(len(x), cfg.batch, rng, trainer.step), step, validate)
+    log = trainer.fit(epoch_batches(len(x), cfg.batch, trainer.step, rng), step, validate)
     trainer.load_best()
     meta = config | {"train_samples": int(len(x)), "val_found_rate": float(vd["found_rate"]),
                      "best_val_mpjpe_mm": log["best"], "train_seconds": log["seconds"], "curve": log["history"]}

@@ -113,7 +113,7 @@ def build(body=None, mocap_root: Path | None = None, out: Path | None = None, li
         try:
             motion = read_clip(mocap_root, row)
             res = rt.retarget(motion)
-        except (ReconError, OSError) as e:  # report and keep going
+        except (ReconError, ValueError, KeyError, OSError) as e:  # a malformed clip: report it and keep going
             log.warning("skipping %s: %s", row["path"], e)
             continue
         rot, tr = resample(res.rotmats, res.transl, motion.fps)

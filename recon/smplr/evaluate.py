@@ -103,7 +103,7 @@ def check(n: int = CHECK_SAMPLES, weights: Path | None = None) -> dict[str, dict
     return rows(model, load_or_generate(model.body, "test", n, TEST_SEED, 0.0))
 
 
-def evaluate_and_report(n: int = 2000, out_dir: Path = Path("eval/results"), weights: Path | None = None) -> Path:
+def evaluate_and_report(n: int = 2000, out_dir: Path = report.RESULTS, weights: Path | None = None) -> Path:
     """``recon smplr eval``: the table on ``n`` held-out samples -> ``smplr_anny.{json,md}``."""
     model = SMPLR.load(path=weights)
     data = load_or_generate(model.body, "test", n, TEST_SEED, 0.0)

@@ -124,7 +124,7 @@ def generate(out_dir: Path, split: str, seed: int, n: int, shard_size: int = 250
     def record(res):
         shard, digest = res
         manifest["shards"][str(shard)] = digest
-        paths.atomic_write(man_path, lambda tmp: Path(tmp).write_text(json.dumps(manifest, indent=1)))
+        paths.write_text(man_path, json.dumps(manifest, indent=1))
         bar.update(1)
 
     if todo and workers > 1:
@@ -132,10 +132,14 @@ def generate(out_dir: Path, split: str, seed: int, n: int, shard_size: int = 250
         with ctx.Pool(workers, initializer=_init_worker, initargs=(split, seed, asdict(cfg))) as pool:
             for res in pool.imap_unordered(_write_shard, todo):
                 record(res)
-    elif todo:
-        _init_worker(split, seed, asdict(cfg))
-        for t in todo:
-            record(_write_shard(t))
+    elif todo:  # in this process, on one thread as in the workers (the committed hashes), then restored
+        threads = torch.get_num_threads()
+        try:
+            _init_worker(split, seed, asdict(cfg))
+            for t in todo:
+                record(_write_shard(t))
+        finally:
+            torch.set_num_threads(threads)
     bar.close()
     return out_dir
 
