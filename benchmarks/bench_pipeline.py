@@ -8,7 +8,9 @@ hourglass: 3 passes = the whole image through the first hourglass, then two metr
 with a flip on the last, 2 passes, the whole network in the first pass, and eager instead of the
 TorchScript trace), SMPLR (DAE + Omega + Psi + the full mesh) + placement, and the fit
 (``recon run``'s default: 30 steps to the keypoints and, with MediaPipe, its person mask; also
-to the keypoints only). -> eval/results/bench-pipeline.{json,md}
+to the keypoints only). SMPLR includes the camera-aware lifter (``recon run``'s default
+``--lift blend``); a second MediaPipe row runs 0.2's route (``--lift source``) side by side.
+-> eval/results/bench-pipeline.{json,md}
 """
 from __future__ import annotations
 
@@ -46,6 +48,10 @@ def main() -> None:
                "backbone, 3 passes, whole network in the first": BackboneSource(body, quick_locate=False),
                "backbone, 3 passes, eager (no TorchScript)": BackboneSource(body, jit=False)}
     recs = {s: Reconstructor(body, source=src) for s, src in sources.items()}
+    old = "mediapipe, SMPLR on the adapter's 3D, no lifter (0.2's `recon run`: `--lift source`)"
+    recs = {**dict(list(recs.items())[:1]), old: Reconstructor(body, source=sources[next(iter(sources))],
+                                                                lift="source"), **dict(list(recs.items())[1:])}
+    sources = {s: r.source for s, r in recs.items()}
     fits = {"none": FitConfig(steps=0), "fit": FitConfig(), "fit, keypoints only": FitConfig(silhouette=0.0)}
     t = {s: {k: [] for k in ("keypoints", "one backbone pass", "smplr", "fit", "fit, keypoints only")} for s in sources}
     for _ in range(a.repeats):  # sources interleaved

@@ -12,11 +12,12 @@ from __future__ import annotations
 
 import importlib
 
-__version__ = "0.2.0"
+__version__ = "0.3.0"
 
 _EXPORTS = {
     "Reconstructor": "recon.pipeline", "Reconstruction": "recon.pipeline", "NoPersonFound": "recon.pipeline",
-    "FitConfig": "recon.fit", "SMPLR": "recon.smplr", "load_image": "recon.io", "ReconError": "recon.errors",
+    "FitConfig": "recon.fit", "SMPLR": "recon.smplr", "Lifter": "recon.smplr", "load_image": "recon.io",
+    "ReconError": "recon.errors",
 }
 
 

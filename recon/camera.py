@@ -106,7 +106,10 @@ def inside_image(uv: np.ndarray, shape) -> np.ndarray:
     return (uv[:, 0] >= 0) & (uv[:, 0] < w) & (uv[:, 1] >= 0) & (uv[:, 1] < h)
 
 
-def in_image_weights(uv: np.ndarray, shape, outside: float = 0.1) -> np.ndarray:
+OUTSIDE_WEIGHT = 0.1
+
+
+def in_image_weights(uv: np.ndarray, shape, outside: float = OUTSIDE_WEIGHT) -> np.ndarray:
     """Placement weights: keypoints outside the image (guessed, e.g. the legs of a half-body
     photo) count ``outside`` as much as those inside."""
     return np.where(inside_image(uv, shape), 1.0, outside)

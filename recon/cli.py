@@ -36,6 +36,7 @@ from recon.backbone import search as backbone_search
 from recon.backbone import train as backbone_train
 from recon.backbone.hourglass import SIZES, STEMS
 from recon.backbone.model import WEIGHTS as BACKBONE_WEIGHTS
+from recon.backbone.recipe import RecipeConfig, device_default, run_recipe
 from recon.bench import runner
 from recon.bench.methods import METHODS
 from recon.body import anny_model, create, default_body
@@ -49,12 +50,15 @@ from recon.garment.resize import TIGHTNESS_RANGE, ResizeConfig
 from recon.garment.templates import PRESETS
 from recon.keypoints import SOURCES
 from recon.keypoints import train as keypoints_train
-from recon.pipeline import Reconstructor
+from recon.pipeline import LIFTS, Reconstructor
 from recon.poses import mocap
 from recon.run import run
 from recon.smplr import evaluate as smplr_eval
+from recon.smplr import lifter_train
 from recon.smplr import train as smplr_train
 from recon.smplr.data import load_or_generate
+from recon.smplr.lifter import WEIGHTS as LIFTER_WEIGHTS
+from recon.smplr.lifter import LifterConfig
 from recon.smplr.model import WEIGHTS as SMPLR_WEIGHTS
 from recon.synth import dataset
 
@@ -137,6 +141,16 @@ def cmd_smplr_train(a) -> None:
         print(smplr_train.export(cfg, default_body(), SMPLR_WEIGHTS))
 
 
+def cmd_smplr_train_lifter(a) -> None:
+    cfg = lifter_train.LifterTrainConfig(steps=a.steps, lr=a.lr, seed=a.seed, init=a.init)
+    residuals = Path(a.residuals) if a.residuals else None
+    if residuals is not None and not residuals.exists():
+        raise ReconError(f"{residuals} not found: make it with eval/collect_sources.py (docs/smplr.md)")
+    meta = lifter_train.train(Path(a.out), cfg, LifterConfig(width=a.width, blocks=a.blocks), residuals)
+    print(f"{a.out}: best synthetic validation J+ error {meta['best_val_mpjpe_mm']:.1f} mm "
+          f"after {meta['train_seconds'] / 60:.1f} min")
+
+
 def cmd_smplr_eval(a) -> None:
     print(Path(smplr_eval.evaluate_and_report(n=a.n, out_dir=Path(a.out))).read_text())
 
@@ -194,6 +208,17 @@ def cmd_backbone_export(a) -> None:
     print(backbone_train.export(Path(a.run), Path(a.weights)))
 
 
+def cmd_backbone_recipe(a) -> int:
+    fields = {f.name for f in dataclasses.fields(RecipeConfig)}
+    cfg = RecipeConfig(**{k: v for k, v in vars(a).items() if k in fields and v is not None})
+    out = run_recipe(Path(a.out), cfg, device=a.device or device_default())
+    print(json.dumps({k: v for k, v in out.items() if k not in ("recipe", "machine")}, indent=1))
+    if out["phase"] == "training":
+        print(f"training: {out['minutes_left']} min of the budget left - run the same command again to resume",
+              file=sys.stderr)
+    return 0
+
+
 def cmd_backbone_calibrate(a) -> None:
     print(backbone_search.calibrate(Path(a.weights)))
 
@@ -227,9 +252,10 @@ def cmd_keypoints_train(a) -> None:
 
 def cmd_run(a) -> int:
     fit = FitConfig(steps=a.refine_steps, silhouette=a.silhouette)
-    rec = Reconstructor(source=a.source, focal_factor=a.focal, device=a.device, fit=fit, flip=a.flip)
+    focal = default(Reconstructor, "focal_factor") if a.focal is None else a.focal
+    rec = Reconstructor(source=a.source, focal_factor=focal, device=a.device, fit=fit, flip=a.flip, lift=a.lift)
     s = run(a.inputs or example_photos(), Path(a.out), rec, batch_size=a.batch_size, overlay=not a.no_overlay,
-            outfit=a.outfit, tightness=a.tightness)
+            outfit=a.outfit, tightness=a.tightness, exif_focal=a.focal is None)
     return 130 if s.interrupted else (1 if s.failed and not s.done else 0)
 
 
@@ -337,6 +363,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--stages", nargs="+", choices=smplr_train.STAGES, default=None)
     p.add_argument("--jobs", type=int, default=2, help="train the two independent chains in parallel")
     p.add_argument("--no-export", action="store_true", help="train only; do not write the weights file")
+    p = action(smplr, "train-lifter", cmd_smplr_train_lifter,
+               "train the camera-aware 2D -> 3D lifter on generated cameras (resumable)")
+    p.add_argument("--steps", type=int, default=default(lifter_train.LifterTrainConfig, "steps"))
+    p.add_argument("--width", type=int, default=default(LifterConfig, "width"))
+    p.add_argument("--blocks", type=int, default=default(LifterConfig, "blocks"))
+    p.add_argument("--lr", type=float, default=default(lifter_train.LifterTrainConfig, "lr"))
+    p.add_argument("--seed", type=int, default=default(lifter_train.LifterTrainConfig, "seed"))
+    p.add_argument("--init", default="", help="continue from these lifter weights (warm restart)")
+    p.add_argument("--residuals", default=None, help="2D residual bank (eval/collect_sources.py output); "
+                   "default: Gaussian 2D noise")
+    p.add_argument("--out", default=str(LIFTER_WEIGHTS), help="weights file")
     p = action(smplr, "eval", cmd_smplr_eval, "the ablation table on held-out samples -> smplr_anny.{json,md}")
     p.add_argument("--n", type=int, default=default(smplr_eval.evaluate_and_report, "n"), help="held-out test samples")
     p.add_argument("--out", default=RESULTS, help="folder of the JSON and Markdown tables")
@@ -395,6 +432,15 @@ def build_parser() -> argparse.ArgumentParser:
     p = action(bb, "export", cmd_backbone_export, "best checkpoint of a run -> shipped weights (+ crop calibration)")
     p.add_argument("--run", required=True, help="the training run's folder")
     p.add_argument("--weights", default=str(BACKBONE_WEIGHTS), help="the weights file to write")
+    p = action(bb, "recipe", cmd_backbone_recipe,
+               "the GPU recipe in one command: train for a minute budget (re-run to resume), then export, score on "
+               "synth-val against the shipped weights, ship if better (weights, results, model card)")
+    p.add_argument("--out", default="runs/gpu-recipe", help="run folder (resumes if it holds a run)")
+    p.add_argument("--device", default=None, help="default: cuda when available, else cpu")
+    for name, kind in (("minutes", float), ("run_minutes", float), ("lr", float), ("batch", int),
+                       ("workers", int), ("init", str), ("size", str), ("seed", int)):
+        flag = "--" + name.replace("_", "-")
+        p.add_argument(flag, type=kind, default=None, help=f"default: {default(RecipeConfig, name)!r}")
     p = action(bb, "calibrate", cmd_backbone_calibrate, "recalibrate the crop-search depth factors of a weights file")
     p.add_argument("--weights", default=str(BACKBONE_WEIGHTS))
 
@@ -416,10 +462,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="output folder (one subfolder per image; an interrupted run resumes)")
     p.add_argument("--batch-size", type=int, default=default(run, "batch_size"), help="images per SMPLR/fit batch")
     p.add_argument("--device", default="cpu", help="torch device of the networks")
-    p.add_argument("--focal", type=float, default=1.0, help="focal length in units of the longer image side")
+    p.add_argument("--focal", type=float, default=None,
+                   help="focal length in units of the longer image side (default: the photo's EXIF 35 mm "
+                        f"equivalent, else {default(Reconstructor, 'focal_factor')})")
     p.add_argument("--no-overlay", action="store_true", help="skip overlay.png / side.png rendering")
     p.add_argument("--source", choices=SOURCES, default="mediapipe",
                    help="keypoints: MediaPipe + adapter, or our volumetric hourglass alone")
+    p.add_argument("--lift", choices=LIFTS, default=default(Reconstructor, "lift"),
+                   help="SMPLR's 3D J+: the camera-aware lifter on the 2D keypoints, or the source's own 3D")
     p.add_argument("--flip", action=argparse.BooleanOptionalAction, default=None,
                    help="test-time mirror averaging of the keypoints (unset: on for MediaPipe, off for the backbone)")
     p.add_argument("--refine-steps", type=int, default=FitConfig.steps,

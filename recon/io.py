@@ -16,6 +16,8 @@ from recon.errors import MissingFile, ReconError
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp", ".gif", ".ppm", ".pgm")
 MIN_SIDE = 32
 MAX_PIXELS = 100_000_000  # larger images are refused before decoding (decompression bombs)
+FULL_FRAME_DIAGONAL_MM = 43.27  # 36 x 24 mm: what "35 mm equivalent" focal lengths refer to
+EXIF_IFD, FOCAL_35MM = 0x8769, 0xA405
 
 
 class ImageError(ReconError):
@@ -46,6 +48,26 @@ def load_image(path: str | Path) -> np.ndarray:
     if min(rgb.shape[:2]) < MIN_SIDE:
         raise ImageError(f"{path}: {rgb.shape[1]}x{rgb.shape[0]} is too small (min side {MIN_SIDE} px)")
     return rgb
+
+
+def exif_focal_factor(path: str | Path) -> float | None:
+    """The camera's focal length in units of the image's longer side, from the EXIF tag
+    FocalLengthIn35mmFilm (phones and most cameras write it); None when the file has none.
+    The 35 mm equivalent maps the image diagonal to the 43.27 mm full-frame diagonal."""
+    try:
+        with Image.open(path) as im:
+            exif = im.getexif()
+            f35 = exif.get_ifd(EXIF_IFD).get(FOCAL_35MM) or exif.get(FOCAL_35MM)
+            w, h = im.size
+    except (OSError, SyntaxError, ValueError, UnidentifiedImageError, Image.DecompressionBombError):
+        return None
+    try:
+        f35 = float(f35) if f35 else 0.0
+    except (TypeError, ValueError):
+        return None
+    if not 5.0 <= f35 <= 2000.0:  # absent, zero or nonsense
+        return None
+    return f35 * float(np.hypot(w, h)) / FULL_FRAME_DIAGONAL_MM / max(w, h)
 
 
 def _to_rgb8(im) -> np.ndarray:

@@ -1,7 +1,8 @@
 """Image -> 3D body: ``recon.Reconstructor``.
 
-    rgb --keypoint source--> J+ (3D root-relative + 2D) --DAE--> SMPLR (Omega, Psi) --> body mesh
-        --> placed in the camera by least-squares reprojection onto the 2D J+ (``SMPLR.lift_and_place``)
+    rgb --keypoint source--> J+ 2D (+ the source's own 3D guess)
+        --camera-aware lifter (``recon.smplr.lifter``: 2D rays + K -> 3D J+)--> [DAE] --> SMPLR (Omega, Psi)
+        --> body mesh placed in the camera by least-squares reprojection onto the 2D J+ (``SMPLR.lift_and_place``)
         --> fitted to the 2D J+ and the person mask (``recon.fit``)
 
 Keypoint sources (``recon.keypoints``): MediaPipe Pose + the learned adapter (default) or our
@@ -12,7 +13,7 @@ image side, principal point at the centre.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import roma
@@ -24,6 +25,9 @@ from recon.errors import ReconError
 from recon.fit import FitConfig, fit_body
 from recon.keypoints import Keypoints, KeypointSource, make_source
 from recon.smplr import SMPLR
+from recon.smplr.lifter import Lifter
+
+LIFTS = ("camera", "source", "blend")
 
 
 class NoPersonFound(ReconError):
@@ -95,13 +99,22 @@ class Reconstructor:
         device: torch device for SMPLR and the body model.
         fit: the fit after SMPLR (``recon.fit.FitConfig``; ``FitConfig(steps=0)``: none).
         flip: test-time mirror averaging of a named source (None: the source's default).
+        lift: where SMPLR's 3D J+ come from: "camera" (the camera-aware lifter on the source's 2D
+            and K), "source" (the source's own 3D, as before 0.3) or "blend" (their mean). The
+            fit's 3D prior follows the same points.
+        denoise: run SMPLR's 3D DAE on the J+ first.
     """
 
     def __init__(self, body=None, source: str | KeypointSource = "mediapipe", focal_factor: float = 1.0,
-                 device: str = "cpu", smplr_path=None, fit: FitConfig | None = None, flip: bool | None = None):
+                 device: str = "cpu", smplr_path=None, fit: FitConfig | None = None, flip: bool | None = None,
+                 lift: str = "blend", denoise: bool = True, lifter_path=None):
+        if lift not in LIFTS:
+            raise ReconError(f"lift must be one of {LIFTS}, got {lift!r}")
         self.body = body or default_body()
         self.device = torch.device(device)
         self.smplr = SMPLR.load(self.body, smplr_path).to(self.device)
+        self.lift, self.denoise = lift, denoise
+        self.lifter = Lifter.load(lifter_path) if lift != "source" else None
         self.source = make_source(source, self.body, device, flip) if isinstance(source, str) else source
         self.focal_factor = focal_factor
         self.fit = fit or FitConfig()
@@ -138,10 +151,15 @@ class Reconstructor:
         if not found:
             return results
         t0 = time.perf_counter()
-        placed = self.smplr.lift_and_place(
-            np.stack([kp.points3d for kp in kps]), np.stack([kp.points2d for kp in kps]), np.stack(kmats),
-            weights=np.stack([camera.in_image_weights(kp.points2d, images[i].shape) for i, kp in zip(found, kps,
-                                                                                                   strict=True)]))
+        uv, kk = np.stack([kp.points2d for kp in kps]), np.stack(kmats)
+        seen = np.stack([camera.inside_image(kp.points2d, images[i].shape) for i, kp in zip(found, kps, strict=True)])
+        points = np.stack([kp.points3d for kp in kps])
+        if self.lifter is not None:
+            lifted = self.lifter.lift(uv, kk, seen)[0]
+            points = lifted if self.lift == "camera" else 0.5 * (lifted + points)
+            kps = [replace(kp, points3d=p - p[:1]) for kp, p in zip(kps, points, strict=True)]
+        placed = self.smplr.lift_and_place(points, uv, kk, weights=np.where(seen, 1.0, camera.OUTSIDE_WEIGHT),
+                                           denoise=self.denoise)
         t_smplr = (time.perf_counter() - t0) * 1000 / len(found)
         for n, i in enumerate(found):
             kp, k = kps[n], kmats[n]

@@ -26,7 +26,7 @@ from tqdm import tqdm
 from recon import camera, paths
 from recon.errors import ReconError
 from recon.garment.dress import Dresser
-from recon.io import ImageError, list_images, load_image
+from recon.io import ImageError, exif_focal_factor, list_images, load_image
 from recon.pipeline import Reconstruction, Reconstructor
 from recon.viz import render_meshes, render_overlay
 
@@ -66,12 +66,14 @@ def check_writable(out: Path) -> None:
 
 def run(inputs: list[str | Path], out: str | Path, reconstructor: Reconstructor | None = None, batch_size: int = 4,
         overlay: bool = True, outfit: str | None = None, tightness: tuple[float, float] | None = None,
-        progress: bool = True, log=print) -> RunSummary:
+        progress: bool = True, log=print, exif_focal: bool = True) -> RunSummary:
     """Reconstruct every image of ``inputs`` into ``out`` (see the module doc). ``reconstructor``:
-    default ``Reconstructor()`` (``recon run``'s defaults), built when the first image loads;
-    ``focal_factor`` and the fit come from it. ``outfit``: dress the bodies with a trained PBNS
-    outfit, resized to each body and, with ``tightness`` (2,) and a trained resizer, looser or
-    tighter."""
+    default ``Reconstructor()`` (``recon run``'s defaults), built when the first image loads; the
+    fit comes from it, and its ``focal_factor`` for images whose EXIF gives no 35 mm equivalent
+    focal length (``exif_focal``: read it; False: always the reconstructor's). ``outfit``: dress
+    the bodies with a trained PBNS outfit, resized to each body and, with ``tightness`` (2,) and a
+    trained resizer, looser or tighter.
+    """
     out = Path(out)
     check_writable(out)
     items = list_images(inputs)
@@ -104,15 +106,17 @@ def run(inputs: list[str | Path], out: str | Path, reconstructor: Reconstructor 
                 continue
             rec = rec or Reconstructor()
             small = [_downscale(img) for _, _, img in loaded]
-            ks = [np.diag([s, s, 1.0]) @ camera.default_intrinsics(*img.shape[:2], rec.focal_factor)
-                  for (_, _, img), (_, s) in zip(loaded, small, strict=True)]
+            focal = [(exif_focal_factor(p) if exif_focal else None) for p, _, _ in loaded]
+            ks = [np.diag([s, s, 1.0]) @ camera.default_intrinsics(*img.shape[:2], f or rec.focal_factor)
+                  for (_, _, img), (_, s), f in zip(loaded, small, focal, strict=True)]
             results = rec.batch([im for im, _ in small], ks)
-            for (p, key, img), (im, s), k, r in zip(loaded, small, ks, results, strict=True):
+            for (p, key, img), (im, s), k, r, f in zip(loaded, small, ks, results, focal, strict=True):
                 if isinstance(r, Exception):
                     summary.failed[key] = f"{p}: {r}"
                     log(f"failed: {p}: {r}")
                 else:
                     try:
+                        r.fit["focal_from"] = "exif" if f else "default"
                         _write(out / key, p, img, im, s, k, r, rec, overlay, dresser, tightness)
                         summary.done.append(key)
                     except OSError as e:
@@ -175,6 +179,7 @@ def _write(folder: Path, src: Path, img, small, s: float, k_small, r: Reconstruc
             js[key] = np.round(np.asarray(js[key]) / s, 2).tolist()
         js["box"] = np.round(np.asarray(js["box"]) / s, 1).tolist()
         js["reprojection_error_px"] = round(js["reprojection_error_px"] / s, 2)
+    js["camera"]["focal_from"] = r.fit.pop("focal_from", "default")
     js["image_size"] = list(img.shape[:2])
     js["source"] = str(src)
     js["keypoint_source"] = getattr(getattr(rec, "source", None), "name", None)

@@ -194,3 +194,35 @@ def test_colour_augmentation_stays_in_range():
     img = torch.rand(4, 3, 16, 16)
     out, _ = T.CropAugmentation(rotation_deg=0.0)(img, torch.full((4, 42, 3), 0.5))
     assert out.min() >= 0 and out.max() <= 1 and not torch.allclose(out, img)
+
+
+@pytest.mark.slow
+def test_gpu_recipe_resumes_then_ships_only_better_weights(tmp_path, monkeypatch, body, mocap):
+    """`recon backbone recipe` on the CPU with a tiny network: the first call stops at its
+    per-command limit (checkpointed), the second resumes, finishes the budget, exports, scores
+    the candidate against the weights in place and ships it only if it is better."""
+    from recon.backbone import recipe as R
+
+    monkeypatch.setenv("RECON_CACHE_DIR", str(tmp_path / "cache"))
+    tiny = {"stacks": 1, "width": 16, "depth_bins": 4, "levels": 2, "input_size": 64}
+    cfg = R.RecipeConfig(minutes=0.25, run_minutes=0.1, init="", lr=1e-3, batch=2, repeats=1, workers=1,
+                         eval_every=2, val_images=2, calibrate_on=2, score_images=2, model=tiny)
+    card = tmp_path / "CARD.md"
+    card.write_text("# card\n\ntext\n")
+    target = tmp_path / "weights.pt"
+    first = R.run_recipe(tmp_path / "run", cfg, device="cpu", weights=target, card=card, results=tmp_path,
+                         progress=False)
+    assert first["phase"] == "training" and first["minutes_left"] > 0 and not target.exists()
+    calls = [first]
+    while calls[-1]["phase"] == "training" and len(calls) < 6:  # re-run the same command until it finishes
+        calls.append(R.run_recipe(tmp_path / "run", cfg, device="cpu", weights=target, card=card, results=tmp_path,
+                                  progress=False))
+    second = calls[-1]
+    assert second["phase"] == "shipped" and second["steps"] > first["steps"]  # nothing to beat: shipped
+    assert target.exists() and "Latest GPU recipe run" in card.read_text() and card.read_text().startswith("# card")
+    assert (tmp_path / "backbone-gpu-recipe.json").exists()
+    # the same finished run against the real shipped weights: a tiny network must not replace them
+    third = R.run_recipe(tmp_path / "run", cfg, device="cpu", weights=T.WEIGHTS, card=None, results=None,
+                         progress=False)
+    assert third["phase"] == "kept"
+    assert third["scores"]["shipped"]["crop_search_mpjpe_mm"] < third["scores"]["candidate"]["crop_search_mpjpe_mm"]

@@ -13,9 +13,10 @@ ROOT = Path(__file__).resolve().parent.parent
 README = ROOT / "README.md"
 DOCS = sorted((ROOT / "docs").glob("*.md"))
 PAGES = [README, ROOT / "CHANGELOG.md", ROOT / "eval" / "README.md", *DOCS,
-         *sorted(ROOT.glob("recon/*/weights/MODEL_CARD.md"))]
+         *sorted(ROOT.glob("recon/*/weights/*CARD.md"))]
 # README rows -> the synth-test method they quote
-ROWS = {"`recon run` (MediaPipe": "mediapipe-smplr-fit", "`recon run --source backbone`": "backbone-smplr-fit",
+ROWS = {"`recon run` (0.3": "recon-run", "`recon run` minus the retries": "mediapipe-lifter-fit",
+        "0.2's `recon run`": "mediapipe-smplr-fit", "`recon run --source backbone`": "backbone-smplr-fit",
         "MediaPipe's own 3D": "mediapipe", "oracle:": "smplr-gt2d"}
 
 

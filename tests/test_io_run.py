@@ -16,7 +16,10 @@ from recon.fit import FitConfig
 from recon.garment import store
 from recon.keypoints import MediaPipeSource
 from recon.keypoints import available as mediapipe_available
+from recon.keypoints.adapter import MP_MIRROR
 from recon.keypoints.adapter import WEIGHTS as ADAPTER_WEIGHTS
+from recon.keypoints.mediapipe import MPPose
+from recon.keypoints.sources import _pad, _unview
 from recon.pipeline import Reconstructor
 from recon.run import run
 
@@ -43,6 +46,40 @@ def test_load_modes(tmp_path):
     Image.fromarray(a16).save(tmp_path / "d.png")
     d = io.load_image(tmp_path / "d.png")
     assert d.dtype == np.uint8 and d[-1, -1, 0] == round(a16[-1, -1] / 65535 * 255)
+
+
+def test_exif_focal_length(tmp_path):
+    """FocalLengthIn35mmFilm -> focal in units of the longer side (diagonal convention)."""
+    exif = Image.Exif()
+    exif.get_ifd(io.EXIF_IFD)[io.FOCAL_35MM] = 26
+    p = tmp_path / "phone.jpg"
+    Image.new("RGB", (400, 300)).save(p, exif=exif)
+    assert io.exif_focal_factor(p) == pytest.approx(26 * 500 / 43.27 / 400)  # a 26 mm phone lens: 0.75
+    Image.new("RGB", (400, 300)).save(tmp_path / "plain.jpg")
+    assert io.exif_focal_factor(tmp_path / "plain.jpg") is None
+    (tmp_path / "bad.jpg").write_bytes(b"not an image")
+    assert io.exif_focal_factor(tmp_path / "bad.jpg") is None
+
+
+def test_retry_views_map_back_to_the_image():
+    """A detection on a zero-padded, mirrored view of the image, mapped back, lands where the
+    same person is in the image (left and right swapped back)."""
+    rng = np.random.default_rng(0)
+    h, w, pad = 60, 80, 20
+    xy = rng.uniform(0, [w, h], (33, 2))
+    world = rng.normal(0, 0.3, (33, 3))
+    mask = rng.random((h, w)) > 0.5
+    mirror = list(MP_MIRROR)
+    seen_xy = xy[mirror] + pad
+    seen_xy[:, 0] = w + 2 * pad - seen_xy[:, 0]  # what MediaPipe reports on the padded mirror view
+    seen_mask = np.pad(mask, pad)[:, ::-1]
+    r = _unview(MPPose(seen_xy, np.arange(33.0)[mirror], world[mirror] * [-1, 1, 1], seen_mask), pad, True, (h, w))
+    np.testing.assert_allclose(r.image_xy, xy, atol=1e-9)
+    np.testing.assert_allclose(r.world, world, atol=1e-12)
+    np.testing.assert_array_equal(r.visibility, np.arange(33.0))
+    np.testing.assert_array_equal(r.mask, mask)
+    padded, p = _pad(np.zeros((h, w, 3), np.uint8), 1.5)
+    assert p == 20 and padded.shape == (100, 120, 3)
 
 
 def test_exif_orientation(tmp_path):
@@ -102,7 +139,8 @@ def test_the_api_defaults_are_recon_runs():
     """`recon.Reconstructor()` gives what `recon run` gives: the same source and fit defaults."""
     params = inspect.signature(Reconstructor).parameters
     args = build_parser().parse_args(["run", "--out", "o"])
-    assert params["source"].default == args.source and params["focal_factor"].default == args.focal
+    assert params["source"].default == args.source and params["lift"].default == args.lift
+    assert args.focal is None and params["focal_factor"].default == 1.0  # no --focal: EXIF, else the API's
     assert params["fit"].default is None and (FitConfig().steps, FitConfig().silhouette) == (args.refine_steps,
                                                                                             args.silhouette)
     assert args.refine_steps == 30

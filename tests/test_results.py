@@ -13,7 +13,8 @@ from recon.smplr import evaluate as smplr_eval
 
 RESULTS = Path(__file__).resolve().parent.parent / "eval" / "results"
 CHECKED = sorted(p for p in RESULTS.glob("*.json") if "check" in json.loads(p.read_text()))
-RENDERERS = {"synth-test": runner.render, "smplr_anny": smplr_eval.render, "garment-pbns": garment_eval.render_pbns,
+RENDERERS = {"synth-test": runner.render, "synth-wide-test": runner.render, "smplr_anny": smplr_eval.render,
+             "garment-pbns": garment_eval.render_pbns,
              "garment-resize-": garment_eval.render_resize, "garment-reference-": garment_eval.render_reference}
 RTOL, ATOL = 1e-3, 1e-6  # float noise (measured: <= 1e-4 relative); a real change moves far more
 
@@ -38,7 +39,7 @@ def differences(expected, actual, path=""):
 
 def test_every_evaluation_result_carries_a_check():
     names = {p.stem for p in CHECKED}
-    assert {"synth-test", "smplr_anny", "garment-pbns", "backbone-crop-search"} <= names
+    assert {"synth-test", "synth-wide-test", "smplr_anny", "garment-pbns", "backbone-crop-search"} <= names
     assert {f"garment-{kind}-{o}" for kind in ("resize", "reference") for o in
             ("tshirt-trousers", "top-shorts", "tshirt-skirt", "dress", "jumpsuit")} <= names
 

@@ -305,7 +305,8 @@ def train(train_roots: list[Path] | None, val: Path | str, out_dir: Path, cfg: B
     if init and trainer.step == 0 and not trainer.history:  # the starting point, for the curve and as the best so far
         trainer.validate_now(validate, tag="init")
     log = trainer.fit(_endless(loader), step, validate)
-    return {"best_val_mpjpe_mm": log["best"], "steps": log["steps"], "history": log["history"]}
+    return {"best_val_mpjpe_mm": log["best"], "steps": log["steps"], "history": log["history"],
+            "seconds": log["seconds"]}
 
 
 def export(run_dir: Path, out: Path = WEIGHTS, calibrate_on: int = 300) -> Path:

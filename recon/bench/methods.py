@@ -11,11 +11,12 @@ import torch
 from recon import camera
 from recon.backbone.crop import Crop
 from recon.body import skeleton
-from recon.fit import FitConfig
-from recon.keypoints import BackboneSource, MediaPipePose
+from recon.fit import FitConfig, fit_body
+from recon.keypoints import BackboneSource, Keypoints, MediaPipePose, MediaPipeSource
 from recon.pipeline import Reconstructor
 from recon.poses.mocap import MocapPoses
 from recon.smplr import SMPLR
+from recon.smplr.lifter import Lifter
 
 
 @dataclass
@@ -24,6 +25,8 @@ class Prediction:
     landmarks: np.ndarray | None = None  # (18, 3)
     vertices: np.ndarray | None = None  # (V, 3) camera frame, placed in the image
     mask: np.ndarray | None = None  # (H, W) bool person mask, when the method gives one
+    shape: np.ndarray | None = None  # (S,) body-model shape parameters, when the method regresses them
+    placed: bool = False  # joints are placed in the camera (their depth is a prediction)
 
 
 class MeanBaseline:
@@ -48,7 +51,8 @@ class MeanBaseline:
         size = rgb.shape[0]
         t = np.array([0.0, 0.0, k[0, 0] * self.height / (0.725 * size)])
         o = self.out
-        return Prediction(o.joints[0].numpy() + t, o.landmarks[0].numpy() + t, o.vertices[0].numpy() + t)
+        return Prediction(o.joints[0].numpy() + t, o.landmarks[0].numpy() + t, o.vertices[0].numpy() + t,
+                          placed=True)
 
 
 # MediaPipe Pose (33 landmarks) -> our joints; spine/collar joints are interpolated.
@@ -94,16 +98,45 @@ class MediaPipeBaseline:
 
 def _placed(b, vertices: bool = True) -> Prediction:
     """Prediction from ``SMPLR.lift_and_place`` output of one sample."""
-    return Prediction(b.joints[0], b.landmarks[0], b.vertices[0] if vertices else None)
+    return Prediction(b.joints[0], b.landmarks[0], b.vertices[0] if vertices else None,
+                      shape=b.shape[0].cpu().numpy(), placed=True)
 
 
 class SMPLROracle2D:
-    """Upper bound for the lifting stage: the ground-truth 2D J+ of the image, back-projected
-    to the depth where template bones match them, lifted by the DAE-2D + SMPLR, placed by
-    least-squares translation."""
+    """The pipeline with a perfect keypoint source: the ground-truth 2D J+ of the image -> the
+    camera-aware lifter (rays + K) -> SMPLR, placed by least-squares translation, then ``recon
+    run``'s fit to those keypoints (no person mask)."""
 
     name = "smplr-gt2d"
-    description = "oracle: GT 2D J+ -> DAE-2D -> SMPLR (not an image method)"
+    description = "oracle: GT 2D J+ -> camera-aware lifter -> SMPLR -> 30-step fit to the 2D (not an image method)"
+    fit = FitConfig(silhouette=0.0)
+
+    def __init__(self, body):
+        self.body = body
+        self.model = SMPLR.load(body)
+        self.lifter = Lifter.load()
+        self.needs_gt = True
+
+    def __call__(self, rgb, k, points2d=None, **_) -> Prediction:
+        uv = points2d.astype(np.float64)
+        seen = camera.inside_image(uv, rgb.shape)
+        x = self.lifter.lift(uv[None], k, seen[None])[0]
+        b = self.model.lift_and_place(x, uv[None], k, weights=np.where(seen, 1.0, camera.OUTSIDE_WEIGHT)[None],
+                                      denoise=False)
+        if not self.fit.steps:
+            return _placed(b)
+        kp = Keypoints(x[0], uv, 1.0, (0.0, 0.0, float(rgb.shape[1]), float(rgb.shape[0])))
+        f = fit_body(self.body, self.fit, b.rotmats[0], b.shape[0], b.translation[0], kp, k, rgb.shape)
+        return Prediction(f.joints, f.landmarks, f.vertices, shape=f.shape.cpu().numpy(), placed=True)
+
+
+class SMPLROracle2DOrthographic:
+    """The lifting stage before the camera-aware lifter: GT 2D J+ back-projected to the depth
+    where template bones match them, lifted by SMPLR's DAE-2D (trained on orthographic metric
+    2D), placed by least-squares translation."""
+
+    name = "smplr-gt2d-dae2d"
+    description = "oracle: GT 2D J+ -> metric orthographic 2D -> DAE-2D -> SMPLR (before 0.3)"
 
     def __init__(self, body):
         self.model = SMPLR.load(body)
@@ -125,16 +158,17 @@ class MediaPipeSMPLR:
     name = "mediapipe-smplr"
     description = "recon.Reconstructor: MediaPipe (+ its mirror image) -> adapter -> DAE -> SMPLR, no fit"
 
-    source, fit = "mediapipe", FitConfig(steps=0, silhouette=0.0)
+    source, fit, lift = "mediapipe", FitConfig(steps=0, silhouette=0.0), "source"  # 0.2's route
 
     def __init__(self, body):
-        self.rec = Reconstructor(body, source=self.source, fit=replace(self.fit))
+        src = MediaPipeSource(retry=False) if self.source == "mediapipe" else self.source  # 0.2: no retries
+        self.rec = Reconstructor(body, source=src, fit=replace(self.fit), lift=self.lift)
 
     def __call__(self, rgb: np.ndarray, k: np.ndarray) -> Prediction | None:
         r = self.rec.batch([rgb], [k])[0]
         if isinstance(r, Exception):
             return None
-        return Prediction(r.joints, r.landmarks, r.vertices)  # IoU from our mesh, not MediaPipe's mask
+        return Prediction(r.joints, r.landmarks, r.vertices, shape=r.shape, placed=True)  # IoU from our mesh
 
 
 class MediaPipeSMPLRFitKeypoints(MediaPipeSMPLR):
@@ -145,8 +179,27 @@ class MediaPipeSMPLRFitKeypoints(MediaPipeSMPLR):
 
 class MediaPipeSMPLRFit(MediaPipeSMPLR):
     name = "mediapipe-smplr-fit"
-    description = "recon.Reconstructor + 30-step fit to the keypoints and MediaPipe's person mask (`recon run` default)"
+    description = "recon.Reconstructor + 30-step fit to the keypoints and MediaPipe's person mask (0.2's `recon run`)"
     fit = FitConfig()
+
+
+class ReconRun(MediaPipeSMPLR):
+    """``recon run`` with its defaults, whatever they are in this version."""
+
+    name = "recon-run"
+    description = "`recon run` defaults: recon.Reconstructor()"
+
+    def __init__(self, body):
+        self.rec = Reconstructor(body)
+
+
+class MediaPipeLifterFit(MediaPipeSMPLR):
+    """0.3's lifting on 0.2's detections: the images 0.2 found, scored with the lifter's blend."""
+
+    name = "mediapipe-lifter-fit"
+    description = ("recon.Reconstructor without MediaPipe's retries: adapter 2D -> camera-aware lifter, blended "
+                   "with the adapter's 3D -> DAE -> SMPLR -> fit (`recon run` minus the retries)")
+    fit, lift = FitConfig(), "blend"
 
 
 class BackboneSMPLRFit(MediaPipeSMPLR):
@@ -206,7 +259,9 @@ def _backbone(crop: str, stage: str, flip: bool = False) -> type:
 
 
 METHODS = {"mean": MeanBaseline, "mediapipe": MediaPipeBaseline, "smplr-gt2d": SMPLROracle2D,
-           "mediapipe-smplr": MediaPipeSMPLR, "mediapipe-smplr-fit-kp": MediaPipeSMPLRFitKeypoints,
+           "smplr-gt2d-dae2d": SMPLROracle2DOrthographic, "recon-run": ReconRun,
+           "mediapipe-lifter-fit": MediaPipeLifterFit, "mediapipe-smplr": MediaPipeSMPLR,
+           "mediapipe-smplr-fit-kp": MediaPipeSMPLRFitKeypoints,
            "mediapipe-smplr-fit": MediaPipeSMPLRFit, "backbone-smplr-fit": BackboneSMPLRFit}
 METHODS.update({c.name: c for c in (_backbone(crop, stage, flip) for flip in (False, True) for crop in ("gt", "self")
                                      for stage in ("net", "dae", "smplr"))})

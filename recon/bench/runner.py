@@ -19,7 +19,7 @@ from recon import metrics, report
 from recon.bench.methods import METHODS
 from recon.body import default_body
 from recon.errors import ReconError
-from recon.synth.dataset import BENCHMARKS, SynthDataset, bench_dir
+from recon.synth.dataset import BENCHMARKS, SynthDataset, bench_config, bench_dir
 from recon.synth.raster import Rasterizer, silhouette_iou
 from recon.synth.scene import SceneSampler
 
@@ -35,7 +35,8 @@ def run_method(name: str, ds, body, n: int | None = None, progress: bool = True)
     method = METHODS[name](body)
     raster = None
     faces = body.faces.numpy()
-    rows = {"p1": [], "p2": [], "lm": [], "pve": [], "iou": [], "joint": []}
+    rows = {"p1": [], "p2": [], "lm": [], "pve": [], "iou": [], "joint": [], "depth": [], "height": [],
+            "shape": []}
     failures, t0 = 0, time.time()
     for i in tqdm(range(min(n or len(ds), len(ds))), desc=f"eval {name}", unit="img", mininterval=5,
                   disable=not progress):
@@ -63,6 +64,11 @@ def run_method(name: str, ds, body, n: int | None = None, progress: bool = True)
             mask = raster.render(pred.vertices, faces, s["K"])[2] > 0
         if mask is not None:
             rows["iou"].append(silhouette_iou(mask, s["silhouette"]))
+        if pred.placed:
+            rows["depth"].append(abs(float(pred.joints[0, 2]) - float(s["points3d"][0, 2])))
+        if pred.shape is not None:
+            rows["height"].append((body_height(body, pred.shape), body_height(body, s["shape"])))
+            rows["shape"].append(np.abs(np.asarray(pred.shape, float) - s["shape"]))
     done = len(rows["p1"])
     joint = np.stack(rows["joint"]) * 1000 if done else np.zeros((0, 24))
     res = {"method": name, "description": method.description, "images": done + failures,
@@ -71,7 +77,23 @@ def run_method(name: str, ds, body, n: int | None = None, progress: bool = True)
         res[label] = float(np.mean(rows[key]) * 1000) if rows[key] else None
     res["IoU"] = float(np.mean(rows["iou"])) if rows["iou"] else None
     res["groups"] = {ABBR[g]: float(v) for g, v in metrics.group_errors(torch.tensor(joint)).items()} if done else {}
+    if rows["depth"]:
+        res["root_depth_mm"] = {"median": float(np.median(rows["depth"]) * 1000),
+                                "mean": float(np.mean(rows["depth"]) * 1000)}
+    if rows["height"]:
+        hp, hg = np.array(rows["height"]).T
+        names = getattr(body, "shape_names", None) or [f"s{i}" for i in range(len(rows["shape"][0]))]
+        res["body_shape"] = {"height_error_cm": float(np.mean(np.abs(hp - hg)) * 100),
+                             "height_correlation": float(np.corrcoef(hp, hg)[0, 1]) if len(hp) > 2 else None,
+                             "shape_error": dict(zip(names, map(float, np.mean(rows["shape"], 0)), strict=True))}
     return res
+
+
+def body_height(body, shape) -> float:
+    """Standing height (m) of a body shape: the vertical extent of its rest mesh."""
+    with torch.no_grad():
+        v = body(shape=torch.as_tensor(np.asarray(shape, np.float32))[None]).rest_vertices[0]
+    return float(v[:, 1].max() - v[:, 1].min())
 
 
 def check(bench: str, methods: list[str], n: int = CHECK_IMAGES) -> dict:
@@ -79,7 +101,7 @@ def check(bench: str, methods: list[str], n: int = CHECK_IMAGES) -> dict:
     on the fly (sample i depends only on the benchmark's split, seed and i)."""
     b = BENCHMARKS[bench]
     body = default_body()
-    scenes = SceneSampler(body, b["split"], b["seed"])
+    scenes = SceneSampler(body, b["split"], b["seed"], bench_config(bench))
     samples = [scenes.sample(i) for i in range(n)]
     return {m: {k: r[k] for k in (*COLUMNS, "failures")}
             for m in methods for r in [run_method(m, samples, body, progress=False)]}
@@ -110,6 +132,22 @@ def evaluate(bench: str, methods: list[str], n: int | None = None, out_dir: Path
     return report.write(stem, data, render(data))
 
 
+def camera_and_shape(rows: list[dict]) -> list[str]:
+    """The rows' camera and body-shape errors, for the methods that measured them (since 0.3)."""
+    measured = [r for r in rows if "root_depth_mm" in r or "body_shape" in r]
+    if not measured:
+        return []
+    names = next((list(r["body_shape"]["shape_error"]) for r in measured if "body_shape" in r), [])
+    table = [[r["method"], r.get("root_depth_mm", {}).get("median"), r.get("root_depth_mm", {}).get("mean"),
+              r.get("body_shape", {}).get("height_error_cm"), r.get("body_shape", {}).get("height_correlation"),
+              *(r.get("body_shape", {}).get("shape_error", {}).get(n) for n in names)] for r in measured]
+    return ["Camera and body shape: pelvis depth error (mm; the benchmark's K is given), standing height of the "
+            "predicted body against the true one (mean |error| cm, Pearson correlation), mean |error| per anny "
+            "phenotype (0-1 scale; gender 0/1):", "",
+            report.table(table, ["method", "depth median", "depth mean", "height cm", "height r", *names],
+                         ["", ".0f", ".0f", ".1f", ".2f", *[".3f"] * len(names)]), ""]
+
+
 def render(data: dict) -> str:
     """The Markdown of a benchmark's results JSON."""
     rows = data["rows"]
@@ -122,4 +160,5 @@ def render(data: dict) -> str:
                      ["", ".1f", ".1f", ".1f", ".1f", ".3f", "", "", ".3f"]), "",
         "Per joint group (MPJPE-P1, mm):", "",
         report.table(groups, ["method", *ABBR.values()]), "",
+        *camera_and_shape(rows),
         "Methods: " + "; ".join(f"**{r['method']}**: {r['description']}" for r in rows)])

@@ -24,10 +24,20 @@ from recon.errors import MissingFile, ReconError
 from recon.synth.scene import SceneSampler, SynthConfig
 
 # Fixed benchmark splits: poses of held-out mocap subjects (recon.poses.mocap.SPLIT_SUBJECTS).
+# The wide ones frame people as photos do: 512 px frames, the body 30-90 % of the height, its
+# centre anywhere in the middle 60 % of the frame, so many are small, off-centre or cut.
+WIDE = {"size": 512, "focal_range": (600.0, 1400.0), "fill_range": (0.3, 0.9), "shift": 0.3}
 BENCHMARKS = {
     "synth-val": {"split": "val", "seed": 1001, "n": 2000},
     "synth-test": {"split": "test", "seed": 2002, "n": 2000},
+    "synth-wide-val": {"split": "val", "seed": 1101, "n": 1000, "config": WIDE},
+    "synth-wide-test": {"split": "test", "seed": 2202, "n": 1000, "config": WIDE},
 }
+
+
+def bench_config(name: str) -> SynthConfig:
+    """The generator settings of a fixed benchmark."""
+    return SynthConfig(**BENCHMARKS[name].get("config", {}))
 IMAGE_KEYS = ("rgb", "mask", "silhouette", "parts", "depth")
 ARRAY_KEYS = ("K", "R", "t", "points3d", "points2d", "pose", "shape", "vertices")
 
@@ -112,6 +122,9 @@ def generate(out_dir: Path, split: str, seed: int, n: int, shard_size: int = 250
     meta = json.loads(json.dumps(meta))  # tuples -> lists, as stored
     man_path = out_dir / "manifest.json"
     manifest = json.loads(man_path.read_text()) if man_path.exists() else {**meta, "shards": {}}
+    # settings added since a folder was made read as their defaults (what made it)
+    defaults = json.loads(json.dumps(asdict(SynthConfig())))
+    manifest["config"] = {**defaults, **manifest.get("config", {})}
     if any(manifest.get(k) != v for k, v in meta.items() if k != "n"):
         raise ReconError(f"{out_dir} holds a dataset made with other settings; use another folder")
     manifest["n"] = n
@@ -151,7 +164,7 @@ def reference_hashes_path(name: str) -> Path:
 
 def build_benchmark(name: str, workers: int = 2, n: int | None = None) -> Path:
     b = BENCHMARKS[name]
-    return generate(bench_dir(name), b["split"], b["seed"], n or b["n"], workers=workers)
+    return generate(bench_dir(name), b["split"], b["seed"], n or b["n"], workers=workers, cfg=bench_config(name))
 
 
 def compare_with_reference(name: str) -> list[int]:

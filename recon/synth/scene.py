@@ -40,6 +40,7 @@ class SynthConfig:
     size: int = 256
     focal_range: tuple[float, float] = (300.0, 700.0)  # pixels, for `size`
     fill_range: tuple[float, float] = (0.55, 0.9)  # body height / image height
+    shift: float = 0.08  # the body's centre lands within this fraction of the image size of the centre
     elevation_sigma_deg: float = 12.0
     roll_sigma_deg: float = 4.0
     occluder_prob: float = 0.5
@@ -109,7 +110,7 @@ def sample_camera(rng: np.random.Generator, cfg: SynthConfig, body_height: float
     elev = np.clip(rng.normal(0, cfg.elevation_sigma_deg), -35, 35)
     roll = np.clip(rng.normal(0, cfg.roll_sigma_deg), -15, 15)
     r = Rotation.from_euler("zx", [roll, elev], degrees=True).as_matrix() @ camera.HALF_TURN_X
-    shift = rng.uniform(-0.08, 0.08, 2) * cfg.size * dist / f  # metres
+    shift = rng.uniform(-cfg.shift, cfg.shift, 2) * cfg.size * dist / f  # metres
     t = np.array([shift[0], shift[1], dist])
     k = np.array([[f, 0, cfg.size / 2], [0, f, cfg.size / 2], [0, 0, 1.0]])
     return k, r, t
