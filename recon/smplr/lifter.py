@@ -13,7 +13,7 @@ The network is the residual MLP of Martinez et al. (2017), trained on generated 
 """
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -131,6 +131,3 @@ class Lifter(nn.Module):
         m = cls(LifterConfig(**ck["cfg"]))
         m.load_state_dict(ck["state"])
         return m.eval()
-
-    def config(self) -> dict:
-        return asdict(self.cfg)

@@ -6,7 +6,7 @@ rotations, ``recon.smplr.data``) and places them in a random camera:
 * half the batches like the synthetic benchmarks (focal 300-700 px for a 256 px square image,
   the body 55-90 % of the image height, within 8 % of the centre);
 * half wide: 4:3, 3:4, 16:9, 9:16 or square frames, focal 0.6-3 x the long side, the body
-  25-100 % of the image height, the pelvis anywhere in the middle 70 % of the width and
+  25-100 % of the image height, its centre anywhere in the middle 70 % of the width and
   25-85 % of the height, so people are small, off-centre and cut by the frame.
 
 Points outside the frame are masked (the lifter never reads them). 2D noise: a residual field
