@@ -253,7 +253,8 @@ def cmd_keypoints_train(a) -> None:
 def cmd_run(a) -> int:
     fit = FitConfig(steps=a.refine_steps, silhouette=a.silhouette)
     focal = default(Reconstructor, "focal_factor") if a.focal is None else a.focal
-    rec = Reconstructor(source=a.source, focal_factor=focal, device=a.device, fit=fit, flip=a.flip, lift=a.lift)
+    rec = Reconstructor(source=a.source, focal_factor=focal, device=a.device, fit=fit, flip=a.flip, lift=a.lift,
+                        retry=a.retry)
     s = run(a.inputs or example_photos(), Path(a.out), rec, batch_size=a.batch_size, overlay=not a.no_overlay,
             outfit=a.outfit, tightness=a.tightness, exif_focal=a.focal is None)
     return 130 if s.interrupted else (1 if s.failed and not s.done else 0)
@@ -468,6 +469,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-overlay", action="store_true", help="skip overlay.png / side.png rendering")
     p.add_argument("--source", choices=SOURCES, default="mediapipe",
                    help="keypoints: MediaPipe + adapter, or our volumetric hourglass alone")
+    p.add_argument("--retry", action=argparse.BooleanOptionalAction, default=default(Reconstructor, "retry"),
+                   help="MediaPipe: when it finds nobody, ask again on padded/mirrored views and at a lower "
+                        "threshold (more people found, and more phantoms on person-free images)")
     p.add_argument("--lift", choices=LIFTS, default=default(Reconstructor, "lift"),
                    help="SMPLR's 3D J+: the camera-aware lifter on the 2D keypoints, or the source's own 3D")
     p.add_argument("--flip", action=argparse.BooleanOptionalAction, default=None,

@@ -103,11 +103,13 @@ class Reconstructor:
             and K), "source" (the source's own 3D, as before 0.3) or "blend" (their mean). The
             fit's 3D prior follows the same points.
         denoise: run SMPLR's 3D DAE on the J+ first.
+        retry: a named MediaPipe source asks again on other views when it finds nobody (more
+            people found; on person-free images also more phantoms: eval/results/error-budget.md).
     """
 
     def __init__(self, body=None, source: str | KeypointSource = "mediapipe", focal_factor: float = 1.0,
                  device: str = "cpu", smplr_path=None, fit: FitConfig | None = None, flip: bool | None = None,
-                 lift: str = "blend", denoise: bool = True, lifter_path=None):
+                 lift: str = "blend", denoise: bool = True, lifter_path=None, retry: bool = True):
         if lift not in LIFTS:
             raise ReconError(f"lift must be one of {LIFTS}, got {lift!r}")
         self.body = body or default_body()
@@ -115,7 +117,8 @@ class Reconstructor:
         self.smplr = SMPLR.load(self.body, smplr_path).to(self.device)
         self.lift, self.denoise = lift, denoise
         self.lifter = Lifter.load(lifter_path) if lift != "source" else None
-        self.source = make_source(source, self.body, device, flip) if isinstance(source, str) else source
+        self.source = (make_source(source, self.body, device, flip, retry) if isinstance(source, str)
+                       else source)
         self.focal_factor = focal_factor
         self.fit = fit or FitConfig()
 

@@ -140,6 +140,7 @@ def test_the_api_defaults_are_recon_runs():
     params = inspect.signature(Reconstructor).parameters
     args = build_parser().parse_args(["run", "--out", "o"])
     assert params["source"].default == args.source and params["lift"].default == args.lift
+    assert params["retry"].default is args.retry is True
     assert args.focal is None and params["focal_factor"].default == 1.0  # no --focal: EXIF, else the API's
     assert params["fit"].default is None and (FitConfig().steps, FitConfig().silhouette) == (args.refine_steps,
                                                                                             args.silhouette)

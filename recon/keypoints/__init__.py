@@ -15,12 +15,14 @@ from recon.keypoints.sources import BackboneSource, MediaPipeSource
 SOURCES = ("mediapipe", "backbone")
 
 
-def make_source(name: str = "mediapipe", body=None, device: str = "cpu", flip: bool | None = None) -> KeypointSource:
+def make_source(name: str = "mediapipe", body=None, device: str = "cpu", flip: bool | None = None,
+                retry: bool = True) -> KeypointSource:
     """Keypoint source by name: "mediapipe" (default) or "backbone". ``flip`` (test-time mirror
     averaging, see each source): None = the source's default, on for MediaPipe (cheap next to
-    the fit), off for the backbone (its 100 ms latency goal)."""
+    the fit), off for the backbone (its 100 ms latency goal). ``retry``: MediaPipe's retries on
+    other views when it finds nobody (``MediaPipeSource``)."""
     if name == "mediapipe":
-        return MediaPipeSource(flip=True if flip is None else flip)
+        return MediaPipeSource(flip=True if flip is None else flip, retry=retry)
     if name == "backbone":
         return BackboneSource(body, device=device, flip=bool(flip))
     raise ReconError(f"unknown keypoint source {name!r}; choose one of {', '.join(SOURCES)}")
