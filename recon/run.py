@@ -116,8 +116,8 @@ def run(inputs: list[str | Path], out: str | Path, reconstructor: Reconstructor 
                     log(f"failed: {p}: {r}")
                 else:
                     try:
-                        r.fit["focal_from"] = "exif" if f else "default"
-                        _write(out / key, p, img, im, s, k, r, rec, overlay, dresser, tightness)
+                        _write(out / key, p, img, im, s, k, r, rec, overlay, dresser, tightness,
+                               focal_from="exif" if f else "default")
                         summary.done.append(key)
                     except OSError as e:
                         summary.failed[key] = f"{p}: cannot write outputs ({e})"
@@ -145,8 +145,9 @@ def _downscale(img: np.ndarray) -> tuple[np.ndarray, float]:
 
 
 def _write(folder: Path, src: Path, img, small, s: float, k_small, r: Reconstruction, rec: Reconstructor,
-           overlay: bool, dresser=None, tightness=None) -> None:
-    """Outputs of one image; result.json last (it marks the folder complete)."""
+           overlay: bool, dresser=None, tightness=None, focal_from: str = "default") -> None:
+    """Outputs of one image; result.json last (it marks the folder complete). ``focal_from``: where
+    the intrinsics' focal length came from ("exif" or "default"), recorded in result.json."""
     folder.mkdir(parents=True, exist_ok=True)
     faces = rec.faces
     mesh = trimesh.Trimesh(r.vertices, faces, process=False)
@@ -179,7 +180,7 @@ def _write(folder: Path, src: Path, img, small, s: float, k_small, r: Reconstruc
             js[key] = np.round(np.asarray(js[key]) / s, 2).tolist()
         js["box"] = np.round(np.asarray(js["box"]) / s, 1).tolist()
         js["reprojection_error_px"] = round(js["reprojection_error_px"] / s, 2)
-    js["camera"]["focal_from"] = r.fit.pop("focal_from", "default")
+    js["camera"]["focal_from"] = focal_from
     js["image_size"] = list(img.shape[:2])
     js["source"] = str(src)
     js["keypoint_source"] = getattr(getattr(rec, "source", None), "name", None)

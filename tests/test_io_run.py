@@ -238,3 +238,21 @@ def test_mediapipe_flip_is_mirror_equivariant():
     np.testing.assert_allclose(img.shape[1] - b.points2d[mirror][:, 0], a.points2d[:, 0], atol=1e-2)
     plain = MediaPipeSource(flip=False)(img, k)
     assert np.abs(plain.points3d - a.points3d).max() > 1e-3  # the averaging did something
+
+
+@needs_pipeline
+def test_run_reads_the_focal_length_from_exif(tmp_path, reconstructor):
+    """A photo with a 35 mm equivalent focal length in its EXIF gets that focal (result.json says
+    so); the same photo without one gets the reconstructor's default."""
+    exif = Image.Exif()
+    exif.get_ifd(io.EXIF_IFD)[io.FOCAL_35MM] = 50
+    Image.open(ASTRONAUT).save(tmp_path / "exif.jpg", exif=exif)
+    Image.open(ASTRONAUT).save(tmp_path / "plain.jpg")
+    run([tmp_path / "exif.jpg", tmp_path / "plain.jpg"], tmp_path / "out", reconstructor, overlay=False,
+        progress=False, log=lambda m: None)
+    with_exif = json.loads((tmp_path / "out" / "exif" / "result.json").read_text())["camera"]
+    plain = json.loads((tmp_path / "out" / "plain" / "result.json").read_text())["camera"]
+    side = max(io.load_image(ASTRONAUT).shape[:2])
+    assert with_exif["focal_from"] == "exif" and plain["focal_from"] == "default"
+    assert with_exif["K"][0][0] == pytest.approx(io.exif_focal_factor(tmp_path / "exif.jpg") * side, rel=1e-3)
+    assert plain["K"][0][0] == pytest.approx(reconstructor.focal_factor * side, rel=1e-3)
