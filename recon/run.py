@@ -1,7 +1,8 @@
 """``recon run``: reconstruct every image of files/folders into an output folder.
 
 Per image ``<out>/<key>/``: ``result.json`` (2D/3D joints and landmarks, pose, shape, camera,
-confidence), ``body.obj`` + ``body.glb`` (mesh in the camera frame), ``overlay.png`` (mesh over
+confidence), ``body.obj`` + ``body.glb`` (mesh in the camera frame), ``pose.bvh`` (the pose on
+the body's skeleton, one frame), ``overlay.png`` (mesh over
 the photo) and ``side.png`` (side view); with an outfit also ``outfit.obj`` and ``dressed.glb``.
 Every file is written atomically and ``result.json`` last, so a folder with a result.json is
 complete: a re-run skips it (resume after Ctrl-C or a crash). Images that fail (unreadable, no
@@ -24,10 +25,12 @@ import trimesh
 from tqdm import tqdm
 
 from recon import camera, paths
+from recon.body import skeleton
 from recon.errors import ReconError
 from recon.garment.dress import Dresser
 from recon.io import ImageError, exif_focal_factor, list_images, load_image
 from recon.pipeline import Reconstruction, Reconstructor
+from recon.poses.bvh import write_bvh
 from recon.viz import render_meshes, render_overlay
 
 MAX_SIDE = 1920  # longer side used for detection/rendering; results are in original pixels
@@ -144,6 +147,17 @@ def _downscale(img: np.ndarray) -> tuple[np.ndarray, float]:
     return cv2.resize(img, size, interpolation=cv2.INTER_AREA), s
 
 
+def write_pose_bvh(path: Path, body, r: Reconstruction) -> Path:
+    """The estimated pose as a one-frame BVH on the reconstructed body's own skeleton (its shape's
+    rest joints), centimetres, in the view frame of the photo's camera (y up, z towards the camera)."""
+    with torch.no_grad():
+        rest = body(shape=torch.tensor(r.shape, dtype=torch.float32)[None]).joints[0].numpy()
+    rot = r.rotmats.copy()
+    rot[0] = camera.rotation_to_view(rot[0])
+    return write_bvh(path, list(skeleton.JOINT_NAMES), list(skeleton.JOINT_PARENTS), rest, rot[None],
+                     camera.to_view(r.translation)[None])
+
+
 def _write(folder: Path, src: Path, img, small, s: float, k_small, r: Reconstruction, rec: Reconstructor,
            overlay: bool, dresser=None, tightness=None, focal_from: str = "default") -> None:
     """Outputs of one image; result.json last (it marks the folder complete). ``focal_from``: where
@@ -153,6 +167,7 @@ def _write(folder: Path, src: Path, img, small, s: float, k_small, r: Reconstruc
     mesh = trimesh.Trimesh(r.vertices, faces, process=False)
     paths.atomic_write(folder / "body.obj", lambda t: mesh.export(t, file_type="obj"))
     paths.atomic_write(folder / "body.glb", lambda t: mesh.export(t, file_type="glb"))
+    write_pose_bvh(folder / "pose.bvh", rec.body, r)
     meshes = [(r.vertices, faces, BODY_RGBA)]
     if dresser is not None:
         # the body's root rotation is into the camera frame; the outfit's network needs gravity

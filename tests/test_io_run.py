@@ -21,6 +21,7 @@ from recon.keypoints.adapter import WEIGHTS as ADAPTER_WEIGHTS
 from recon.keypoints.mediapipe import MPPose
 from recon.keypoints.sources import _pad, _unview
 from recon.pipeline import Reconstructor
+from recon.poses.bvh import read_bvh
 from recon.run import run
 
 needs_pipeline = pytest.mark.skipif(not (mediapipe_available() and ADAPTER_WEIGHTS.exists()),
@@ -185,7 +186,7 @@ def test_run_robust_batch_and_resume(tmp_path, reconstructor):
 
     class Interrupting:  # Ctrl-C during the second batch
         def __init__(self):
-            self.calls, self.faces, self.focal_factor = 0, reconstructor.faces, 1.0
+            self.calls, self.faces, self.focal_factor, self.body = 0, reconstructor.faces, 1.0, reconstructor.body
 
         def batch(self, images, ks):
             self.calls += 1
@@ -256,3 +257,9 @@ def test_run_reads_the_focal_length_from_exif(tmp_path, reconstructor):
     assert with_exif["focal_from"] == "exif" and plain["focal_from"] == "default"
     assert with_exif["K"][0][0] == pytest.approx(io.exif_focal_factor(tmp_path / "exif.jpg") * side, rel=1e-3)
     assert plain["K"][0][0] == pytest.approx(reconstructor.focal_factor * side, rel=1e-3)
+    # pose.bvh: the body's skeleton in the photo's pose; its joints are result.json's (view frame, cm)
+    res = json.loads((tmp_path / "out" / "plain" / "result.json").read_text())
+    motion = read_bvh(tmp_path / "out" / "plain" / "pose.bvh")
+    joints = motion.positions[0, [motion.names.index(n) for n in skeleton.JOINT_NAMES]] / 100.0
+    np.testing.assert_allclose(joints, camera.to_view(np.array(res["joints3d"])), atol=2e-4)
+    assert "pose.bvh" in res["files"]
