@@ -29,7 +29,7 @@ from recon import paths
 from recon.backbone.crop import Crop
 from recon.body import default_body
 from recon.keypoints.mediapipe import MediaPipePose
-from recon.keypoints.sources import BackboneSource, MediaPipeSource
+from recon.keypoints.sources import BackboneSource, MediaPipeSource, pad_image
 from recon.synth.dataset import BENCHMARKS, SynthDataset, bench_dir
 
 # The first four are the retries `MediaPipeSource` ships (``RETRIES``, in that order); "retries" =
@@ -51,25 +51,20 @@ def gt_box(s: dict, margin: float = 0.2) -> tuple[int, int, int, int]:
     return int(c[0] - half), int(c[1] - half), int(c[0] + half), int(c[1] + half)
 
 
-def _padded(rgb: np.ndarray, factor: float) -> np.ndarray:
-    p = int(round(max(rgb.shape[:2]) * (factor - 1) / 2))
-    return cv2.copyMakeBorder(rgb, p, p, p, p, cv2.BORDER_CONSTANT, value=(0, 0, 0))
-
-
 def rescue(kind: str, rgb: np.ndarray, s: dict, mp: dict[float, MediaPipePose]) -> bool:
     h, w = rgb.shape[:2]
     if kind == "pad2":
-        return mp[0.5](_padded(rgb, 2.0)) is not None
+        return mp[0.5](pad_image(rgb, 2.0)[0]) is not None
     if kind == "pad1.5@0.3":
-        return mp[0.3](_padded(rgb, 1.5)) is not None
+        return mp[0.3](pad_image(rgb, 1.5)[0]) is not None
     if kind == "mirror-pad1.5":
-        return mp[0.5](np.ascontiguousarray(_padded(rgb, 1.5)[:, ::-1])) is not None
+        return mp[0.5](np.ascontiguousarray(pad_image(rgb, 1.5)[0][:, ::-1])) is not None
     if kind == "conf0.3":
         return mp[0.3](rgb) is not None
     if kind == "upscale2":
         return mp[0.5](cv2.resize(rgb, (2 * w, 2 * h), interpolation=cv2.INTER_CUBIC)) is not None
     if kind == "pad1.5":
-        return mp[0.5](_padded(rgb, 1.5)) is not None
+        return mp[0.5](pad_image(rgb, 1.5)[0]) is not None
     if kind == "gtbox":
         x0, y0, x1, y1 = gt_box(s)
         p = max(0, -x0, -y0, x1 - w, y1 - h)

@@ -31,6 +31,7 @@ from recon.metrics import per_point_error, procrustes_align
 from recon.smplr import SMPLR
 from recon.smplr.lifter import WEIGHTS as LIFTER_WEIGHTS
 from recon.smplr.lifter import Lifter
+from recon.smplr.lifter_train import box_height
 from recon.synth.dataset import SynthDataset, bench_dir
 
 GROUPS = {a: [skeleton.JOINT_NAMES.index(n) for n in names]
@@ -42,10 +43,6 @@ GROUPS["Lm"] = list(range(24, 42))
 def load(name: str) -> dict | None:
     p = paths.cache_dir() / "error-budget" / name
     return dict(np.load(p)) if p.exists() else None
-
-
-def box_height(uv: np.ndarray) -> np.ndarray:
-    return np.maximum(uv[..., 1].max(-1) - uv[..., 1].min(-1), 1.0)
 
 
 def source_rows(files: dict[str, tuple[dict, int]]) -> list[list]:

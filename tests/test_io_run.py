@@ -19,7 +19,7 @@ from recon.keypoints import available as mediapipe_available
 from recon.keypoints.adapter import MP_MIRROR
 from recon.keypoints.adapter import WEIGHTS as ADAPTER_WEIGHTS
 from recon.keypoints.mediapipe import MPPose
-from recon.keypoints.sources import _pad, _unview
+from recon.keypoints.sources import _unview, pad_image
 from recon.pipeline import Reconstructor
 from recon.poses.bvh import read_bvh
 from recon.run import run
@@ -79,7 +79,7 @@ def test_retry_views_map_back_to_the_image():
     np.testing.assert_allclose(r.world, world, atol=1e-12)
     np.testing.assert_array_equal(r.visibility, np.arange(33.0))
     np.testing.assert_array_equal(r.mask, mask)
-    padded, p = _pad(np.zeros((h, w, 3), np.uint8), 1.5)
+    padded, p = pad_image(np.zeros((h, w, 3), np.uint8), 1.5)
     assert p == 20 and padded.shape == (100, 120, 3)
 
 

@@ -12,7 +12,7 @@ from recon import camera
 from recon.backbone.crop import Crop
 from recon.body import skeleton
 from recon.fit import FitConfig, fit_body
-from recon.keypoints import BackboneSource, Keypoints, MediaPipePose, MediaPipeSource
+from recon.keypoints import BackboneSource, Keypoints, MediaPipePose
 from recon.pipeline import Reconstructor
 from recon.poses.mocap import MocapPoses
 from recon.smplr import SMPLR
@@ -158,11 +158,10 @@ class MediaPipeSMPLR:
     name = "mediapipe-smplr"
     description = "recon.Reconstructor: MediaPipe (+ its mirror image) -> adapter -> DAE -> SMPLR, no fit"
 
-    source, fit, lift = "mediapipe", FitConfig(steps=0, silhouette=0.0), "source"  # 0.2's route
+    source, fit, lift, retry = "mediapipe", FitConfig(steps=0, silhouette=0.0), "source", False  # 0.2's route
 
     def __init__(self, body):
-        src = MediaPipeSource(retry=False) if self.source == "mediapipe" else self.source  # 0.2: no retries
-        self.rec = Reconstructor(body, source=src, fit=replace(self.fit), lift=self.lift)
+        self.rec = Reconstructor(body, source=self.source, fit=replace(self.fit), lift=self.lift, retry=self.retry)
 
     def __call__(self, rgb: np.ndarray, k: np.ndarray) -> Prediction | None:
         r = self.rec.batch([rgb], [k])[0]

@@ -24,6 +24,7 @@ from torch import nn
 from recon import camera, paths
 from recon.body import skeleton
 from recon.keypoints.mediapipe import NUM_MP, MPPose
+from recon.smplr.networks import NormResidualBlock
 
 WEIGHTS = Path(__file__).resolve().parent / "weights" / "mp_adapter.pt"
 
@@ -61,16 +62,6 @@ class AdapterConfig:
     dropout: float = 0.1
 
 
-class _Block(nn.Module):
-    def __init__(self, w: int, p: float):
-        super().__init__()
-        self.net = nn.Sequential(nn.Linear(w, w), nn.BatchNorm1d(w), nn.ReLU(), nn.Dropout(p),
-                                 nn.Linear(w, w), nn.BatchNorm1d(w), nn.ReLU(), nn.Dropout(p))
-
-    def forward(self, x):
-        return x + self.net(x)
-
-
 class KeypointAdapter(nn.Module):
     """(B, 198) -> J+ 3D (B, 42, 3) root-relative metres and J+ 2D (B, 42, 2) in the input's
     centred, scaled 2D coordinates (Martinez et al.-style residual MLP)."""
@@ -80,7 +71,7 @@ class KeypointAdapter(nn.Module):
         cfg = cfg or AdapterConfig()
         self.cfg = cfg
         self.inp = nn.Sequential(nn.Linear(IN_DIM, cfg.width), nn.BatchNorm1d(cfg.width), nn.ReLU())
-        self.blocks = nn.Sequential(*[_Block(cfg.width, cfg.dropout) for _ in range(cfg.blocks)])
+        self.blocks = nn.Sequential(*[NormResidualBlock(cfg.width, cfg.dropout) for _ in range(cfg.blocks)])
         self.out = nn.Linear(cfg.width, OUT_DIM)
 
     def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

@@ -24,7 +24,8 @@ from recon.keypoints.mediapipe import MediaPipePose, MPPose
 RETRIES = (("plain", 2.0, 0.5), ("plain", 1.5, 0.3), ("mirror", 1.5, 0.5), ("plain", 1.0, 0.3))
 
 
-def _pad(rgb: np.ndarray, factor: float) -> tuple[np.ndarray, int]:
+def pad_image(rgb: np.ndarray, factor: float) -> tuple[np.ndarray, int]:
+    """The image zero-padded on every side to ``factor`` x its longer side, and the pad in pixels."""
     p = int(round(max(rgb.shape[:2]) * (factor - 1) / 2))
     return (cv2.copyMakeBorder(rgb, p, p, p, p, cv2.BORDER_CONSTANT, value=(0, 0, 0)) if p else rgb), p
 
@@ -72,7 +73,7 @@ class MediaPipeSource:
 
     def _retry(self, rgb: np.ndarray, k: np.ndarray):
         for view, factor, threshold in RETRIES:
-            padded, pad = _pad(rgb, factor)
+            padded, pad = pad_image(rgb, factor)
             if view == "mirror":
                 padded = np.ascontiguousarray(padded[:, ::-1])
             r = self._detector(threshold)(padded)

@@ -23,6 +23,7 @@ from torch import nn
 
 from recon import paths
 from recon.body import skeleton
+from recon.smplr.networks import NormResidualBlock
 
 WEIGHTS = Path(__file__).resolve().parent / "weights" / "lifter.pt"
 PELVIS = 0
@@ -78,16 +79,6 @@ class LifterConfig:
     dropout: float = 0.1
 
 
-class _Block(nn.Module):
-    def __init__(self, w: int, p: float):
-        super().__init__()
-        self.net = nn.Sequential(nn.Linear(w, w), nn.BatchNorm1d(w), nn.ReLU(), nn.Dropout(p),
-                                 nn.Linear(w, w), nn.BatchNorm1d(w), nn.ReLU(), nn.Dropout(p))
-
-    def forward(self, x):
-        return x + self.net(x)
-
-
 @dataclass
 class Lifted:
     points: torch.Tensor  # (B, 42, 3) root-relative J+, real camera (OpenCV axes), metres
@@ -101,7 +92,7 @@ class Lifter(nn.Module):
         super().__init__()
         self.cfg = cfg = cfg or LifterConfig()
         self.net = nn.Sequential(nn.Linear(IN_DIM, cfg.width), nn.BatchNorm1d(cfg.width), nn.ReLU(),
-                                 *[_Block(cfg.width, cfg.dropout) for _ in range(cfg.blocks)],
+                                 *[NormResidualBlock(cfg.width, cfg.dropout) for _ in range(cfg.blocks)],
                                  nn.Linear(cfg.width, OUT_DIM))
 
     def raw(self, inp: LiftInput) -> tuple[torch.Tensor, torch.Tensor]:

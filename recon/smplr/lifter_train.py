@@ -78,6 +78,7 @@ def residual_bank(path: Path | None) -> torch.Tensor | None:
 
 
 def box_height(uv):
+    """Height (px, at least 1) of the box around 2D points (..., P, 2); numpy or torch in, same out."""
     return np.maximum(uv[..., 1].max(-1) - uv[..., 1].min(-1), 1.0) if isinstance(uv, np.ndarray) else \
         (uv[..., 1].amax(-1) - uv[..., 1].amin(-1)).clamp_min(1.0)
 

@@ -25,6 +25,19 @@ class ResidualBlock(nn.Module):
         return self.act(x + self.net(x))
 
 
+class NormResidualBlock(nn.Module):
+    """Two Linear-BatchNorm-ReLU-Dropout layers with an identity skip: the block of Martinez et
+    al. (2017), used by the camera-aware lifter and the MediaPipe adapter."""
+
+    def __init__(self, width: int, dropout: float):
+        super().__init__()
+        self.net = nn.Sequential(nn.Linear(width, width), nn.BatchNorm1d(width), nn.ReLU(), nn.Dropout(dropout),
+                                 nn.Linear(width, width), nn.BatchNorm1d(width), nn.ReLU(), nn.Dropout(dropout))
+
+    def forward(self, x):
+        return x + self.net(x)
+
+
 @dataclass
 class RegressorConfig:
     in_dim: int
