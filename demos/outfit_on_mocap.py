@@ -16,7 +16,7 @@ import torch
 from recon.body import default_body
 from recon.demo import dressed_gif
 from recon.garment.dress import Dresser
-from recon.garment.gltf import write_animated_glb
+from recon.garment.gltf import write_glb
 from recon.poses.mocap import FPS, MocapPoses
 
 
@@ -35,7 +35,7 @@ def main() -> None:
     rot = roma.rotvec_to_rotmat(torch.from_numpy(m.rotvec[sel]).float())
     transl = torch.from_numpy(m.transl[sel]).float()
     dresser = Dresser(a.outfit)
-    print(write_animated_glb(out / f"{a.outfit}-mocap.glb", body, dresser.shape, rot, transl, FPS, dresser))
+    print(write_glb(out / f"{a.outfit}-mocap.glb", body, dresser.shape, rot, transl, FPS, dresser))
 
 
 if __name__ == "__main__":

@@ -32,6 +32,7 @@ import torch
 import trimesh
 
 from recon import paths, report
+from recon.animate import animate, list_motions
 from recon.backbone import search as backbone_search
 from recon.backbone import train as backbone_train
 from recon.backbone.hourglass import SIZES, STEMS
@@ -254,10 +255,24 @@ def cmd_run(a) -> int:
     fit = FitConfig(steps=a.refine_steps, silhouette=a.silhouette)
     focal = default(Reconstructor, "focal_factor") if a.focal is None else a.focal
     rec = Reconstructor(source=a.source, focal_factor=focal, device=a.device, fit=fit, flip=a.flip, lift=a.lift,
-                        retry=a.retry)
+                        retry=a.retry, guard=a.guard)
     s = run(a.inputs or example_photos(), Path(a.out), rec, batch_size=a.batch_size, overlay=not a.no_overlay,
-            outfit=a.outfit, tightness=a.tightness, exif_focal=a.focal is None)
+            outfit=a.outfit, tightness=a.tightness, exif_focal=a.focal is None, max_people=a.max_people)
     return 130 if s.interrupted else (1 if s.failed and not s.done else 0)
+
+
+def cmd_animate(a) -> int:
+    if a.list_motions:
+        print(list_motions())
+        return 0
+    if not a.source or not a.motion or not a.out:
+        raise ReconError("recon animate needs a photo or result folder, --motion and --out "
+                         "(or --list-motions)")
+    written = animate(a.source, a.motion, a.out, outfit=a.outfit, tightness=a.tightness, asf=a.asf,
+                      max_seconds=a.seconds, render=a.render)
+    for path in written.values():
+        print(path)
+    return 0
 
 
 def cmd_demo(a) -> None:
@@ -467,11 +482,16 @@ def build_parser() -> argparse.ArgumentParser:
                    help="focal length in units of the longer image side (default: the photo's EXIF 35 mm "
                         f"equivalent, else {default(Reconstructor, 'focal_factor')})")
     p.add_argument("--no-overlay", action="store_true", help="skip overlay.png / side.png rendering")
+    p.add_argument("--max-people", type=int, default=1,
+                   help="people per image, the largest first (MediaPipe: found one after the other); with more "
+                        "than one found: person_0/, person_1/, ... and one overlay")
     p.add_argument("--source", choices=SOURCES, default="mediapipe",
                    help="keypoints: MediaPipe + adapter, or our volumetric hourglass alone")
     p.add_argument("--retry", action=argparse.BooleanOptionalAction, default=default(Reconstructor, "retry"),
                    help="MediaPipe: when it finds nobody, ask again on padded/mirrored views and at a lower "
                         "threshold (more people found, and more phantoms on person-free images)")
+    p.add_argument("--guard", action=argparse.BooleanOptionalAction, default=default(Reconstructor, "guard"),
+                   help="MediaPipe: refuse answers scored as phantoms (bodies found where there is no person)")
     p.add_argument("--lift", choices=LIFTS, default=default(Reconstructor, "lift"),
                    help="SMPLR's 3D J+: the camera-aware lifter on the 2D keypoints, or the source's own 3D")
     p.add_argument("--flip", action=argparse.BooleanOptionalAction, default=None,
@@ -486,6 +506,22 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--tightness", type=float, nargs=2, default=None, metavar=("WEIGHT", "HEIGHT"),
                    help="with --outfit: looser (> 0) or tighter (< 0), offsets of the body's weight and height "
                         f"phenotypes (trained range {TIGHTNESS_RANGE}; needs a resizer)")
+
+    p = cmds.add_parser("animate", formatter_class=fmt,
+                        help="move a reconstructed person (shape, outfit) with a mocap clip: animated .glb + video")
+    p.set_defaults(func=cmd_animate)
+    p.add_argument("source", nargs="?", help="a photo (reconstructed first) or a `recon run` result folder")
+    p.add_argument("--motion", help="a .bvh (CMU, Daz, Mixamo or recon's own skeleton), an .amc, or a shipped "
+                                    "clip's name (--list-motions)")
+    p.add_argument("--asf", default=None, help="the skeleton of an .amc (default: the one .asf beside it)")
+    p.add_argument("--out", help="output folder: animated.glb, animated.mp4 (or .gif), animation.json")
+    p.add_argument("--outfit", default=None, help="dress the body (default: the outfit `recon run` used, if any)")
+    p.add_argument("--tightness", type=float, nargs=2, default=None, metavar=("WEIGHT", "HEIGHT"),
+                   help="with an outfit that has a resizer: looser (> 0) or tighter (< 0)")
+    p.add_argument("--seconds", type=float, default=None, help="only the clip's first seconds")
+    p.add_argument("--render", choices=("mp4", "gif", "none"), default="mp4",
+                   help="the video (GIF where OpenCV has no MP4 encoder)")
+    p.add_argument("--list-motions", action="store_true", help="list the shipped clips and stop")
 
     # garment
     g = group("garment", "PBNS outfits: train, resize, evaluate, compare with a physics drape")

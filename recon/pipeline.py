@@ -70,6 +70,7 @@ class Reconstruction:
             "image_size": list(self.image_size),
             "camera": {"K": r(self.K, 3)},
             "confidence": round(self.keypoints.confidence, 4),
+            "person_score": None if self.keypoints.person_score is None else round(self.keypoints.person_score, 3),
             "box": r(self.keypoints.box, 1),
             "reprojection_error_px": round(self.reprojection_error_px, 2),
             "joint_names": list(skeleton.JOINT_NAMES),
@@ -105,11 +106,14 @@ class Reconstructor:
         denoise: run SMPLR's 3D DAE on the J+ first.
         retry: a named MediaPipe source asks again on other views when it finds nobody (more
             people found; on person-free images also more phantoms: eval/results/error-budget.md).
+        guard: a named MediaPipe source refuses answers that ``recon.keypoints.guard`` scores as
+            phantoms (eval/results/phantoms.md).
     """
 
     def __init__(self, body=None, source: str | KeypointSource = "mediapipe", focal_factor: float = 1.0,
                  device: str = "cpu", smplr_path=None, fit: FitConfig | None = None, flip: bool | None = None,
-                 lift: str = "blend", denoise: bool = True, lifter_path=None, retry: bool = True):
+                 lift: str = "blend", denoise: bool = True, lifter_path=None, retry: bool = True,
+                 guard: bool = True):
         if lift not in LIFTS:
             raise ReconError(f"lift must be one of {LIFTS}, got {lift!r}")
         self.body = body or default_body()
@@ -117,7 +121,7 @@ class Reconstructor:
         self.smplr = SMPLR.load(self.body, smplr_path).to(self.device)
         self.lift, self.denoise = lift, denoise
         self.lifter = Lifter.load(lifter_path) if lift != "source" else None
-        self.source = (make_source(source, self.body, device, flip, retry) if isinstance(source, str)
+        self.source = (make_source(source, self.body, device, flip, retry, guard) if isinstance(source, str)
                        else source)
         self.focal_factor = focal_factor
         self.fit = fit or FitConfig()
@@ -136,21 +140,35 @@ class Reconstructor:
               ) -> list[Reconstruction | Exception]:
         """Keypoints per image, then one batched SMPLR + body call for all found people.
         Entries are Reconstructions, or NoPersonFound for images without a person."""
+        return [r if isinstance(r, Exception) else r[0] for r in self.people(images, ks, 1)]
+
+    def people(self, images: list[np.ndarray], ks: list[np.ndarray | None] | None = None, max_people: int = 1
+               ) -> list[list[Reconstruction] | Exception]:
+        """Up to ``max_people`` people per image (a source without ``people()`` finds one), the
+        largest first. Entries are lists of Reconstructions, or NoPersonFound."""
+        if max_people < 1:
+            raise ValueError("max_people must be at least 1")
         ks = ks or [None] * len(images)
         results: list = [None] * len(images)
-        found, kps, kmats, t_kp = [], [], [], []
+        found, kps, kmats, t_kp = [], [], [], {}
         for i, (rgb, k) in enumerate(zip(images, ks, strict=True)):
             _check_image(rgb)
             k = camera.default_intrinsics(*rgb.shape[:2], self.focal_factor) if k is None else np.asarray(k, float)
             t0 = time.perf_counter()
-            kp = self.source(rgb, k)
-            t_kp.append((time.perf_counter() - t0) * 1000)
-            if kp is None:
+            if max_people > 1 and hasattr(self.source, "people"):
+                people = self.source.people(rgb, k, max_people)
+            else:
+                people = [kp] if (kp := self.source(rgb, k)) is not None else []
+            people.sort(key=lambda kp: -(kp.box[2] - kp.box[0]) * (kp.box[3] - kp.box[1]))
+            t_kp[i] = (time.perf_counter() - t0) * 1000 / max(len(people), 1)
+            if not people:
                 results[i] = NoPersonFound("no person found")
                 continue
-            found.append(i)
-            kps.append(kp)
-            kmats.append(k)
+            results[i] = []
+            for kp in people:
+                found.append(i)
+                kps.append(kp)
+                kmats.append(k)
         if not found:
             return results
         t0 = time.perf_counter()
@@ -176,11 +194,11 @@ class Reconstructor:
                 rot, shape, t, v, j, lm = f.rotmats, f.shape, f.translation, f.vertices, f.joints, f.landmarks
                 silhouette = f.silhouette
                 timings["refine"] = (time.perf_counter() - t1) * 1000
-            results[i] = Reconstruction(
+            results[i].append(Reconstruction(
                 image_size=tuple(images[i].shape[:2]), K=k, vertices=v, joints=j, landmarks=lm,
                 rotmats=rot.cpu().numpy(), shape=shape.cpu().numpy(), translation=t, keypoints=kp,
                 shape_names=tuple(getattr(self.body, "shape_names", ())), timings_ms=timings,
-                fit={"steps": self.fit.steps, "silhouette": silhouette})
+                fit={"steps": self.fit.steps, "silhouette": silhouette}))
         return results
 
     def posed_body(self, rec: Reconstruction):

@@ -1,10 +1,14 @@
 """``recon run``: reconstruct every image of files/folders into an output folder.
 
 Per image ``<out>/<key>/``: ``result.json`` (2D/3D joints and landmarks, pose, shape, camera,
-confidence), ``body.obj`` + ``body.glb`` (mesh in the camera frame), ``pose.bvh`` (the pose on
-the body's skeleton, one frame), ``overlay.png`` (mesh over
-the photo) and ``side.png`` (side view); with an outfit also ``outfit.obj`` and ``dressed.glb``.
-Every file is written atomically and ``result.json`` last, so a folder with a result.json is
+confidence), ``body.obj`` (mesh in the camera frame), ``body.glb`` (rigged: skeleton and skinned
+body in the photo's pose, in the view frame, with the photo's camera), ``pose.bvh`` (the pose on
+the body's skeleton, one frame), ``overlay.png`` (mesh over the photo) and ``side.png`` (side
+view); with an outfit also ``outfit.obj`` and ``dressed.glb`` (rigged, with the outfit's blend
+shapes).
+With ``--max-people N`` an image with several people gets ``person_0/``, ``person_1/``, ...
+(the largest first), one ``overlay.png`` with all of them and ``people.json``. Every file is
+written atomically and ``result.json`` (``people.json``) last, so a folder with one is
 complete: a re-run skips it (resume after Ctrl-C or a crash). Images that fail (unreadable, no
 person, ...) are reported with the reason and the batch goes on; ``<out>/summary.json`` lists
 done / skipped / failed.
@@ -28,6 +32,7 @@ from recon import camera, paths
 from recon.body import skeleton
 from recon.errors import ReconError
 from recon.garment.dress import Dresser
+from recon.garment.gltf import write_glb
 from recon.io import ImageError, exif_focal_factor, list_images, load_image
 from recon.pipeline import Reconstruction, Reconstructor
 from recon.poses.bvh import write_bvh
@@ -37,6 +42,8 @@ MAX_SIDE = 1920  # longer side used for detection/rendering; results are in orig
 BODY_RGBA = (0.45, 0.62, 0.92, 1.0)
 DRESSED_BODY_RGBA = (0.85, 0.75, 0.68, 1.0)
 OUTFIT_RGBA = (0.35, 0.45, 0.8, 1.0)
+OVERLAY_COLOURS = ((0.45, 0.62, 0.92, 1.0), (0.92, 0.55, 0.45, 1.0), (0.5, 0.82, 0.5, 1.0), (0.85, 0.75, 0.4, 1.0),
+                   (0.7, 0.5, 0.85, 1.0))
 
 
 @dataclass
@@ -69,19 +76,21 @@ def check_writable(out: Path) -> None:
 
 def run(inputs: list[str | Path], out: str | Path, reconstructor: Reconstructor | None = None, batch_size: int = 4,
         overlay: bool = True, outfit: str | None = None, tightness: tuple[float, float] | None = None,
-        progress: bool = True, log=print, exif_focal: bool = True) -> RunSummary:
+        progress: bool = True, log=print, exif_focal: bool = True, max_people: int = 1) -> RunSummary:
     """Reconstruct every image of ``inputs`` into ``out`` (see the module doc). ``reconstructor``:
     default ``Reconstructor()`` (``recon run``'s defaults), built when the first image loads; the
     fit comes from it, and its ``focal_factor`` for images whose EXIF gives no 35 mm equivalent
     focal length (``exif_focal``: read it; False: always the reconstructor's). ``outfit``: dress
     the bodies with a trained PBNS outfit, resized to each body and, with ``tightness`` (2,) and a
-    trained resizer, looser or tighter.
+    trained resizer, looser or tighter. ``max_people``: people per image (the largest first); an
+    image with more than one gets ``person_0/``, ``person_1/``, ... (each as above), one
+    ``overlay.png`` with all of them and ``people.json`` (written last, it marks the image done).
     """
     out = Path(out)
     check_writable(out)
     items = list_images(inputs)
     summary, t0 = RunSummary(), time.time()
-    summary.skipped = [k for _, k in items if (out / k / "result.json").exists()]
+    summary.skipped = [k for _, k in items if any((out / k / f).exists() for f in ("result.json", "people.json"))]
     todo = [(p, k) for p, k in items if k not in set(summary.skipped)]
     if not items:
         log(f"no images found in {', '.join(map(str, inputs))}")
@@ -112,15 +121,20 @@ def run(inputs: list[str | Path], out: str | Path, reconstructor: Reconstructor 
             focal = [(exif_focal_factor(p) if exif_focal else None) for p, _, _ in loaded]
             ks = [np.diag([s, s, 1.0]) @ camera.default_intrinsics(*img.shape[:2], f or rec.focal_factor)
                   for (_, _, img), (_, s), f in zip(loaded, small, focal, strict=True)]
-            results = rec.batch([im for im, _ in small], ks)
+            images = [im for im, _ in small]
+            results = (rec.people(images, ks, max_people) if max_people > 1
+                       else [r if isinstance(r, Exception) else [r] for r in rec.batch(images, ks)])
             for (p, key, img), (im, s), k, r, f in zip(loaded, small, ks, results, focal, strict=True):
                 if isinstance(r, Exception):
                     summary.failed[key] = f"{p}: {r}"
                     log(f"failed: {p}: {r}")
                 else:
                     try:
-                        _write(out / key, p, img, im, s, k, r, rec, overlay, dresser, tightness,
-                               focal_from="exif" if f else "default")
+                        focal_from = "exif" if f else "default"
+                        if len(r) == 1:
+                            _write(out / key, p, img, im, s, k, r[0], rec, overlay, dresser, tightness, focal_from)
+                        else:
+                            _write_people(out / key, p, img, im, s, k, r, rec, overlay, dresser, tightness, focal_from)
                         summary.done.append(key)
                     except OSError as e:
                         summary.failed[key] = f"{p}: cannot write outputs ({e})"
@@ -158,6 +172,32 @@ def write_pose_bvh(path: Path, body, r: Reconstruction) -> Path:
                      camera.to_view(r.translation)[None])
 
 
+def write_rigged_glb(path: Path, body, r: Reconstruction, image_hw: tuple[int, int], k: np.ndarray, dresser=None,
+                     tightness=None) -> Path:
+    """The reconstruction as a rigged .glb (skeleton, skinned body, the outfit with its PBNS blend
+    shapes) in the photo camera's view frame (glTF's: +Y up, the camera at the origin looking down
+    -Z), with that camera in the file."""
+    rot = torch.tensor(r.rotmats[None], dtype=torch.float32)
+    rot[0, 0] = torch.as_tensor(camera.rotation_to_view(r.rotmats[0]), dtype=torch.float32)
+    transl = torch.tensor(camera.to_view(r.translation)[None], dtype=torch.float32)
+    return write_glb(path, body, torch.tensor(r.shape, dtype=torch.float32), rot, transl, dresser=dresser,
+                     tightness=tightness, camera=(k, image_hw), animation_name="photo")
+
+
+def _write_people(folder: Path, src: Path, img, small, s: float, k_small, people: list[Reconstruction],
+                  rec: Reconstructor, overlay: bool, dresser, tightness, focal_from: str) -> None:
+    """Several people of one image: person_<i>/ each, then one overlay with all, then people.json."""
+    for i, r in enumerate(people):
+        _write(folder / f"person_{i}", src, img, small, s, k_small, r, rec, overlay, dresser, tightness, focal_from)
+    if overlay:
+        meshes = [(r.vertices, rec.faces, OVERLAY_COLOURS[i % len(OVERLAY_COLOURS)]) for i, r in enumerate(people)]
+        paths.write_image(folder / "overlay.png", render_overlay(small, meshes, k_small))
+    index = {"source": str(src), "image_size": list(img.shape[:2]), "count": len(people),
+             "people": [{"folder": f"person_{i}", "box": np.round(np.asarray(r.keypoints.box) / s, 1).tolist(),
+                         "confidence": round(r.keypoints.confidence, 4)} for i, r in enumerate(people)]}
+    paths.write_text(folder / "people.json", json.dumps(index, indent=1))
+
+
 def _write(folder: Path, src: Path, img, small, s: float, k_small, r: Reconstruction, rec: Reconstructor,
            overlay: bool, dresser=None, tightness=None, focal_from: str = "default") -> None:
     """Outputs of one image; result.json last (it marks the folder complete). ``focal_from``: where
@@ -166,7 +206,7 @@ def _write(folder: Path, src: Path, img, small, s: float, k_small, r: Reconstruc
     faces = rec.faces
     mesh = trimesh.Trimesh(r.vertices, faces, process=False)
     paths.atomic_write(folder / "body.obj", lambda t: mesh.export(t, file_type="obj"))
-    paths.atomic_write(folder / "body.glb", lambda t: mesh.export(t, file_type="glb"))
+    write_rigged_glb(folder / "body.glb", rec.body, r, small.shape[:2], k_small)
     write_pose_bvh(folder / "pose.bvh", rec.body, r)
     meshes = [(r.vertices, faces, BODY_RGBA)]
     if dresser is not None:
@@ -177,8 +217,7 @@ def _write(folder: Path, src: Path, img, small, s: float, k_small, r: Reconstruc
                     up=torch.tensor(camera.HALF_TURN_X, dtype=torch.float32), tightness=tightness)
         cloth = trimesh.Trimesh(d.vertices[0], d.faces, process=False)
         paths.atomic_write(folder / "outfit.obj", lambda t: cloth.export(t, file_type="obj"))
-        scene = trimesh.Scene({"body": mesh, "outfit": cloth})
-        paths.atomic_write(folder / "dressed.glb", lambda t: scene.export(t, file_type="glb"))
+        write_rigged_glb(folder / "dressed.glb", rec.body, r, small.shape[:2], k_small, dresser, tightness)
         meshes = [(r.vertices, faces, DRESSED_BODY_RGBA), (d.vertices[0], d.faces, OUTFIT_RGBA)]
     if overlay:
         paths.write_image(folder / "overlay.png", render_overlay(small, meshes, k_small))
@@ -200,7 +239,7 @@ def _write(folder: Path, src: Path, img, small, s: float, k_small, r: Reconstruc
     js["source"] = str(src)
     js["keypoint_source"] = getattr(getattr(rec, "source", None), "name", None)
     if dresser is not None:
-        js["outfit"] = {"garments": dresser.names,
+        js["outfit"] = {"name": dresser.outfit, "garments": dresser.names,
                         "tightness": None if tightness is None else [float(t) for t in tightness]}
     js["files"] = sorted(p.name for p in folder.iterdir() if not p.name.startswith("."))
     paths.write_text(folder / "result.json", json.dumps(js, indent=1))

@@ -75,6 +75,46 @@ def render_meshes(meshes: list[tuple[np.ndarray, np.ndarray, tuple]], size=(512,
     return np.ascontiguousarray(color[..., :3])
 
 
+class SequenceRenderer:
+    """Frames of an animation with one offscreen renderer (creating one per frame costs more than
+    the frame): ``r(meshes, centre, ground_y) -> (H, W, 3) uint8``, meshes in the body frame seen
+    from the front turned by ``yaw_deg``, a grey floor at ``ground_y``; ``r.close()`` at the end."""
+
+    def __init__(self, size=(480, 640), yaw_deg: float = 20.0, distance: float = 3.5):
+        self.pyrender = _pyrender()
+        self.size, self.distance = size, distance
+        self.yaw = np.radians(yaw_deg)
+        try:
+            self.renderer = self.pyrender.OffscreenRenderer(*size)
+        except Exception as e:  # noqa: BLE001 - report which GL platform failed
+            raise ReconError(f"offscreen OpenGL ({os.environ.get('PYOPENGL_PLATFORM')}) unavailable: {e}") from e
+        floor = trimesh.creation.box(extents=(40.0, 0.01, 40.0))
+        mat = self.pyrender.MetallicRoughnessMaterial(baseColorFactor=[0.82, 0.82, 0.8, 1.0], metallicFactor=0.0,
+                                                      roughnessFactor=1.0)
+        self.floor = self.pyrender.Mesh.from_trimesh(floor, material=mat, smooth=False)
+
+    def __call__(self, meshes: list[tuple[np.ndarray, np.ndarray, tuple]], centre: np.ndarray,
+                 ground_y: float) -> np.ndarray:
+        pr = self.pyrender
+        scene = pr.Scene(bg_color=[1.0, 1.0, 1.0, 1.0], ambient_light=[0.35, 0.35, 0.35])
+        for v, f, rgba in meshes:
+            mat = pr.MetallicRoughnessMaterial(baseColorFactor=list(rgba), metallicFactor=0.0, roughnessFactor=0.8)
+            scene.add(pr.Mesh.from_trimesh(trimesh.Trimesh(v, f, process=False), material=mat, smooth=True))
+        pose = np.eye(4)
+        pose[:3, 3] = [centre[0], ground_y - 0.005, centre[2]]
+        scene.add(self.floor, pose=pose)
+        eye = centre + self.distance * np.array([np.sin(self.yaw), 0.15, np.cos(self.yaw)])
+        cam_pose = look_at(eye, centre)
+        scene.add(pr.PerspectiveCamera(yfov=np.radians(40.0), aspectRatio=self.size[0] / self.size[1]), pose=cam_pose)
+        scene.add(pr.DirectionalLight(intensity=3.0), pose=cam_pose)
+        scene.add(pr.DirectionalLight(intensity=1.5), pose=look_at(centre + np.array([1.0, 2.0, 1.0]), centre))
+        color, _ = self.renderer.render(scene)
+        return np.ascontiguousarray(color[..., :3])
+
+    def close(self) -> None:
+        self.renderer.delete()
+
+
 def render_overlay(rgb: np.ndarray, meshes: list[tuple[np.ndarray, np.ndarray, tuple]], k: np.ndarray,
                    alpha: float = 0.75) -> np.ndarray:
     """Render [(vertices, faces, rgba)] given in the OpenCV camera frame of intrinsics ``k``

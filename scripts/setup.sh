@@ -31,5 +31,12 @@ if ! .venv/bin/python -c "import mediapipe" 2>/dev/null; then
   .venv/bin/pip install -q --disable-pip-version-check absl-py attrs flatbuffers "protobuf<5" matplotlib sounddevice
 fi
 
+# The Khronos glTF validator, for the tests that check every .glb we write (they skip without it).
+GLTF_VALIDATOR=.venv/gltf-validator/node_modules/gltf-validator
+if command -v npm >/dev/null && [ ! -d "$GLTF_VALIDATOR" ]; then
+  npm install --prefix .venv/gltf-validator gltf-validator@2.0.0-dev.3.10 --no-audit --no-fund >/dev/null 2>&1 \
+    || echo "note: could not install gltf-validator with npm; the .glb validation tests will skip"
+fi
+
 export OMP_NUM_THREADS=1
 .venv/bin/recon body build-cache

@@ -15,7 +15,7 @@ DOCS = sorted((ROOT / "docs").glob("*.md"))
 PAGES = [README, ROOT / "CHANGELOG.md", ROOT / "eval" / "README.md", *DOCS,
          *sorted(ROOT.glob("recon/*/weights/*CARD.md"))]
 # README rows -> the synth-test method they quote
-ROWS = {"`recon run` (0.3": "recon-run", "`recon run` minus the retries": "mediapipe-lifter-fit",
+ROWS = {"`recon run` (0.4": "recon-run", "`recon run` minus the retries": "mediapipe-lifter-fit",
         "0.2's `recon run`": "mediapipe-smplr-fit", "`recon run --source backbone`": "backbone-smplr-fit",
         "MediaPipe's own 3D": "mediapipe", "oracle:": "smplr-gt2d"}
 
@@ -24,7 +24,7 @@ def test_the_readme_is_short_and_links_the_stage_pages():
     text = README.read_text()
     assert len(text) <= 10_000
     for page in ("install", "body", "poses", "smplr", "synth", "pipeline", "backbone", "garments", "training",
-                 "benchmarks"):
+                 "benchmarks", "animate"):
         assert (ROOT / "docs" / f"{page}.md").exists(), page
         assert f"(docs/{page}.md)" in text, page
 

@@ -3,8 +3,11 @@ atomic, an interrupted batch resumes."""
 import inspect
 import json
 
+import cv2
 import numpy as np
 import pytest
+import trimesh
+from gltf_check import assert_valid, pose_meshes, read_glb
 from PIL import Image
 
 from recon import camera, io
@@ -19,7 +22,7 @@ from recon.keypoints import available as mediapipe_available
 from recon.keypoints.adapter import MP_MIRROR
 from recon.keypoints.adapter import WEIGHTS as ADAPTER_WEIGHTS
 from recon.keypoints.mediapipe import MPPose
-from recon.keypoints.sources import _unview, pad_image
+from recon.keypoints.sources import _unview, box_overlap, pad_image, windows
 from recon.pipeline import Reconstructor
 from recon.poses.bvh import read_bvh
 from recon.run import run
@@ -263,3 +266,69 @@ def test_run_reads_the_focal_length_from_exif(tmp_path, reconstructor):
     joints = motion.positions[0, [motion.names.index(n) for n in skeleton.JOINT_NAMES]] / 100.0
     np.testing.assert_allclose(joints, camera.to_view(np.array(res["joints3d"])), atol=2e-4)
     assert "pose.bvh" in res["files"]
+
+
+@needs_pipeline
+def test_run_writes_rigged_glb_files(tmp_path, reconstructor):
+    """body.glb / dressed.glb: valid glTF whose skeleton, skin and blend shapes pose the meshes
+    where body.obj / outfit.obj are (view frame), with the photo's camera."""
+    out = tmp_path / "out"
+    s = run([ASTRONAUT], out, reconstructor, outfit="tshirt-skirt", overlay=False, progress=False, log=lambda m: None)
+    folder = out / s.done[0]
+    for name in ("body.glb", "dressed.glb"):
+        assert_valid(folder / name)
+    obj = trimesh.load(folder / "body.obj", process=False)
+    posed = pose_meshes(folder / "body.glb")
+    np.testing.assert_allclose(posed["body"], camera.to_view(np.asarray(obj.vertices)), atol=1e-4)
+    dressed = pose_meshes(folder / "dressed.glb")
+    cloth = camera.to_view(np.asarray(trimesh.load(folder / "outfit.obj", process=False).vertices))
+    # outfit.obj has the collision pass on top of skinning + blend shapes
+    assert np.median(np.linalg.norm(dressed["outfit"] - cloth, axis=1)) < 1e-4
+    assert np.linalg.norm(dressed["outfit"] - cloth, axis=1).mean() < 3e-3
+    doc, _ = read_glb(folder / "body.glb")
+    js = json.loads((folder / "result.json").read_text())
+    h, f = js["image_size"][0], js["camera"]["K"][1][1]
+    assert doc["cameras"][0]["perspective"]["yfov"] == pytest.approx(2 * np.arctan(h / 2 / f), rel=1e-3)
+    assert [n["name"] for n in doc["nodes"][:24]] == list(skeleton.JOINT_NAMES)
+
+
+@needs_pipeline
+def test_run_finds_every_person(tmp_path, reconstructor):
+    """Two photos side by side: --max-people gives person_0/, person_1/, one overlay and
+    people.json (the largest person first); one person per image keeps today's layout."""
+
+    photos = [io.load_image(p) for p in sorted(EXAMPLES.glob("*.jpg"))[:2]]
+    h = min(p.shape[0] for p in photos)
+    strip = np.concatenate([cv2.resize(p, (round(p.shape[1] * h / p.shape[0]), h)) for p in photos], 1)
+    Image.fromarray(strip).save(tmp_path / "two.png")
+    quiet = dict(progress=False, log=lambda m: None)
+    s = run([tmp_path / "two.png"], tmp_path / "many", reconstructor, max_people=3, **quiet)
+    folder = tmp_path / "many" / s.done[0]
+    index = json.loads((folder / "people.json").read_text())
+    assert index["count"] == 2 and not (folder / "result.json").exists()
+    assert (folder / "overlay.png").exists()
+    areas = []
+    for person in index["people"]:
+        js = json.loads((folder / person["folder"] / "result.json").read_text())
+        x0, y0, x1, y1 = js["box"]
+        areas.append((x1 - x0) * (y1 - y0))
+    assert areas[0] >= areas[1]
+    centres = [np.mean(json.loads((folder / p["folder"] / "result.json").read_text())["joints2d"], 0)[0]
+               for p in index["people"]]
+    assert min(centres) < strip.shape[1] / 2 < max(centres)  # one on each side
+    again = run([tmp_path / "two.png"], tmp_path / "many", reconstructor, max_people=3, **quiet)
+    assert again.skipped == s.done
+    one = run([tmp_path / "two.png"], tmp_path / "one", reconstructor, **quiet)
+    assert (tmp_path / "one" / one.done[0] / "result.json").exists()
+
+
+def test_people_windows_cover_the_image():
+
+    for h, w in ((256, 768), (768, 256), (480, 640)):
+        wins = windows(h, w)
+        cover = np.zeros((h, w), bool)
+        for x0, y0, x1, y1 in wins:
+            assert 0 <= x0 < x1 <= w and 0 <= y0 < y1 <= h
+            cover[y0:y1, x0:x1] = True
+        assert cover.all()
+    assert box_overlap((0, 0, 10, 10), (2, 2, 5, 5)) == 1.0 and box_overlap((0, 0, 1, 1), (5, 5, 6, 6)) == 0.0

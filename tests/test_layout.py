@@ -25,6 +25,7 @@ STAGES = [
     ("recon.viz",),
     ("recon.bench",),
     ("recon.run",),
+    ("recon.animate",),
     ("recon.demo",),
     ("recon.cli",),
 ]

@@ -158,10 +158,11 @@ class MediaPipeSMPLR:
     name = "mediapipe-smplr"
     description = "recon.Reconstructor: MediaPipe (+ its mirror image) -> adapter -> DAE -> SMPLR, no fit"
 
-    source, fit, lift, retry = "mediapipe", FitConfig(steps=0, silhouette=0.0), "source", False  # 0.2's route
+    source, fit, lift, retry, guard = "mediapipe", FitConfig(steps=0, silhouette=0.0), "source", False, False  # 0.2's
 
     def __init__(self, body):
-        self.rec = Reconstructor(body, source=self.source, fit=replace(self.fit), lift=self.lift, retry=self.retry)
+        self.rec = Reconstructor(body, source=self.source, fit=replace(self.fit), lift=self.lift, retry=self.retry,
+                                 guard=self.guard)
 
     def __call__(self, rgb: np.ndarray, k: np.ndarray) -> Prediction | None:
         r = self.rec.batch([rgb], [k])[0]

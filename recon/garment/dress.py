@@ -51,6 +51,7 @@ class Dresser:
         self._resized: dict[bytes, torch.Tensor] = {}
         self.resizer, self._resizer_path, self.transfer = None, None, None
         name = json.loads(ck["meta_json"]).get("outfit")
+        self.outfit = name or str(path)  # what Dresser(...) takes to load it again
         if resizer and name:
             p = store.resizer_path(name, path)
             self._resizer_path = p if p.exists() else None

@@ -1,26 +1,37 @@
-"""Animated glTF 2.0 (.glb) of a dressed body on a pose sequence, written without extra
-dependencies: one skeleton (24 joints, SMPL order), the body and the outfit as skinned meshes
-(4 influences per vertex), the outfit's PBNS deformations as morph targets (the rows of D) whose
-weights are the per-frame embedding X(theta_t) - PBNS is skinning + PSD, which glTF runs natively.
+"""Rigged glTF 2.0 (.glb) of a body, dressed or not, in one pose or animated, written without
+extra dependencies: one skeleton (the 24 named joints, SMPL order), the body and the outfit as
+skinned meshes (up to 8 influences per vertex: anny's skinning reproduced exactly), the outfit's
+PBNS deformations as morph targets (the rows of D) whose weights are the embedding X(theta) -
+PBNS is skinning + PSD, which glTF runs natively. Vertex order is the body model's.
 
-Frame: glTF is +Y up, metres, like the body frame (+Z forward). Loadable by trimesh and by
-standard viewers (Blender, three.js, model-viewer).
+The joints' node rotations hold the first frame's pose, so a client that reads no animation
+(Blender's armature in edit mode excepted) shows the posed body; with more than one frame an
+animation drives the rotations, the root translation and the morph weights.
+
+Frame: glTF's, +Y up, metres. ``recon run`` writes its files in the view frame of the photo's
+camera (the camera at the origin looking down -Z, which is glTF's camera convention) and adds
+that camera; ``recon animate`` and the demos write the body frame (+Z forward).
 """
 from __future__ import annotations
 
 import json
+import math
 import struct
 from pathlib import Path
 
 import numpy as np
 import roma
 import torch
+import trimesh
 
 from recon import paths
 from recon.body import skeleton
 from recon.garment.pbns import pose_features
 
 FLOAT, UBYTE, USHORT, UINT = 5126, 5121, 5123, 5125
+ARRAY_BUFFER, ELEMENT_ARRAY_BUFFER = 34962, 34963
+BODY_RGBA = (0.8, 0.72, 0.66, 1.0)
+OUTFIT_RGBA = (0.3, 0.45, 0.75, 1.0)
 
 
 class _Buffer:
@@ -44,90 +55,122 @@ class _Buffer:
         return len(self.accessors) - 1
 
 
-def _top4(weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    idx = np.argsort(-weights, 1)[:, :4]
+def influence_sets(weights: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Skinning weights (N, J) -> glTF's JOINTS_n / WEIGHTS_n pairs of 4: as many sets as the
+    most influenced vertex needs (anny: 7 joints, 2 sets), renormalised to sum to 1."""
+    n_inf = int(max(1, (weights > 1e-6).sum(1).max()))
+    k = 4 * math.ceil(n_inf / 4)
+    idx = np.argsort(-weights, 1)[:, :k]
     w = np.take_along_axis(weights, idx, 1)
+    w = np.where(w > 1e-6, w, 0.0)
     w = w / w.sum(1, keepdims=True)
-    return idx.astype(np.uint16), w.astype(np.float32)
+    idx = np.where(w > 0, idx, 0)  # unused slots point at joint 0 with weight 0
+    return [(idx[:, s:s + 4].astype(np.uint16), w[:, s:s + 4].astype(np.float32)) for s in range(0, k, 4)]
 
 
 def _quat_xyzw(r: torch.Tensor) -> np.ndarray:
     return roma.rotmat_to_unitquat(r).numpy().astype(np.float32)  # roma: (x, y, z, w) like glTF
 
 
-def write_animated_glb(path: Path, body, shape: torch.Tensor, rotmats: torch.Tensor, transl: torch.Tensor,
-                       fps: float, dresser=None) -> Path:
-    """rotmats (T, 24, 3, 3) local rotations, transl (T, 3) pelvis positions, body frame."""
+def write_glb(path: str | Path, body, shape: torch.Tensor, rotmats: torch.Tensor, transl: torch.Tensor,
+              fps: float = 30.0, dresser=None, tightness=None, camera: tuple[np.ndarray, tuple[int, int]] | None = None,
+              animation_name: str = "motion") -> Path:
+    """Write a rigged .glb atomically.
+
+    Args:
+        shape: (S,) or (1, S) the body's shape parameters.
+        rotmats: (T, 24, 3, 3) local joint rotations; the root's is into the file's frame.
+        transl: (T, 3) pelvis positions in the file's frame, metres.
+        dresser: a ``recon.garment.Dresser`` to add its outfit (resized to ``shape``, ``tightness``
+            where the outfit has a resizer); its network must see the gravity-aligned pose, i.e.
+            +Y up in the file's frame.
+        camera: (K, (height, width)): a perspective camera at the origin looking down -Z with the
+            vertical field of view of K (glTF has no principal point: it is taken as centred).
+    With T = 1 the file holds the pose and no animation."""
     shape = shape.reshape(1, -1)
+    rotmats, transl = rotmats.detach().float().cpu(), transl.detach().float().cpu().reshape(-1, 3)
+    if rotmats.ndim != 4 or rotmats.shape[1:] != (24, 3, 3) or len(transl) != len(rotmats):
+        raise ValueError("rotmats must be (T, 24, 3, 3) with one pelvis position per frame")
     with torch.no_grad():
         rest_v, rest_j = body.rest_geometry(shape.to(body.mean_shape))
     rest_v, rest_j = rest_v[0].numpy().astype(np.float32), rest_j[0].numpy().astype(np.float32)
     parents = skeleton.JOINT_PARENTS
+    t = len(rotmats)
+    q = _quat_xyzw(rotmats.reshape(-1, 3, 3)).reshape(t, 24, 4)
     buf = _Buffer()
-    nodes, meshes = [], []
+    nodes, meshes, materials = [], [], []
 
-    # skeleton: node k = joint k, translation = rest offset to the parent, rotation animated
+    # skeleton: node k = joint k, translation = rest offset to the parent, rotation = the pose
     for k, name in enumerate(skeleton.JOINT_NAMES):
-        off = rest_j[k] - (rest_j[parents[k]] if parents[k] >= 0 else 0.0)
+        off = transl[0].numpy() if parents[k] < 0 else rest_j[k] - rest_j[parents[k]]
+        node = {"name": name, "translation": np.asarray(off, float).tolist(),
+                "rotation": q[0, k].astype(float).tolist()}
         children = [c for c in range(24) if parents[c] == k]
-        node = {"name": name, "translation": off.astype(float).tolist()}
         if children:
             node["children"] = children
         nodes.append(node)
     ibm = np.tile(np.eye(4, dtype=np.float32), (24, 1, 1))
     ibm[:, :3, 3] = -rest_j
     ibm_acc = buf.add(ibm.transpose(0, 2, 1).reshape(24, 16), FLOAT, "MAT4")  # column-major
-    skin = {"joints": list(range(24)), "inverseBindMatrices": ibm_acc, "skeleton": 0}
+    skin = {"name": "skeleton", "joints": list(range(24)), "inverseBindMatrices": ibm_acc, "skeleton": 0}
 
-    def skinned_mesh(name, v, f, weights, rgba, targets=None):
-        j4, w4 = _top4(weights)
-        attrs = {"POSITION": buf.add(v.astype(np.float32), FLOAT, "VEC3", 34962, minmax=True),
-                 "JOINTS_0": buf.add(j4, USHORT, "VEC4", 34962), "WEIGHTS_0": buf.add(w4, FLOAT, "VEC4", 34962)}
-        prim = {"attributes": attrs, "indices": buf.add(f.astype(np.uint32).reshape(-1), UINT, "SCALAR", 34963),
-                "material": len(materials)}
+    def skinned_mesh(name, v, f, weights, rgba, targets=None, morph0=None):
+        normals = trimesh.Trimesh(v, f, process=False).vertex_normals.astype(np.float32)
+        attrs = {"POSITION": buf.add(v.astype(np.float32), FLOAT, "VEC3", ARRAY_BUFFER, minmax=True),
+                 "NORMAL": buf.add(normals, FLOAT, "VEC3", ARRAY_BUFFER)}
+        for s, (j, w) in enumerate(influence_sets(weights)):
+            attrs[f"JOINTS_{s}"] = buf.add(j, USHORT, "VEC4", ARRAY_BUFFER)
+            attrs[f"WEIGHTS_{s}"] = buf.add(w, FLOAT, "VEC4", ARRAY_BUFFER)
+        prim = {"attributes": attrs, "material": len(materials),
+                "indices": buf.add(f.astype(np.uint32).reshape(-1), UINT, "SCALAR", ELEMENT_ARRAY_BUFFER)}
         materials.append({"name": name, "pbrMetallicRoughness": {"baseColorFactor": list(rgba), "metallicFactor": 0.0,
                                                                   "roughnessFactor": 0.8}, "doubleSided": True})
         mesh = {"name": name, "primitives": [prim]}
         if targets is not None:
-            prim["targets"] = [{"POSITION": buf.add(t.astype(np.float32), FLOAT, "VEC3", 34962, minmax=True)}
-                               for t in targets]
-            mesh["weights"] = [0.0] * len(targets)
+            prim["targets"] = [{"POSITION": buf.add(d.astype(np.float32), FLOAT, "VEC3", ARRAY_BUFFER, minmax=True)}
+                               for d in targets]
+            mesh["weights"] = morph0.astype(float).tolist()
         meshes.append(mesh)
         nodes.append({"name": name, "mesh": len(meshes) - 1, "skin": 0})
         return len(nodes) - 1
 
-    materials: list = []
-    mesh_nodes = [skinned_mesh("body", rest_v, body.faces.numpy(), body.weights.numpy(), (0.8, 0.72, 0.66, 1.0))]
-    morph_weights = None
+    mesh_nodes = [skinned_mesh("body", rest_v, body.faces.numpy(), body.weights.numpy(), BODY_RGBA)]
+    morph = None
     if dresser is not None:
         model = dresser.model
-        rest_c = dresser.rest_for(body, shape[0]).numpy()
+        rest_c = dresser.rest_for(body, shape[0], tightness=tightness).numpy()
         d = model.D.detach().numpy().reshape(model.cfg.embedding, -1, 3)
-        mesh_nodes.append(skinned_mesh("outfit", rest_c, model.faces.numpy(), model.weights.detach().numpy(),
-                                       (0.3, 0.45, 0.75, 1.0), targets=d))
         with torch.no_grad():
-            morph_weights = model.mlp(pose_features(rotmats)).numpy().astype(np.float32)  # (T, |X|)
+            morph = model.mlp(pose_features(rotmats)).numpy().astype(np.float32)  # (T, |X|)
+        mesh_nodes.append(skinned_mesh("outfit", rest_c, model.faces.numpy(), model.weights.detach().numpy(),
+                                       OUTFIT_RGBA, targets=d, morph0=morph[0]))
+    scene_nodes = [0] + mesh_nodes
+    doc = {"asset": {"version": "2.0", "generator": "recon"}, "scene": 0}
+    if camera is not None:
+        k, (h, w) = camera
+        doc["cameras"] = [{"type": "perspective", "name": "photo", "perspective": {
+            "yfov": float(2 * math.atan(0.5 * h / float(k[1][1]))), "aspectRatio": float(w / h),
+            "znear": 0.01, "zfar": 1000.0}}]
+        nodes.append({"name": "photo camera", "camera": 0})
+        scene_nodes.append(len(nodes) - 1)
 
-    # animation: per-joint rotations, root translation, outfit morph weights
-    t = len(rotmats)
-    times = buf.add((np.arange(t, dtype=np.float32) / fps)[:, None], FLOAT, "SCALAR", minmax=True)
-    samplers, channels = [], []
-    q = _quat_xyzw(rotmats.reshape(-1, 3, 3)).reshape(t, 24, 4)
-    for k in range(24):
-        samplers.append({"input": times, "output": buf.add(q[:, k], FLOAT, "VEC4"), "interpolation": "LINEAR"})
-        channels.append({"sampler": len(samplers) - 1, "target": {"node": k, "path": "rotation"}})
-    samplers.append({"input": times, "output": buf.add(transl.numpy().astype(np.float32), FLOAT, "VEC3"),
-                     "interpolation": "LINEAR"})
-    channels.append({"sampler": len(samplers) - 1, "target": {"node": 0, "path": "translation"}})
-    if morph_weights is not None:
-        samplers.append({"input": times, "output": buf.add(morph_weights.reshape(-1, 1), FLOAT, "SCALAR"),
-                         "interpolation": "LINEAR"})
-        channels.append({"sampler": len(samplers) - 1, "target": {"node": mesh_nodes[1], "path": "weights"}})
+    if t > 1:  # per-joint rotations, root translation, outfit morph weights
+        times = buf.add((np.arange(t, dtype=np.float32) / fps)[:, None], FLOAT, "SCALAR", minmax=True)
+        samplers, channels = [], []
+        for k in range(24):
+            samplers.append({"input": times, "output": buf.add(q[:, k], FLOAT, "VEC4"), "interpolation": "LINEAR"})
+            channels.append({"sampler": len(samplers) - 1, "target": {"node": k, "path": "rotation"}})
+        samplers.append({"input": times, "output": buf.add(transl.numpy(), FLOAT, "VEC3"), "interpolation": "LINEAR"})
+        channels.append({"sampler": len(samplers) - 1, "target": {"node": 0, "path": "translation"}})
+        if morph is not None:
+            samplers.append({"input": times, "output": buf.add(morph.reshape(-1, 1), FLOAT, "SCALAR"),
+                             "interpolation": "LINEAR"})
+            channels.append({"sampler": len(samplers) - 1, "target": {"node": mesh_nodes[1], "path": "weights"}})
+        doc["animations"] = [{"name": animation_name, "samplers": samplers, "channels": channels}]
 
-    doc = {"asset": {"version": "2.0", "generator": "recon"}, "scene": 0,
-           "scenes": [{"nodes": [0] + mesh_nodes}], "nodes": nodes, "meshes": meshes, "materials": materials,
-           "skins": [skin], "animations": [{"name": "mocap", "samplers": samplers, "channels": channels}],
-           "buffers": [{"byteLength": len(buf.data)}], "bufferViews": buf.views, "accessors": buf.accessors}
+    doc |= {"scenes": [{"nodes": scene_nodes}], "nodes": nodes, "meshes": meshes, "materials": materials,
+            "skins": [skin], "buffers": [{"byteLength": len(buf.data)}], "bufferViews": buf.views,
+            "accessors": buf.accessors}
     js = json.dumps(doc, separators=(",", ":")).encode()
     js += b" " * (-len(js) % 4)
     bin_ = bytes(buf.data) + b"\0" * (-len(buf.data) % 4)

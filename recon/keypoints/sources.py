@@ -13,6 +13,7 @@ import numpy as np
 from recon import camera
 from recon.backbone.search import CropSearch
 from recon.body import skeleton
+from recon.keypoints import guard as person_guard
 from recon.keypoints.adapter import MP_MIRROR, KeypointAdapter
 from recon.keypoints.base import Keypoints
 from recon.keypoints.mediapipe import MediaPipePose, MPPose
@@ -45,22 +46,66 @@ def _unview(r: MPPose, pad: int, mirrored: bool, shape) -> MPPose:
     return MPPose(xy, vis, world, mask)
 
 
+def box_iou(a, b) -> float:
+    """Intersection over union of two (x0, y0, x1, y1) boxes."""
+    iw = max(0.0, min(a[2], b[2]) - max(a[0], b[0]))
+    ih = max(0.0, min(a[3], b[3]) - max(a[1], b[1]))
+    inter = iw * ih
+    union = (a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter
+    return float(inter / union) if union > 0 else 0.0
+
+
+def box_overlap(a, b) -> float:
+    """The share of the smaller of two boxes that lies inside the other (1: one contains the
+    other; a person found again from a leftover limb overlaps its first box this way)."""
+    iw = max(0.0, min(a[2], b[2]) - max(a[0], b[0]))
+    ih = max(0.0, min(a[3], b[3]) - max(a[1], b[1]))
+    small = min((a[2] - a[0]) * (a[3] - a[1]), (b[2] - b[0]) * (b[3] - b[1]))
+    return float(iw * ih / small) if small > 0 else 0.0
+
+
+def blank_person(rgb: np.ndarray, kp: Keypoints) -> np.ndarray:
+    """The image with one found person painted over (inpainted from the surroundings, at low
+    resolution: a flat fill would leave a person-shaped silhouette), so that MediaPipe, asked
+    again, finds the next person. The region: the person's mask inside its box, grown a little;
+    the box where the source gives no mask."""
+    h, w = rgb.shape[:2]
+    x0, y0, x1, y1 = kp.box
+    size = max(x1 - x0, y1 - y0, 1.0)
+    bx = np.zeros((h, w), np.uint8)
+    g = 0.1 * size
+    bx[max(0, int(y0 - g)):max(0, int(y1 + g)), max(0, int(x0 - g)):max(0, int(x1 + g))] = 1
+    region = bx if kp.mask is None else (kp.mask.astype(np.uint8) & bx)
+    grow = max(3, int(0.04 * size)) * 2 + 1
+    region = cv2.dilate(region, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (grow, grow)))
+    s = min(1.0, 256.0 / max(h, w))
+    small = cv2.resize(rgb, (max(1, round(w * s)), max(1, round(h * s))), interpolation=cv2.INTER_AREA)
+    small_region = cv2.resize(region, small.shape[1::-1], interpolation=cv2.INTER_NEAREST)
+    filled = cv2.resize(cv2.inpaint(small, small_region, 5, cv2.INPAINT_TELEA), (w, h), interpolation=cv2.INTER_LINEAR)
+    out = rgb.copy()
+    out[region > 0] = filled[region > 0]
+    return out
+
+
 class MediaPipeSource:
     """MediaPipe Pose landmarks -> our J+ via the learned adapter (recon.keypoints.adapter).
     ``flip``: also run on the mirrored image and average the two J+ (mirrored back, left and
     right swapped), unless the mirrored run finds nobody or someone else: one more MediaPipe call
     (its gain: eval/results/pipeline-fit-choices.md; its cost: eval/results/bench-pipeline.md).
     ``retry``: when MediaPipe finds nobody, ask it again on the views of ``RETRIES`` (only then:
-    no cost on images where it finds the person at once)."""
+    no cost on images where it finds the person at once). ``guard``: refuse answers that
+    ``recon.keypoints.guard`` takes for phantoms (as if MediaPipe had found nobody there).
+    ``people(rgb, K, n)``: up to n people, one after the other."""
 
     name = "mediapipe"
 
-    def __init__(self, adapter_path=None, flip: bool = True, retry: bool = True):
+    def __init__(self, adapter_path=None, flip: bool = True, retry: bool = True, guard: bool = True):
         self.adapter = KeypointAdapter.load(adapter_path)
         self.mp = MediaPipePose()
-        self.flip, self.retry = flip, retry
+        self.flip, self.retry, self.guard = flip, retry, guard
         self._by_threshold = {0.5: self.mp}
         self.last_view = None  # which view found the person in the last call (None: nobody)
+        self._strict = False  # answers need a retry view's evidence (set by people() on windows)
 
     def _detector(self, threshold: float) -> MediaPipePose:
         if threshold not in self._by_threshold:
@@ -71,6 +116,39 @@ class MediaPipeSource:
         r = self.mp(rgb)
         return None if r is None else (r, *self.adapter.predict(r, k))
 
+    def _person(self, r: MPPose, rgb: np.ndarray, retry: bool) -> float | None:
+        """The guard's score of an answer, None when the guard refuses it (a phantom)."""
+        ev = person_guard.evidence(r, rgb.shape)
+        s = person_guard.score(ev)
+        retry = retry or self._strict
+        if not self.guard or person_guard.accept(ev, retry):
+            return s
+        if retry and s >= person_guard.THRESHOLD["confirmed"] and self._confirmed(rgb, r):
+            return s
+        return None
+
+    def _confirmed(self, rgb: np.ndarray, r: MPPose) -> bool:
+        """MediaPipe, at its default threshold, finds the same person on a crop of the image around
+        the answer (upscaled to 256 px; squared with the border's own pixels, not zeros: zero
+        padding is what lets it see people in a horse): a person it missed in the whole image."""
+        h, w = rgb.shape[:2]
+        seen = r.visibility > 0.5
+        pts = r.image_xy[seen] if seen.sum() >= 4 else r.image_xy
+        lo, hi = pts.min(0), pts.max(0)
+        size = float(max(hi[0] - lo[0], hi[1] - lo[1], 8.0))
+        c = 0.5 * (lo + hi)
+        x0, y0 = (int(max(0, c[0] - 0.75 * size)), int(max(0, c[1] - 0.75 * size)))
+        x1, y1 = (int(min(w, c[0] + 0.75 * size)), int(min(h, c[1] + 0.75 * size)))
+        if x1 - x0 < 8 or y1 - y0 < 8:
+            return False
+        side = max(x1 - x0, y1 - y0)
+        crop = cv2.copyMakeBorder(rgb[y0:y1, x0:x1], 0, side - (y1 - y0), 0, side - (x1 - x0), cv2.BORDER_REPLICATE)
+        again = self.mp(np.ascontiguousarray(cv2.resize(crop, (256, 256), interpolation=cv2.INTER_AREA)))
+        if again is None:
+            return False
+        xy = again.image_xy * (side / 256.0) + [x0, y0]
+        return bool(np.median(np.linalg.norm(xy - r.image_xy, axis=1)) < 0.15 * size)
+
     def _retry(self, rgb: np.ndarray, k: np.ndarray):
         for view, factor, threshold in RETRIES:
             padded, pad = pad_image(rgb, factor)
@@ -78,19 +156,22 @@ class MediaPipeSource:
                 padded = np.ascontiguousarray(padded[:, ::-1])
             r = self._detector(threshold)(padded)
             if r is not None:
-                self.last_view = f"{view} x{factor:g} @{threshold:g}"
                 r = _unview(r, pad, view == "mirror", rgb.shape)
-                return (r, *self.adapter.predict(r, k))
+                if (score := self._person(r, rgb, retry=True)) is not None:
+                    self.last_view = f"{view} x{factor:g} @{threshold:g}"
+                    return (r, *self.adapter.predict(r, k), score)
         return None
 
     def __call__(self, rgb: np.ndarray, k: np.ndarray) -> Keypoints | None:
         found = self._detect(rgb, k)
+        score = None if found is None else self._person(found[0], rgb, retry=False)
+        found = None if score is None else found
         self.last_view = None if found is None else "image"
         if found is None and self.retry:
             found = self._retry(rgb, k)
             if found is not None:  # a view found the person: no mirror averaging on top
-                r, p3, uv = found
-                return Keypoints(p3, uv, float(np.mean(r.visibility)), r.box(), r.mask)
+                r, p3, uv, score = found
+                return Keypoints(p3, uv, float(np.mean(r.visibility)), r.box(), r.mask, score)
         if found is None:
             return None
         r, p3, uv = found
@@ -110,7 +191,76 @@ class MediaPipeSource:
                 d = np.linalg.norm(uvm - uv, axis=1)[inside if inside.any() else slice(None)]
                 if np.median(d) < 0.25 * size:  # the same person (another one would be far off)
                     p3, uv = 0.5 * (p3 + p3m), 0.5 * (uv + uvm)
-        return Keypoints(p3, uv, float(np.mean(r.visibility)), box, r.mask)
+        return Keypoints(p3, uv, float(np.mean(r.visibility)), box, r.mask, score)
+
+    def people(self, rgb: np.ndarray, k: np.ndarray, max_people: int) -> list[Keypoints]:
+        """Up to ``max_people`` people: MediaPipe Pose finds one person per call, so each person it
+        finds is painted over (``blank_person``) and it is asked again, first on the whole image,
+        then, once someone is found, on windows of it (``windows``: its detector sees a whole image
+        at 224 px, where the people of a wide group photo are too small), until it finds nobody
+        new. Only the first person may come from the retries; window answers need the guard's
+        retry evidence."""
+        found: list[Keypoints] = []
+        work, retry = rgb, self.retry
+        views = [(0, 0, rgb.shape[1], rgb.shape[0])] + windows(*rgb.shape[:2])
+        try:
+            for n_view, (x0, y0, x1, y1) in enumerate(views):
+                if n_view > 0 and not found:
+                    break  # nobody in the whole image: no windows (where phantoms would get a second chance)
+                self._strict = n_view > 0  # a window is an upscaled view: its answers need a retry's evidence
+                while len(found) < max_people:
+                    kw = np.array(k, float)
+                    kw[:2, 2] -= (x0, y0)
+                    kp = self(np.ascontiguousarray(work[y0:y1, x0:x1]), kw)
+                    if kp is None:
+                        break
+                    kp = _shifted(kp, x0, y0, work.shape)
+                    if any(_same_person(kp, f) for f in found):
+                        break
+                    found.append(kp)
+                    self.retry = False  # the retries rescue a missed lone person; on painted images they invent
+                    work = blank_person(work, kp)
+        finally:
+            self.retry, self._strict = retry, False
+        return found
+
+
+def windows(h: int, w: int) -> list[tuple[int, int, int, int]]:
+    """Where ``MediaPipeSource.people`` looks after the whole image: squares of the short side
+    along the long one (half-overlapping) when the image is elongated, and four overlapping
+    windows of 60 % of each side. (x0, y0, x1, y1)."""
+    out = []
+    side, long = min(h, w), max(h, w)
+    if long > 1.3 * side:
+        n = int(np.ceil((long - side) / (side / 2))) + 1
+        for start in np.linspace(0, long - side, n).round().astype(int):
+            out.append((start, 0, start + side, h) if w >= h else (0, start, w, start + side))
+    ww, wh = int(0.6 * w), int(0.6 * h)
+    out += [(x, y, x + ww, y + wh) for y in (0, h - wh) for x in (0, w - ww)]
+    return out
+
+
+def _same_person(new: Keypoints, old: Keypoints) -> bool:
+    """A find that is someone found already: most of its keypoints inside the first one's box
+    (a limb left over by the painting), or most of the smaller box inside the other."""
+    x0, y0, x1, y1 = old.box
+    p = new.points2d
+    inside = (p[:, 0] >= x0) & (p[:, 0] <= x1) & (p[:, 1] >= y0) & (p[:, 1] <= y1)
+    return bool(inside.mean() > 0.5 or box_overlap(new.box, old.box) > 0.5)
+
+
+def _shifted(kp: Keypoints, x0: int, y0: int, shape) -> Keypoints:
+    """Keypoints found on a window -> the same in the whole image."""
+    if x0 == 0 and y0 == 0 and (kp.mask is None or kp.mask.shape == tuple(shape[:2])):
+        return kp
+    mask = None
+    if kp.mask is not None:
+        mask = np.zeros(shape[:2], bool)
+        mh, mw = kp.mask.shape
+        mask[y0:y0 + mh, x0:x0 + mw] = kp.mask
+    b = kp.box
+    return Keypoints(kp.points3d, kp.points2d + [x0, y0], kp.confidence, (b[0] + x0, b[1] + y0, b[2] + x0, b[3] + y0),
+                     mask, kp.person_score)
 
 
 class BackboneSource:

@@ -55,7 +55,7 @@ def split_of(subject: str) -> str:
 def resample(rotmats: np.ndarray, transl: np.ndarray, fps_in: float, fps_out: float = FPS):
     """Resample local rotations (slerp) and translations (lerp) to ``fps_out``."""
     f = rotmats.shape[0]
-    n_out = max(1, int(np.floor((f - 1) * fps_out / fps_in)) + 1)
+    n_out = max(1, int(np.floor((f - 1) * fps_out / fps_in + 1e-3)) + 1)  # a header's 0.033333 s is 30 fps
     t = np.arange(n_out) * fps_in / fps_out
     i0 = np.minimum(np.floor(t).astype(int), f - 1)
     i1 = np.minimum(i0 + 1, f - 1)

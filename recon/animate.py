@@ -1,0 +1,276 @@
+"""``recon animate``: a reconstructed person (its body shape, its outfit) moved by a mocap clip.
+
+The body comes from a photo (run through ``recon run`` first) or from a ``recon run`` result
+folder; the motion from a BVH (CMU, Daz, Mixamo skeletons, or recon's own, e.g. a ``pose.bvh``),
+an ASF/AMC pair, or a clip of the shipped pose set by name or category (``recon animate
+--list-motions``; a category takes its first held-out clip).
+The clip is retargeted to the person's own skeleton (recon.poses.retarget), resampled to
+30 fps and put on the ground (its lowest point at y = 0). Outputs: ``animated.glb`` (skeleton,
+skinned body and outfit, per-frame blend-shape weights; recon.garment.gltf) and a render,
+``animated.mp4`` (``animated.gif`` where OpenCV has no MP4 encoder, or when asked for).
+Frames are in the body frame: +Y up, metres.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+import roma
+import torch
+from PIL import Image
+from tqdm import tqdm
+
+from recon import paths
+from recon.body import default_body, skeleton
+from recon.errors import MissingFile, ReconError
+from recon.garment.dress import Dresser
+from recon.garment.gltf import write_glb
+from recon.io import list_images
+from recon.poses.asfamc import read_asf_amc
+from recon.poses.bvh import read_bvh
+from recon.poses.mocap import FPS, MocapPoses, resample
+from recon.poses.motion import SourceMotion
+from recon.poses.retarget import Retargeter
+from recon.run import run
+from recon.viz import SequenceRenderer
+
+BODY_RGBA = (0.85, 0.75, 0.68, 1.0)
+OUTFIT_RGBA = (0.35, 0.45, 0.8, 1.0)
+
+
+@dataclass
+class Motion:
+    """Local joint rotations (T, 24, 3, 3) and pelvis positions (T, 3) at ``fps``, body frame."""
+
+    rotmats: torch.Tensor
+    transl: torch.Tensor
+    fps: float
+    name: str
+
+    def __len__(self) -> int:
+        return int(self.rotmats.shape[0])
+
+
+def shipped_clips() -> list[dict]:
+    """The clips of the shipped pose set (name, category, frames, split)."""
+    return MocapPoses.load().clips
+
+
+def _rest_points(body, shape: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:
+    with torch.no_grad():
+        rest = body(shape=shape.reshape(1, -1))
+    return rest.joints[0].numpy(), rest.landmarks[0].numpy()
+
+
+def _leg_length(body, shape: torch.Tensor) -> float:
+    j = _rest_points(body, shape)[0]
+    hip, knee, ankle = (j[skeleton.JOINT_NAMES.index(f"left_{n}")] for n in ("hip", "knee", "ankle"))
+    return float(np.linalg.norm(hip - knee) + np.linalg.norm(knee - ankle))
+
+
+def _own_skeleton(m: SourceMotion) -> tuple[np.ndarray, np.ndarray]:
+    """A BVH on recon's own skeleton (``recon run``'s pose.bvh): its rotations are ours already."""
+    order = [m.index(n) for n in skeleton.JOINT_NAMES]
+    g = m.rotations[:, order]
+    local = g.copy()
+    par = np.array(skeleton.JOINT_PARENTS)
+    local[:, 1:] = np.swapaxes(g[:, par[1:]], -1, -2) @ g[:, 1:]
+    return local, m.positions[:, order[0]]
+
+
+def clip_name(spec: str, clips: list[dict]) -> str:
+    """A shipped clip by name, or by category (its first held-out clip: test, then val, then train)."""
+    names = [c["name"] for c in clips]
+    if spec in names:
+        return spec
+    order = {"test": 0, "val": 1, "train": 2}
+    of_kind = sorted((c for c in clips if c["category"] == spec), key=lambda c: order[c["split"]])
+    if of_kind:
+        return of_kind[0]["name"]
+    close = [n for n in names if spec.lower() in n.lower()][:8]
+    hint = f" (did you mean: {', '.join(close)}?)" if close else ""
+    kinds = ", ".join(sorted({c["category"] for c in clips}))
+    raise ReconError(f"no motion {spec!r}: give a .bvh/.amc file, a shipped clip's name{hint} or a category "
+                     f"({kinds}); `recon animate --list-motions` lists the clips")
+
+
+def check_motion(spec: str | Path) -> None:
+    """Refuse a motion that cannot load before any work is done (a missing file, an unknown name)."""
+    p = Path(spec)
+    if p.suffix.lower() in (".bvh", ".amc"):
+        if not p.exists():
+            raise MissingFile(f"motion file {p} not found")
+    else:
+        clip_name(str(spec), shipped_clips())
+
+
+def load_motion(spec: str | Path, body, shape: torch.Tensor, asf: str | Path | None = None) -> Motion:
+    """A clip for the body of ``shape``: a .bvh, an .amc (with ``asf`` or the one .asf beside it),
+    or a shipped clip's name or category."""
+    p = Path(spec)
+    if p.suffix.lower() in (".bvh", ".amc"):
+        if not p.exists():
+            raise MissingFile(f"motion file {p} not found")
+        if p.suffix.lower() == ".amc":
+            skel = Path(asf) if asf else None
+            if skel is None:
+                found = sorted(p.parent.glob("*.asf"))
+                if len(found) != 1:
+                    raise ReconError(f"{p}: an .amc needs its skeleton: pass --asf FILE.asf "
+                                     f"({len(found)} .asf files beside it)")
+                skel = found[0]
+            source = read_asf_amc(skel, p)
+        else:
+            source = read_bvh(p)
+        if set(skeleton.JOINT_NAMES) <= set(source.names):
+            rot, tr = _own_skeleton(source)
+            tr = tr / 100.0 if np.abs(tr).max() > 20 else tr  # our BVHs are in centimetres
+        else:
+            joints, landmarks = _rest_points(body, shape)
+            res = Retargeter(joints, landmarks).retarget(source)  # unsupported skeletons raise here
+            rot, tr = res.rotmats, res.transl
+        rot, tr = resample(rot, tr, source.fps, FPS)
+        return Motion(torch.from_numpy(np.asarray(rot, np.float32)), torch.from_numpy(np.asarray(tr, np.float32)),
+                      FPS, p.stem)
+    m = MocapPoses.load()
+    names = [c["name"] for c in m.clips]
+    name = clip_name(str(spec), m.clips)
+    sel = np.nonzero(m.clip == names.index(name))[0]
+    rot = roma.rotvec_to_rotmat(torch.from_numpy(m.rotvec[sel]).float())
+    # the set is retargeted to the default body: scale the root's path to this body's legs
+    ratio = _leg_length(body, shape) / _leg_length(default_body(), default_body().mean_shape)
+    tr = torch.from_numpy(m.transl[sel]).float() * float(ratio)
+    return Motion(rot, tr, FPS, name)
+
+
+def person_from(source: str | Path, out: Path, outfit: str | None = None, log=print) -> dict:
+    """result.json of the person to animate: ``source`` is a ``recon run`` result folder (or its
+    result.json) or a photo, which is reconstructed into ``out/reconstruction`` first."""
+    p = Path(source)
+    if p.is_dir() and not (p / "result.json").exists():
+        found = sorted(p.glob("*/result.json"))
+        if len(found) != 1:
+            raise ReconError(f"{p}: not a `recon run` result folder (no result.json"
+                             + (f"; {len(found)} results below it: pick one" if found else "") + ")")
+        p = found[0].parent
+    if p.is_dir() or p.name == "result.json":
+        js = p / "result.json" if p.is_dir() else p
+        return json.loads(js.read_text())
+    if not p.exists():
+        raise MissingFile(f"{p} not found")
+    list_images([p])  # refuses what is not an image, with the reason
+    s = run([p], out / "reconstruction", outfit=outfit, progress=False, log=log)
+    if s.failed:
+        raise ReconError(f"{p}: {next(iter(s.failed.values()))}")
+    key = (s.done or s.skipped)[0]
+    return json.loads((out / "reconstruction" / key / "result.json").read_text())
+
+
+def write_video(path: Path, frames: list[np.ndarray], fps: float) -> Path:
+    """MP4 (OpenCV, MPEG-4 part 2) or, for a .gif path or where OpenCV cannot encode MP4, GIF.
+    Written atomically; returns the path written."""
+    if path.suffix.lower() == ".mp4":
+        h, w = frames[0].shape[:2]
+        ok = []
+
+        def mp4(tmp):
+            vw = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"mp4v"), fps, (w, h))
+            ok.append(vw.isOpened())
+            if ok[0]:
+                for f in frames:
+                    vw.write(cv2.cvtColor(f, cv2.COLOR_RGB2BGR))
+            vw.release()
+            if not ok[0]:
+                raise OSError("no MP4 encoder")
+        try:
+            paths.atomic_write(path, mp4)
+            return path
+        except OSError:
+            path = path.with_suffix(".gif")
+    images = [Image.fromarray(f) for f in frames]
+    paths.atomic_write(path, lambda t: images[0].save(t, format="GIF", save_all=True, append_images=images[1:],
+                                                      duration=round(1000 / fps), loop=0))
+    return path
+
+
+def animate(source: str | Path, motion: str | Path, out: str | Path, outfit: str | None = None, tightness=None,
+            asf: str | Path | None = None, max_seconds: float | None = None, render: str = "mp4",
+            size: tuple[int, int] = (480, 640), yaw_deg: float = 20.0, progress: bool = True, log=print) -> dict:
+    """Animate a reconstructed person; returns {file kind: path}. ``outfit``: an outfit name (default:
+    the one ``recon run`` dressed the person in, if any); ``render``: "mp4", "gif" or "none"."""
+    check_motion(motion)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    person = person_from(source, out, outfit, log)
+    body = default_body()
+    shape = torch.tensor(list(person["shape"].values()), dtype=torch.float32)
+    outfit = outfit or (person.get("outfit") or {}).get("name")
+    if tightness is None and person.get("outfit"):
+        tightness = person["outfit"].get("tightness")
+    m = on_the_ground(load_motion(motion, body, shape, asf), body, shape)  # the whole clip's ground
+    if max_seconds:
+        keep = max(1, int(round(max_seconds * m.fps)))
+        m = Motion(m.rotmats[:keep], m.transl[:keep], m.fps, m.name)
+    dresser = Dresser(outfit) if outfit else None
+    written = {"glb": write_glb(out / "animated.glb", body, shape, m.rotmats, m.transl, m.fps, dresser,
+                                tightness=tightness, animation_name=m.name)}
+    if render != "none":
+        frames = render_motion(body, shape, m, dresser, tightness, size, yaw_deg, progress)
+        written["video"] = write_video(out / f"animated.{render}", frames, m.fps)
+    info = {"source": str(source), "motion": m.name, "frames": len(m), "fps": m.fps, "outfit": outfit,
+            "tightness": None if tightness is None else [float(t) for t in tightness],
+            "files": {k: v.name for k, v in written.items()}}
+    written["json"] = paths.write_text(out / "animation.json", json.dumps(info, indent=1))
+    return written
+
+
+def on_the_ground(m: Motion, body, shape: torch.Tensor) -> Motion:
+    """The clip moved up or down so that the body's lowest point over the clip is at y = 0 (the
+    retargeted root height is the source's, off by the difference in leg and foot geometry)."""
+    every = m.rotmats[::5]
+    with torch.no_grad():
+        low = body(every, shape[None].expand(len(every), -1), transl=m.transl[::5]).vertices[..., 1].min()
+    transl = m.transl.clone()
+    transl[:, 1] -= low
+    return Motion(m.rotmats, transl, m.fps, m.name)
+
+
+def render_motion(body, shape: torch.Tensor, m: Motion, dresser=None, tightness=None, size=(480, 640),
+                  yaw_deg: float = 20.0, progress: bool = True, batch: int = 16) -> list[np.ndarray]:
+    """Frames of the (dressed) body following the clip; the camera follows the pelvis on the ground
+    plane at a fixed height and distance."""
+    faces = body.faces.numpy()
+    frames = []
+    with torch.no_grad():
+        bounds = body(m.rotmats[::10], shape[None].expand(len(m.rotmats[::10]), -1), transl=m.transl[::10]).vertices
+    height = float((bounds[..., 1].max() - bounds[..., 1].min()).item())
+    ground = float(bounds[..., 1].min().item())
+    renderer = SequenceRenderer(size=size, yaw_deg=yaw_deg, distance=1.6 * max(height, 1.0) + 0.8)
+    bar = tqdm(total=len(m), desc=f"rendering {m.name}", unit="frame", disable=not progress)
+    try:
+        for s in range(0, len(m), batch):
+            rot, tr = m.rotmats[s:s + batch], m.transl[s:s + batch]
+            shp = shape[None].expand(len(rot), -1)
+            with torch.no_grad():
+                bv = body(rot, shp, transl=tr).vertices.numpy()
+            cloth = dresser(body, rot, shp, tr, tightness=tightness) if dresser is not None else None
+            for i in range(len(rot)):
+                centre = np.array([tr[i, 0].item(), ground + 0.5 * height, tr[i, 2].item()])
+                meshes = [(bv[i], faces, BODY_RGBA)]
+                if cloth is not None:
+                    meshes.append((cloth.vertices[i], cloth.faces, OUTFIT_RGBA))
+                frames.append(renderer(meshes, centre, ground))
+                bar.update(1)
+    finally:
+        renderer.close()
+        bar.close()
+    return frames
+
+
+def list_motions() -> str:
+    rows = [f"{c['name']:<28} {c['category']:<14} {c['frames'] / FPS:6.1f} s  ({c['split']})" for c in shipped_clips()]
+    return "\n".join(["shipped clips (name, category, length, split):", *rows])
+

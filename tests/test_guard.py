@@ -1,0 +1,73 @@
+"""The person guard: MediaPipe's phantoms on person-free images are refused, people are kept."""
+import numpy as np
+import pytest
+import skimage.data
+
+from recon import camera, io
+from recon.demo import EXAMPLES
+from recon.keypoints import available as mediapipe_available
+from recon.keypoints import guard
+from recon.keypoints.adapter import WEIGHTS as ADAPTER_WEIGHTS
+from recon.keypoints.mediapipe import MPPose
+from recon.keypoints.sources import MediaPipeSource
+
+needs_mediapipe = pytest.mark.skipif(not (mediapipe_available() and ADAPTER_WEIGHTS.exists()),
+                                     reason="needs mediapipe (scripts/setup.sh) and the adapter weights")
+
+
+def _standing(scale=100.0, seen=1.0):
+    """MediaPipe-like landmarks of an upright person (image y down, world y down, metres)."""
+    world = np.zeros((33, 3))
+    pts = {0: (0, -0.65), 11: (0.18, -0.45), 12: (-0.18, -0.45), 13: (0.22, -0.2), 14: (-0.22, -0.2),
+           15: (0.24, 0.05), 16: (-0.24, 0.05), 23: (0.1, 0.0), 24: (-0.1, 0.0), 25: (0.1, 0.42),
+           26: (-0.1, 0.42), 27: (0.1, 0.85), 28: (-0.1, 0.85)}
+    for k, (x, y) in pts.items():
+        world[k, :2] = (x, y)
+    for k in range(33):
+        if k not in pts:
+            world[k, :2] = world[0, :2] + 0.01 * k
+    xy = world[:, :2] * scale + [160.0, 160.0]
+    mask = np.zeros((320, 320), bool)
+    mask[90:250, 135:185] = True
+    return MPPose(xy, np.full(33, seen), world, mask)
+
+
+def test_evidence_and_score_follow_the_answer():
+    person = guard.evidence(_standing(), (320, 320))
+    assert person["asym"] < 1e-6 and person["proj"] < 0.05 and 0.2 < person["aspect"] < 0.6
+    assert guard.accept(person) and guard.accept(person, retry=True)
+    doubtful = guard.evidence(_standing(seen=0.2), (320, 320))  # MediaPipe unsure of every landmark
+    assert guard.score(doubtful) < guard.score(person) - 3 and not guard.accept(doubtful)
+    tiny = guard.evidence(_standing(scale=8.0), (320, 320))  # a few pixels tall
+    assert guard.score(tiny) < guard.score(person)
+    no_mask = guard.evidence(MPPose(*[getattr(_standing(), f) for f in ("image_xy", "visibility", "world")], None),
+                             (320, 320))
+    assert no_mask["mask_box"] == -1.0 and guard.accept(no_mask)  # no mask: neutral, not a refusal
+
+
+@needs_mediapipe
+@pytest.mark.parametrize("name", ["horse", "logo", "coffee", "rocket", "checkerboard"])
+def test_no_body_on_person_free_images(name):
+    img = np.asarray(getattr(skimage.data, name)())
+    img = np.ascontiguousarray(np.repeat(img[..., None], 3, 2) if img.ndim == 2 else img[..., :3]).astype(np.uint8)
+    k = camera.default_intrinsics(*img.shape[:2])
+    src = MediaPipeSource()
+    assert src(img, k) is None
+    assert src.people(img, k, 4) == []  # nor when asked for several people
+
+
+@needs_mediapipe
+def test_the_guard_is_what_refuses_the_horse():
+    """Without the guard MediaPipe's retries find a body on the horse (the phantom this guards)."""
+    img = np.ascontiguousarray(skimage.data.horse().astype(np.uint8)[..., None].repeat(3, 2) * 255)
+    k = camera.default_intrinsics(*img.shape[:2])
+    assert MediaPipeSource(guard=False)(img, k) is not None
+    assert MediaPipeSource(guard=True)(img, k) is None
+
+
+@needs_mediapipe
+@pytest.mark.parametrize("path", sorted(EXAMPLES.glob("*.jpg")), ids=lambda p: p.name)
+def test_people_in_the_bundled_photos_are_kept(path):
+    img = io.load_image(path)
+    kp = MediaPipeSource()(img, camera.default_intrinsics(*img.shape[:2]))
+    assert kp is not None and kp.person_score >= guard.THRESHOLD["image"]
