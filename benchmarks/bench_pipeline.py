@@ -41,6 +41,7 @@ def main() -> None:
     body = default_body()
     images = [io.load_image(p) for p in example_photos()]
     sources = {"mediapipe (`recon run` default: + mirror averaging)": MediaPipeSource(),
+               "mediapipe, no person guard (`--no-guard`)": MediaPipeSource(guard=False),
                "mediapipe, no mirror averaging (`--no-flip`)": MediaPipeSource(flip=False),
                "backbone, 3 passes (`--source backbone`)": BackboneSource(body),
                "backbone, 3 passes, flip on the last (`--flip`)": BackboneSource(body, flip=True),
