@@ -29,7 +29,7 @@ STAGES = [
     ("recon.demo",),
     ("recon.cli",),
 ]
-GARMENT_RUNTIME = ("templates", "mesh", "pbns", "resize", "dress", "collide", "gltf", "store")
+GARMENT_RUNTIME = ("templates", "mesh", "pbns", "ncs", "resize", "dress", "collide", "gltf", "store")
 
 
 def module_name(path: Path) -> str:

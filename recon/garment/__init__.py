@@ -1,6 +1,7 @@
 """Garments (thesis ch. 3 and 5).
 
 Runtime: ``templates`` (CLOTH3D-style outfits on the rest body), ``pbns`` (the network),
+``ncs`` (Neural Cloth Simulation, ch. 6: descriptors, the recurrent model, the inertia term),
 ``resize`` (body shape + tightness), ``dress`` (any body shape and pose: ``Dresser``),
 ``collide`` (collision resolution), ``gltf`` (animated .glb), ``store`` (where weights live),
 ``mesh``. Shared: ``losses`` (PBNS energies), ``metrics`` (what the logs and tables report),

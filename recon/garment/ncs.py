@@ -1,0 +1,151 @@
+"""Neural Cloth Simulation (thesis ch. 6): PBNS with dynamics, a second garment model beside it.
+
+Body motion descriptors (6.3.2), per joint, hands and feet dropped:
+- static (9): the local rotation as 6D (Zhou et al.; the root's with its heading removed, as
+  PBNS does) and the gravity direction unposed into the joint's global frame (eq. 6.5);
+- dynamic (12): the time derivative of the static descriptor and the second derivative of the
+  joint location, unposed the same way (not normalised).
+Model (6.3.3): a static encoder (4 FC layers on the current pose) and a dynamic encoder without
+any bias (2 per-joint FC layers, 2 FC layers, one GRU), so that no motion gives a zero dynamic
+code and the GRU state fades when motion stops; the codes are added and decoded in PBNS's
+blend-shape form (z . D, so the .glb export stays morph targets), then skinned.
+Training (6.3.4) adds ``InertiaLoss`` (eq. 6.9) to the PBNS energies, with the previous states
+as constants. Frames: the body frame, +Y up (gravity along -Y), metres, ``FPS`` frames a second.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from torch import nn
+
+from recon.body import skeleton
+from recon.garment.pbns import remove_yaw
+
+DROPPED = ("left_foot", "right_foot", "left_hand", "right_hand")
+KEPT = tuple(i for i, n in enumerate(skeleton.JOINT_NAMES) if n not in DROPPED)
+GRAVITY = (0.0, -1.0, 0.0)  # unit direction in the body frame
+FPS = 30.0
+
+
+def rot6d(r: torch.Tensor) -> torch.Tensor:
+    """(..., 3, 3) -> (..., 6): the first two columns (Zhou et al. 2019)."""
+    return torch.cat([r[..., :, 0], r[..., :, 1]], -1)
+
+
+def static_descriptors(rotmats: torch.Tensor, global_rotmats: torch.Tensor) -> torch.Tensor:
+    """(..., 24, 3, 3) local and global joint rotations -> (..., K, 9) for the kept joints."""
+    local = rotmats.clone()
+    local[..., 0, :, :] = remove_yaw(local[..., 0, :, :])
+    g = torch.tensor(GRAVITY, dtype=rotmats.dtype, device=rotmats.device)
+    unposed = torch.einsum("...ji,j->...i", global_rotmats, g)  # R_j^T g
+    return torch.cat([rot6d(local), unposed], -1)[..., KEPT, :]
+
+
+def _derivative(x: torch.Tensor, fps: float, order: int) -> torch.Tensor:
+    """Backward finite differences along dim 1 (time) of (B, T, ...); the first frames repeat the
+    first value (a sequence starts at rest)."""
+    pad = torch.cat([x[:, :1].expand(-1, order, *x.shape[2:]), x], 1)
+    if order == 1:
+        return (pad[:, 1:] - pad[:, :-1]) * fps
+    return (pad[:, 2:] - 2 * pad[:, 1:-1] + pad[:, :-2]) * fps * fps
+
+
+def descriptors(rotmats: torch.Tensor, global_rotmats: torch.Tensor, joints: torch.Tensor,
+                fps: float = FPS) -> tuple[torch.Tensor, torch.Tensor]:
+    """Sequences (B, T, 24, 3, 3) local / global rotations and (B, T, 24, 3) joint locations ->
+    static (B, T, K, 9) and dynamic (B, T, K, 12) descriptors."""
+    static = static_descriptors(rotmats, global_rotmats)
+    accel = _derivative(joints, fps, 2)
+    unposed = torch.einsum("btjik,btji->btjk", global_rotmats, accel)[:, :, KEPT]  # R_j^T a_j
+    return static, torch.cat([_derivative(static, fps, 1), unposed], -1)
+
+
+@dataclass
+class NCSConfig:
+    hidden: int = 256  # static encoder and the dynamic encoder's FC layers
+    joint_features: int = 32  # the dynamic encoder's per-joint layers
+    embedding: int = 128  # |z|, rows of D (as PBNS)
+
+
+class NCS(nn.Module):
+    """``NCS(rest, faces, weights)``; ``deformation(static, dynamic, h) -> (dT, h)`` per sequence,
+    ``forward(static, dynamic, transforms) -> (posed, dT)``."""
+
+    def __init__(self, rest: torch.Tensor, faces: torch.Tensor, weights: torch.Tensor, cfg: NCSConfig | None = None):
+        super().__init__()
+        cfg = cfg or NCSConfig()
+        self.cfg = cfg
+        k, e, h = len(KEPT), cfg.embedding, cfg.hidden
+        self.register_buffer("rest", rest.float())
+        self.register_buffer("faces", faces.long())
+        self.static = nn.Sequential(nn.Linear(9 * k, h), nn.ReLU(), nn.Linear(h, h), nn.ReLU(), nn.Linear(h, h),
+                                    nn.ReLU(), nn.Linear(h, e))
+        f = cfg.joint_features
+        # no bias anywhere in the dynamic branch: zero motion -> zero code (6.3.3)
+        self.per_joint = nn.Sequential(nn.Linear(12, f, bias=False), nn.ReLU(), nn.Linear(f, f, bias=False), nn.ReLU())
+        self.dynamic = nn.Sequential(nn.Linear(k * f, h, bias=False), nn.ReLU(), nn.Linear(h, e, bias=False))
+        self.gru = nn.GRU(e, e, bias=False, batch_first=True)
+        self.D = nn.Parameter(torch.zeros(e, rest.shape[0] * 3))
+        self.weight_logits = nn.Parameter(torch.log(weights.float().clamp_min(1e-6)))
+
+    @property
+    def weights(self) -> torch.Tensor:
+        return torch.softmax(self.weight_logits, -1)
+
+    def codes(self, static: torch.Tensor, dynamic: torch.Tensor, h: torch.Tensor | None = None):
+        """(B, T, K, 9), (B, T, K, 12) -> static code, dynamic code (B, T, E) and the GRU state."""
+        b, t = static.shape[:2]
+        zs = self.static(static.reshape(b, t, -1))
+        zd, h = self.gru(self.dynamic(self.per_joint(dynamic).reshape(b, t, -1)), h)
+        return zs, zd, h
+
+    def deformation(self, static, dynamic, h=None, motion: float = 1.0):
+        """Rest-pose displacements (B, T, N, 3) and the GRU state. ``motion`` scales the dynamic
+        code (the thesis' motion control, 6.4.6: 0 = the static model, > 1 = livelier)."""
+        zs, zd, h = self.codes(static, dynamic, h)
+        z = zs + motion * zd
+        return (z @ self.D).view(*z.shape[:2], -1, 3), h
+
+    def skin(self, x: torch.Tensor, transforms: torch.Tensor) -> torch.Tensor:
+        """LBS of rest-pose points (B, T, N, 3) with the body's transforms (B, T, 24, 3, 4)."""
+        b, t = transforms.shape[:2]
+        m = (self.weights @ transforms.reshape(b * t, 24, 12)).view(b, t, -1, 3, 4)  # PBNS.skin's form
+        return torch.einsum("btnij,btnj->btni", m[..., :3], x) + m[..., 3]
+
+    def forward(self, static, dynamic, transforms, h=None, motion: float = 1.0):
+        dt, h = self.deformation(static, dynamic, h, motion)
+        return self.skin(self.rest + dt, transforms), dt
+
+
+def vertex_masses(vertices: np.ndarray, faces: np.ndarray, density: float = 0.15) -> np.ndarray:
+    """Lumped masses (N,) in kg: a third of each adjacent face's area times ``density`` (kg/m^2;
+    0.15: a light cotton)."""
+    a = 0.5 * np.linalg.norm(np.cross(vertices[faces[:, 1]] - vertices[faces[:, 0]],
+                                      vertices[faces[:, 2]] - vertices[faces[:, 0]]), axis=1)
+    m = np.zeros(len(vertices))
+    np.add.at(m, faces.ravel(), np.repeat(a / 3.0, 3))
+    return (density * m).astype(np.float32)
+
+
+@dataclass
+class InertiaConfig:
+    weight: float = 1.0
+
+
+class InertiaLoss(nn.Module):
+    """Eq. 6.9, summed over particles: m / (2 dt^2) |x_t - (2 x_{t-1} - x_{t-2})|^2. The previous
+    states are constants: gradients must not travel back in time (the thesis' point against
+    SNUG), so they are detached here whatever the caller passes."""
+
+    def __init__(self, masses: torch.Tensor, fps: float = FPS, cfg: InertiaConfig | None = None):
+        super().__init__()
+        self.cfg = cfg or InertiaConfig()
+        self.fps = fps
+        self.register_buffer("m", torch.as_tensor(masses))
+
+    def forward(self, x: torch.Tensor, x_prev: torch.Tensor, x_prev2: torch.Tensor) -> torch.Tensor:
+        proj = 2 * x_prev.detach() - x_prev2.detach()
+        d2 = ((x - proj) ** 2).sum(-1)
+        return self.cfg.weight * 0.5 * self.fps ** 2 * (self.m.to(x) * d2).sum(-1)
