@@ -39,6 +39,34 @@ def look_at(eye: np.ndarray, target: np.ndarray, up=(0.0, 1.0, 0.0)) -> np.ndarr
     return pose
 
 
+def _offscreen(pyrender, width: int, height: int):
+    try:
+        return pyrender.OffscreenRenderer(width, height)
+    except Exception as e:  # noqa: BLE001 - report which GL platform failed
+        raise ReconError(
+            f"offscreen OpenGL ({os.environ.get('PYOPENGL_PLATFORM')}) unavailable: {e}. "
+            "Run scripts/setup.sh (installs libegl1/libosmesa6) or set PYOPENGL_PLATFORM=osmesa."
+        ) from e
+
+
+def _front_scene(pyrender, meshes: list[tuple[np.ndarray, np.ndarray, tuple]], center: np.ndarray, distance: float,
+                 yaw_deg: float):
+    """White background, the meshes, a camera ``distance`` from ``center`` seen from the front
+    (body frame) turned by ``yaw_deg``, a light from the camera and one from above."""
+    scene = pyrender.Scene(bg_color=[1.0, 1.0, 1.0, 1.0], ambient_light=[0.35, 0.35, 0.35])
+    for v, f, rgba in meshes:
+        tm = trimesh.Trimesh(v, f, process=False)
+        mat = pyrender.MetallicRoughnessMaterial(baseColorFactor=list(rgba), metallicFactor=0.0, roughnessFactor=0.8)
+        scene.add(pyrender.Mesh.from_trimesh(tm, material=mat, smooth=True))
+    yaw = np.radians(yaw_deg)
+    eye = center + distance * np.array([np.sin(yaw), 0.15, np.cos(yaw)])
+    cam_pose = look_at(eye, center)
+    scene.add(pyrender.PerspectiveCamera(yfov=np.radians(40.0)), pose=cam_pose)
+    scene.add(pyrender.DirectionalLight(intensity=3.0), pose=cam_pose)
+    scene.add(pyrender.DirectionalLight(intensity=1.5), pose=look_at(center + np.array([1.0, 2.0, 1.0]), center))
+    return scene
+
+
 def render_meshes(meshes: list[tuple[np.ndarray, np.ndarray, tuple]], size=(512, 512), yaw_deg: float = 0.0,
                   distance: float | None = None, center: np.ndarray | None = None) -> np.ndarray:
     """Render [(vertices, faces, rgba)] seen from the front (body frame), rotated by ``yaw_deg``.
@@ -49,25 +77,8 @@ def render_meshes(meshes: list[tuple[np.ndarray, np.ndarray, tuple]], size=(512,
     allv = np.concatenate([m[0] for m in meshes])
     center = 0.5 * (allv.min(0) + allv.max(0)) if center is None else np.asarray(center, float)
     extent = float(np.max(allv.max(0) - allv.min(0)))
-    scene = pyrender.Scene(bg_color=[1.0, 1.0, 1.0, 1.0], ambient_light=[0.35, 0.35, 0.35])
-    for v, f, rgba in meshes:
-        tm = trimesh.Trimesh(v, f, process=False)
-        mat = pyrender.MetallicRoughnessMaterial(baseColorFactor=list(rgba), metallicFactor=0.0, roughnessFactor=0.8)
-        scene.add(pyrender.Mesh.from_trimesh(tm, material=mat, smooth=True))
-    yaw = np.radians(yaw_deg)
-    dist = distance or 1.6 * extent + 0.5
-    eye = center + dist * np.array([np.sin(yaw), 0.15, np.cos(yaw)])
-    cam_pose = look_at(eye, center)
-    scene.add(pyrender.PerspectiveCamera(yfov=np.radians(40.0)), pose=cam_pose)
-    scene.add(pyrender.DirectionalLight(intensity=3.0), pose=cam_pose)
-    scene.add(pyrender.DirectionalLight(intensity=1.5), pose=look_at(center + np.array([1.0, 2.0, 1.0]), center))
-    try:
-        renderer = pyrender.OffscreenRenderer(*size)
-    except Exception as e:  # noqa: BLE001 - report which GL platform failed
-        raise ReconError(
-            f"offscreen OpenGL ({os.environ.get('PYOPENGL_PLATFORM')}) unavailable: {e}. "
-            "Run scripts/setup.sh (installs libegl1/libosmesa6) or set PYOPENGL_PLATFORM=osmesa."
-        ) from e
+    scene = _front_scene(pyrender, meshes, center, distance or 1.6 * extent + 0.5, yaw_deg)
+    renderer = _offscreen(pyrender, *size)
     try:
         color, _ = renderer.render(scene)
     finally:
@@ -82,12 +93,8 @@ class SequenceRenderer:
 
     def __init__(self, size=(480, 640), yaw_deg: float = 20.0, distance: float = 3.5):
         self.pyrender = _pyrender()
-        self.size, self.distance = size, distance
-        self.yaw = np.radians(yaw_deg)
-        try:
-            self.renderer = self.pyrender.OffscreenRenderer(*size)
-        except Exception as e:  # noqa: BLE001 - report which GL platform failed
-            raise ReconError(f"offscreen OpenGL ({os.environ.get('PYOPENGL_PLATFORM')}) unavailable: {e}") from e
+        self.yaw_deg, self.distance = yaw_deg, distance
+        self.renderer = _offscreen(self.pyrender, *size)
         floor = trimesh.creation.box(extents=(40.0, 0.01, 40.0))
         mat = self.pyrender.MetallicRoughnessMaterial(baseColorFactor=[0.82, 0.82, 0.8, 1.0], metallicFactor=0.0,
                                                       roughnessFactor=1.0)
@@ -95,19 +102,10 @@ class SequenceRenderer:
 
     def __call__(self, meshes: list[tuple[np.ndarray, np.ndarray, tuple]], centre: np.ndarray,
                  ground_y: float) -> np.ndarray:
-        pr = self.pyrender
-        scene = pr.Scene(bg_color=[1.0, 1.0, 1.0, 1.0], ambient_light=[0.35, 0.35, 0.35])
-        for v, f, rgba in meshes:
-            mat = pr.MetallicRoughnessMaterial(baseColorFactor=list(rgba), metallicFactor=0.0, roughnessFactor=0.8)
-            scene.add(pr.Mesh.from_trimesh(trimesh.Trimesh(v, f, process=False), material=mat, smooth=True))
+        scene = _front_scene(self.pyrender, meshes, np.asarray(centre, float), self.distance, self.yaw_deg)
         pose = np.eye(4)
         pose[:3, 3] = [centre[0], ground_y - 0.005, centre[2]]
         scene.add(self.floor, pose=pose)
-        eye = centre + self.distance * np.array([np.sin(self.yaw), 0.15, np.cos(self.yaw)])
-        cam_pose = look_at(eye, centre)
-        scene.add(pr.PerspectiveCamera(yfov=np.radians(40.0), aspectRatio=self.size[0] / self.size[1]), pose=cam_pose)
-        scene.add(pr.DirectionalLight(intensity=3.0), pose=cam_pose)
-        scene.add(pr.DirectionalLight(intensity=1.5), pose=look_at(centre + np.array([1.0, 2.0, 1.0]), centre))
         color, _ = self.renderer.render(scene)
         return np.ascontiguousarray(color[..., :3])
 
@@ -129,10 +127,7 @@ def render_overlay(rgb: np.ndarray, meshes: list[tuple[np.ndarray, np.ndarray, t
     far = float(max(np.abs(m[0][:, 2]).max() for m in meshes)) * 2.0 + 1.0
     scene.add(pyrender.IntrinsicsCamera(k[0, 0], k[1, 1], k[0, 2], k[1, 2], znear=0.05, zfar=far))
     scene.add(pyrender.DirectionalLight(intensity=3.0))
-    try:
-        renderer = pyrender.OffscreenRenderer(w, h)
-    except Exception as e:  # noqa: BLE001 - report which GL platform failed
-        raise ReconError(f"offscreen OpenGL ({os.environ.get('PYOPENGL_PLATFORM')}) unavailable: {e}") from e
+    renderer = _offscreen(pyrender, w, h)
     try:
         color, depth = renderer.render(scene)
     finally:
