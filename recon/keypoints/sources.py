@@ -46,22 +46,26 @@ def _unview(r: MPPose, pad: int, mirrored: bool, shape) -> MPPose:
     return MPPose(xy, vis, world, mask)
 
 
+def _area(b) -> float:
+    return (b[2] - b[0]) * (b[3] - b[1])
+
+
+def _intersection(a, b) -> float:
+    return max(0.0, min(a[2], b[2]) - max(a[0], b[0])) * max(0.0, min(a[3], b[3]) - max(a[1], b[1]))
+
+
 def box_iou(a, b) -> float:
     """Intersection over union of two (x0, y0, x1, y1) boxes."""
-    iw = max(0.0, min(a[2], b[2]) - max(a[0], b[0]))
-    ih = max(0.0, min(a[3], b[3]) - max(a[1], b[1]))
-    inter = iw * ih
-    union = (a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter
+    inter = _intersection(a, b)
+    union = _area(a) + _area(b) - inter
     return float(inter / union) if union > 0 else 0.0
 
 
 def box_overlap(a, b) -> float:
     """The share of the smaller of two boxes that lies inside the other (1: one contains the
     other; a person found again from a leftover limb overlaps its first box this way)."""
-    iw = max(0.0, min(a[2], b[2]) - max(a[0], b[0]))
-    ih = max(0.0, min(a[3], b[3]) - max(a[1], b[1]))
-    small = min((a[2] - a[0]) * (a[3] - a[1]), (b[2] - b[0]) * (b[3] - b[1]))
-    return float(iw * ih / small) if small > 0 else 0.0
+    small = min(_area(a), _area(b))
+    return float(_intersection(a, b) / small) if small > 0 else 0.0
 
 
 def blank_person(rgb: np.ndarray, kp: Keypoints) -> np.ndarray:
@@ -105,7 +109,6 @@ class MediaPipeSource:
         self.flip, self.retry, self.guard = flip, retry, guard
         self._by_threshold = {0.5: self.mp}
         self.last_view = None  # which view found the person in the last call (None: nobody)
-        self._strict = False  # answers need a retry view's evidence (set by people() on windows)
 
     def _detector(self, threshold: float) -> MediaPipePose:
         if threshold not in self._by_threshold:
@@ -117,10 +120,10 @@ class MediaPipeSource:
         return None if r is None else (r, *self.adapter.predict(r, k))
 
     def _person(self, r: MPPose, rgb: np.ndarray, retry: bool) -> float | None:
-        """The guard's score of an answer, None when the guard refuses it (a phantom)."""
+        """The guard's score of an answer, None when the guard refuses it (a phantom). ``retry``:
+        the answer needs a retry view's evidence."""
         ev = person_guard.evidence(r, rgb.shape)
         s = person_guard.score(ev)
-        retry = retry or self._strict
         if not self.guard or person_guard.accept(ev, retry):
             return s
         if retry and s >= person_guard.THRESHOLD["confirmed"] and self._confirmed(rgb, r):
@@ -163,11 +166,16 @@ class MediaPipeSource:
         return None
 
     def __call__(self, rgb: np.ndarray, k: np.ndarray) -> Keypoints | None:
+        return self._find(rgb, k, self.retry, strict=False)
+
+    def _find(self, rgb: np.ndarray, k: np.ndarray, retry: bool, strict: bool) -> Keypoints | None:
+        """``__call__`` with its retries on or off; ``strict``: even the first answer needs a retry
+        view's evidence (``people`` on windows, which are upscaled views)."""
         found = self._detect(rgb, k)
-        score = None if found is None else self._person(found[0], rgb, retry=False)
+        score = None if found is None else self._person(found[0], rgb, retry=strict)
         found = None if score is None else found
         self.last_view = None if found is None else "image"
-        if found is None and self.retry:
+        if found is None and retry:
             found = self._retry(rgb, k)
             if found is not None:  # a view found the person: no mirror averaging on top
                 r, p3, uv, score = found
@@ -201,27 +209,25 @@ class MediaPipeSource:
         new. Only the first person may come from the retries; window answers need the guard's
         retry evidence."""
         found: list[Keypoints] = []
-        work, retry = rgb, self.retry
+        work = rgb
         views = [(0, 0, rgb.shape[1], rgb.shape[0])] + windows(*rgb.shape[:2])
-        try:
-            for n_view, (x0, y0, x1, y1) in enumerate(views):
-                if n_view > 0 and not found:
-                    break  # nobody in the whole image: no windows (where phantoms would get a second chance)
-                self._strict = n_view > 0  # a window is an upscaled view: its answers need a retry's evidence
-                while len(found) < max_people:
-                    kw = np.array(k, float)
-                    kw[:2, 2] -= (x0, y0)
-                    kp = self(np.ascontiguousarray(work[y0:y1, x0:x1]), kw)
-                    if kp is None:
-                        break
-                    kp = _shifted(kp, x0, y0, work.shape)
-                    if any(_same_person(kp, f) for f in found):
-                        break
-                    found.append(kp)
-                    self.retry = False  # the retries rescue a missed lone person; on painted images they invent
-                    work = blank_person(work, kp)
-        finally:
-            self.retry, self._strict = retry, False
+        for n_view, (x0, y0, x1, y1) in enumerate(views):
+            if n_view > 0 and not found:
+                break  # nobody in the whole image: no windows (where phantoms would get a second chance)
+            while len(found) < max_people:
+                kw = np.array(k, float)
+                kw[:2, 2] -= (x0, y0)
+                # the retries rescue a missed lone person (on painted images they invent); a window
+                # is an upscaled view: its answers need a retry's evidence
+                kp = self._find(np.ascontiguousarray(work[y0:y1, x0:x1]), kw, retry=self.retry and not found,
+                                strict=n_view > 0)
+                if kp is None:
+                    break
+                kp = _shifted(kp, x0, y0, work.shape)
+                if any(_same_person(kp, f) for f in found):
+                    break
+                found.append(kp)
+                work = blank_person(work, kp)
         return found
 
 
