@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass
+from functools import lru_cache
 from pathlib import Path
 
 import cv2
@@ -31,8 +32,8 @@ from recon.garment.gltf import write_glb
 from recon.io import list_images
 from recon.poses.asfamc import read_asf_amc
 from recon.poses.bvh import read_bvh
-from recon.poses.mocap import FPS, MocapPoses, resample
-from recon.poses.motion import SourceMotion
+from recon.poses.mocap import FPS, MocapPoses, poses_path, resample
+from recon.poses.motion import SourceMotion, local_rotations
 from recon.poses.retarget import Retargeter
 from recon.run import run
 from recon.viz import SequenceRenderer
@@ -54,31 +55,27 @@ class Motion:
         return int(self.rotmats.shape[0])
 
 
+@lru_cache(maxsize=1)
+def _pose_set(path: Path) -> MocapPoses:
+    return MocapPoses.load(path=path)
+
+
 def shipped_clips() -> list[dict]:
     """The clips of the shipped pose set (name, category, frames, split)."""
-    return MocapPoses.load().clips
+    return _pose_set(poses_path()).clips
 
 
-def _rest_points(body, shape: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:
+def _retargeter(body, shape: torch.Tensor) -> Retargeter:
+    """The retargeter to the body of ``shape``: its rest joints and landmarks."""
     with torch.no_grad():
         rest = body(shape=shape.reshape(1, -1))
-    return rest.joints[0].numpy(), rest.landmarks[0].numpy()
-
-
-def _leg_length(body, shape: torch.Tensor) -> float:
-    j = _rest_points(body, shape)[0]
-    hip, knee, ankle = (j[skeleton.JOINT_NAMES.index(f"left_{n}")] for n in ("hip", "knee", "ankle"))
-    return float(np.linalg.norm(hip - knee) + np.linalg.norm(knee - ankle))
+    return Retargeter(rest.joints[0].numpy(), rest.landmarks[0].numpy())
 
 
 def _own_skeleton(m: SourceMotion) -> tuple[np.ndarray, np.ndarray]:
     """A BVH on recon's own skeleton (``recon run``'s pose.bvh): its rotations are ours already."""
     order = [m.index(n) for n in skeleton.JOINT_NAMES]
-    g = m.rotations[:, order]
-    local = g.copy()
-    par = np.array(skeleton.JOINT_PARENTS)
-    local[:, 1:] = np.swapaxes(g[:, par[1:]], -1, -2) @ g[:, 1:]
-    return local, m.positions[:, order[0]]
+    return local_rotations(m.rotations[:, order], skeleton.JOINT_PARENTS), m.positions[:, order[0]]
 
 
 def clip_name(spec: str, clips: list[dict]) -> str:
@@ -129,19 +126,18 @@ def load_motion(spec: str | Path, body, shape: torch.Tensor, asf: str | Path | N
             rot, tr = _own_skeleton(source)
             tr = tr / 100.0 if np.abs(tr).max() > 20 else tr  # our BVHs are in centimetres
         else:
-            joints, landmarks = _rest_points(body, shape)
-            res = Retargeter(joints, landmarks).retarget(source)  # unsupported skeletons raise here
+            res = _retargeter(body, shape).retarget(source)  # unsupported skeletons raise here
             rot, tr = res.rotmats, res.transl
         rot, tr = resample(rot, tr, source.fps, FPS)
         return Motion(torch.from_numpy(np.asarray(rot, np.float32)), torch.from_numpy(np.asarray(tr, np.float32)),
                       FPS, p.stem)
-    m = MocapPoses.load()
+    m = _pose_set(poses_path())
     names = [c["name"] for c in m.clips]
     name = clip_name(str(spec), m.clips)
     sel = np.nonzero(m.clip == names.index(name))[0]
     rot = roma.rotvec_to_rotmat(torch.from_numpy(m.rotvec[sel]).float())
     # the set is retargeted to the default body: scale the root's path to this body's legs
-    ratio = _leg_length(body, shape) / _leg_length(default_body(), default_body().mean_shape)
+    ratio = _retargeter(body, shape).leg_length / _retargeter(default_body(), default_body().mean_shape).leg_length
     tr = torch.from_numpy(m.transl[sel]).float() * float(ratio)
     return Motion(rot, tr, FPS, name)
 

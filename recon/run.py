@@ -42,7 +42,7 @@ MAX_SIDE = 1920  # longer side used for detection/rendering; results are in orig
 BODY_RGBA = (0.45, 0.62, 0.92, 1.0)
 DRESSED_BODY_RGBA = (0.85, 0.75, 0.68, 1.0)
 OUTFIT_RGBA = (0.35, 0.45, 0.8, 1.0)
-OVERLAY_COLOURS = ((0.45, 0.62, 0.92, 1.0), (0.92, 0.55, 0.45, 1.0), (0.5, 0.82, 0.5, 1.0), (0.85, 0.75, 0.4, 1.0),
+OVERLAY_COLOURS = (BODY_RGBA, (0.92, 0.55, 0.45, 1.0), (0.5, 0.82, 0.5, 1.0), (0.85, 0.75, 0.4, 1.0),
                    (0.7, 0.5, 0.85, 1.0))
 
 

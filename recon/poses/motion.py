@@ -59,3 +59,12 @@ def forward_kinematics(parents: list[int], offsets: np.ndarray, local_rot: np.nd
         pos[:, k] = pos[:, p] + np.einsum("fij,fj->fi", rot[:, p], off)
         rot[:, k] = rot[:, p] @ local_rot[:, k]
     return pos, rot
+
+
+def local_rotations(global_rot: np.ndarray, parents) -> np.ndarray:
+    """(F, J, 3, 3) global joint frames -> rotations relative to the parent's (the root's kept)."""
+    p = np.asarray(parents)
+    child = p >= 0
+    local = global_rot.copy()
+    local[:, child] = np.swapaxes(global_rot[:, p[child]], -1, -2) @ global_rot[:, child]
+    return local

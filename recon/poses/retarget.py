@@ -22,7 +22,7 @@ from scipy.spatial.transform import Rotation
 
 from recon.body import skeleton
 from recon.errors import ReconError
-from recon.poses.motion import SourceMotion
+from recon.poses.motion import SourceMotion, local_rotations
 
 N = skeleton.JOINT_NAMES
 JI = {n: i for i, n in enumerate(N)}
@@ -222,9 +222,7 @@ class Retargeter:
                     d_s2 = P[other] - P[name]
                     ok = np.linalg.norm(d_s2, axis=-1) > 1e-6
                     errors[f"{name}->{other}"] = np.where(ok, _angle(G[:, j] @ d_t2, _unit(d_s2)), 0.0)
-        parents = np.array(skeleton.JOINT_PARENTS)
-        local = G.copy()
-        local[:, 1:] = np.swapaxes(G[:, parents[1:]], -1, -2) @ G[:, 1:]
+        local = local_rotations(G, skeleton.JOINT_PARENTS)
         transl = P["pelvis"] * (self.leg_length / src_leg)
         return Retargeted(local.astype(np.float32), transl.astype(np.float32), errors)
 
