@@ -36,10 +36,9 @@ def main() -> None:
     body = default_body()
     shape = torch.tensor(list(person["shape"].values()), dtype=torch.float32)
     m = on_the_ground(load_motion(a.motion, body, shape), body, shape)
-    keep = slice(0, info["frames"], 2)
-    m = Motion(m.rotmats[keep], m.transl[keep], m.fps / 2, m.name)
-    frames = render_motion(body, shape, m, Dresser(a.outfit), size=(240, 320))
-    print(write_video(out / f"animate-{Path(a.photo).stem}.gif", frames, m.fps))
+    m = Motion(m.rotmats[:info["frames"]], m.transl[:info["frames"]], m.fps, m.name)
+    frames = render_motion(body, shape, m, Dresser(a.outfit), size=(240, 320), every=2)  # dressed at 30 fps
+    print(write_video(out / f"animate-{Path(a.photo).stem}.gif", frames, m.fps / 2))
     for path in written.values():
         print(path)
 

@@ -194,9 +194,11 @@ def write_video(path: Path, frames: list[np.ndarray], fps: float) -> Path:
 
 def animate(source: str | Path, motion: str | Path, out: str | Path, outfit: str | None = None, tightness=None,
             asf: str | Path | None = None, max_seconds: float | None = None, render: str = "mp4",
-            size: tuple[int, int] = (480, 640), yaw_deg: float = 20.0, progress: bool = True, log=print) -> dict:
+            size: tuple[int, int] = (480, 640), yaw_deg: float = 20.0, progress: bool = True, log=print,
+            dynamics: bool | None = None) -> dict:
     """Animate a reconstructed person; returns {file kind: path}. ``outfit``: an outfit name (default:
-    the one ``recon run`` dressed the person in, if any); ``render``: "mp4", "gif" or "none"."""
+    the one ``recon run`` dressed the person in, if any); ``render``: "mp4", "gif" or "none";
+    ``dynamics``: the outfit's NCS (swinging cloth) or not (PBNS); None: NCS where it exists."""
     check_motion(motion)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -210,13 +212,14 @@ def animate(source: str | Path, motion: str | Path, out: str | Path, outfit: str
     if max_seconds:
         keep = max(1, int(round(max_seconds * m.fps)))
         m = Motion(m.rotmats[:keep], m.transl[:keep], m.fps, m.name)
-    dresser = Dresser(outfit) if outfit else None
+    dresser = Dresser(outfit, dynamics=dynamics) if outfit else None
     written = {"glb": write_glb(out / "animated.glb", body, shape, m.rotmats, m.transl, m.fps, dresser,
                                 tightness=tightness, animation_name=m.name)}
     if render != "none":
         frames = render_motion(body, shape, m, dresser, tightness, size, yaw_deg, progress)
         written["video"] = write_video(out / f"animated.{render}", frames, m.fps)
     info = {"source": str(source), "motion": m.name, "frames": len(m), "fps": m.fps, "outfit": outfit,
+            "garment_model": None if dresser is None else ("NCS" if dresser.dynamic else "PBNS"),
             "tightness": None if tightness is None else [float(t) for t in tightness],
             "files": {k: v.name for k, v in written.items()}}
     written["json"] = paths.write_text(out / "animation.json", json.dumps(info, indent=1))
@@ -235,9 +238,10 @@ def on_the_ground(m: Motion, body, shape: torch.Tensor) -> Motion:
 
 
 def render_motion(body, shape: torch.Tensor, m: Motion, dresser=None, tightness=None, size=(480, 640),
-                  yaw_deg: float = 20.0, progress: bool = True, batch: int = 16) -> list[np.ndarray]:
-    """Frames of the (dressed) body following the clip; the camera follows the pelvis on the ground
-    plane at a fixed height and distance."""
+                  yaw_deg: float = 20.0, progress: bool = True, batch: int = 16, every: int = 1) -> list[np.ndarray]:
+    """Frames of the (dressed) body following the clip, every ``every``-th (the outfit is dressed
+    on all of them: NCS needs the motion at its own rate); the camera follows the pelvis on the
+    ground plane at a fixed height and distance."""
     faces = body.faces.numpy()
     frames = []
     with torch.no_grad():
@@ -245,19 +249,21 @@ def render_motion(body, shape: torch.Tensor, m: Motion, dresser=None, tightness=
     height = float((bounds[..., 1].max() - bounds[..., 1].min()).item())
     ground = float(bounds[..., 1].min().item())
     renderer = SequenceRenderer(size=size, yaw_deg=yaw_deg, distance=1.6 * max(height, 1.0) + 0.8)
-    bar = tqdm(total=len(m), desc=f"rendering {m.name}", unit="frame", disable=not progress)
+    # the whole motion at once: NCS carries its state from frame to frame
+    dressed = None if dresser is None else dresser.animate(body, m.rotmats, shape, m.transl, m.fps, tightness)
+    shown = torch.arange(0, len(m), every)
+    bar = tqdm(total=len(shown), desc=f"rendering {m.name}", unit="frame", disable=not progress)
     try:
-        for s in range(0, len(m), batch):
-            rot, tr = m.rotmats[s:s + batch], m.transl[s:s + batch]
-            shp = shape[None].expand(len(rot), -1)
+        for s in range(0, len(shown), batch):
+            idx = shown[s:s + batch]
+            rot, tr = m.rotmats[idx], m.transl[idx]
             with torch.no_grad():
-                bv = body(rot, shp, transl=tr).vertices.numpy()
-            cloth = dresser(body, rot, shp, tr, tightness=tightness) if dresser is not None else None
-            for i in range(len(rot)):
+                bv = body(rot, shape[None].expand(len(rot), -1), transl=tr).vertices.numpy()
+            for i, f in enumerate(idx.tolist()):
                 centre = np.array([tr[i, 0].item(), ground + 0.5 * height, tr[i, 2].item()])
                 meshes = [(bv[i], faces, BODY_RGBA)]
-                if cloth is not None:
-                    meshes.append((cloth.vertices[i], cloth.faces, OUTFIT_RGBA))
+                if dressed is not None:
+                    meshes.append((dressed.vertices[f], dressed.faces, OUTFIT_RGBA))
                 frames.append(renderer(meshes, centre, ground))
                 bar.update(1)
     finally:

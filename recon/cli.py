@@ -45,7 +45,8 @@ from recon.demo import body_demo, dressed_gif, example_photos, photo_demo
 from recon.errors import ReconError
 from recon.fit import FitConfig
 from recon.garment import evaluate as garment_eval
-from recon.garment import store
+from recon.garment import evaluate_ncs as garment_eval_ncs
+from recon.garment import ncs_train, store
 from recon.garment import train as garment_train
 from recon.garment.resize import TIGHTNESS_RANGE, ResizeConfig
 from recon.garment.templates import PRESETS
@@ -269,7 +270,7 @@ def cmd_animate(a) -> int:
         raise ReconError("recon animate needs a photo or result folder, --motion and --out "
                          "(or --list-motions)")
     written = animate(a.source, a.motion, a.out, outfit=a.outfit, tightness=a.tightness, asf=a.asf,
-                      max_seconds=a.seconds, render=a.render)
+                      max_seconds=a.seconds, render=a.render, dynamics=a.dynamics)
     for path in written.values():
         print(path)
     return 0
@@ -293,12 +294,18 @@ def _outfits(names: list[str]) -> list[str]:
 
 def cmd_garment_train(a) -> None:
     for o in _outfits(a.outfit):
-        cfg = garment_train.GarmentTrainConfig(outfit=o, poses=a.poses, epochs=a.epochs)
-        meta = garment_train.train(default_body(), cfg)
+        epochs = {"epochs": a.epochs} if a.epochs else {}
+        if a.model == "ncs":
+            cfg = ncs_train.NCSTrainConfig(outfit=o, **epochs)
+            meta = ncs_train.train(default_body(), cfg)
+            weights = store.ncs_path(o)
+        else:
+            cfg = garment_train.GarmentTrainConfig(outfit=o, poses=a.poses, **epochs)
+            meta = garment_train.train(default_body(), cfg)
+            weights = store.pbns_path(o)
         last = meta["curve"][-1]
-        print(json.dumps({"outfit": meta["outfit"], "weights": str(store.pbns_path(o)),
-                          "train_seconds": meta["train_seconds"], "val_collision_pct": last["val_collision_pct"],
-                          "val_edge_mm": last["val_edge_mm"]}))
+        print(json.dumps({"outfit": meta["outfit"], "weights": str(weights), "train_seconds": meta["train_seconds"],
+                          **{k: v for k, v in last.items() if k.startswith("val_")}}))
 
 
 def cmd_garment_resize(a) -> None:
@@ -311,6 +318,13 @@ def cmd_garment_resize(a) -> None:
 
 def cmd_garment_eval(a) -> None:
     body, outfits = default_body(), _outfits(a.outfit)
+    if a.model == "ncs":
+        weights = [Path(w) for w in a.ncs_weights] if a.ncs_weights else None
+        if weights and len(weights) != len(outfits):
+            raise ReconError("--ncs-weights takes one file per outfit")
+        print(Path(garment_eval_ncs.evaluate_and_report(body, outfits, Path(a.out), dynamic=not a.no_simulation,
+                                                         ncs_weights=weights, log=print)).read_text())
+        return
     print(Path(garment_eval.evaluate_and_report(body, outfits, a.n, Path(a.out))).read_text())
     for o in outfits:  # the resizing table, for outfits with a trained resizer
         if store.resizer_path(o).exists():
@@ -519,6 +533,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--tightness", type=float, nargs=2, default=None, metavar=("WEIGHT", "HEIGHT"),
                    help="with an outfit that has a resizer: looser (> 0) or tighter (< 0)")
     p.add_argument("--seconds", type=float, default=None, help="only the clip's first seconds")
+    p.add_argument("--dynamics", action=argparse.BooleanOptionalAction, default=None,
+                   help="cloth dynamics (NCS: swings, lags, settles) or quasi-static cloth (PBNS); "
+                        "default: dynamic where the outfit has NCS weights")
     p.add_argument("--render", choices=("mp4", "gif", "none"), default="mp4",
                    help="the video (GIF where OpenCV has no MP4 encoder)")
     p.add_argument("--list-motions", action="store_true", help="list the shipped clips and stop")
@@ -527,15 +544,25 @@ def build_parser() -> argparse.ArgumentParser:
     g = group("garment", "PBNS outfits: train, resize, evaluate, compare with a physics drape")
     help_outfit = ("preset names, 'all', or your own garment meshes (.obj, .ply, .glb, ...: body frame, metres, "
                    "+Y up; trained into ~/.cache/recon/garments)")
-    p = action(g, "train", cmd_garment_train, "train PBNS outfits (unsupervised, physics energies)")
+    help_model = "pbns: quasi-static (ch. 5); ncs: dynamic (ch. 6), trained from the outfit's PBNS"
+    p = action(g, "train", cmd_garment_train, "train outfits (unsupervised, physics energies): PBNS, then NCS")
     p.add_argument("--outfit", nargs="+", default=["tshirt-trousers"], help=help_outfit)
-    p.add_argument("--epochs", type=int, default=default(garment_train.GarmentTrainConfig, "epochs"))
+    p.add_argument("--model", choices=("pbns", "ncs"), default="pbns", help=help_model)
+    p.add_argument("--epochs", type=int, default=None,
+                   help=f"default: PBNS {default(garment_train.GarmentTrainConfig, 'epochs')}, "
+                        f"NCS {default(ncs_train.NCSTrainConfig, 'epochs')}")
     p.add_argument("--poses", type=int, default=default(garment_train.GarmentTrainConfig, "poses"))
     p = action(g, "resize", cmd_garment_resize, "train the body-shape + tightness resizer of trained outfits")
     p.add_argument("--outfit", nargs="+", default=["tshirt-trousers"], help=help_outfit)
     p.add_argument("--epochs", type=int, default=default(ResizeConfig, "epochs"))
-    p = action(g, "eval", cmd_garment_eval, "PBNS (and resizer) tables on held-out poses (and shapes)")
+    p = action(g, "eval", cmd_garment_eval, "PBNS (and resizer) tables on held-out poses (and shapes); "
+               "--model ncs: skinning, PBNS and NCS on held-out clips and against dynamic simulations")
     p.add_argument("--outfit", nargs="+", default=["tshirt-trousers"], help=help_outfit)
+    p.add_argument("--model", choices=("pbns", "ncs"), default="pbns")
+    p.add_argument("--no-simulation", action="store_true",
+                   help="--model ncs: skip the newton simulations (minutes a clip; cached once run)")
+    p.add_argument("--ncs-weights", nargs="+", default=None,
+                   help="--model ncs: NCS files to evaluate instead of the shipped ones (one per outfit)")
     p.add_argument("--n", type=int, default=default(garment_eval.evaluate_and_report, "n_poses"),
                    help="held-out test poses")
     p.add_argument("--out", default=RESULTS)

@@ -1,14 +1,24 @@
 """Neural Cloth Simulation (thesis ch. 6): descriptors, the bias-free dynamic branch, inertia."""
+import json
+
 import numpy as np
 import pytest
 import roma
 import torch
+import trimesh
+from gltf_check import assert_valid, pose_meshes
 
 from recon.body import skeleton
 from recon.body.lbs import forward_kinematics
+from recon.garment import losses as L
 from recon.garment import ncs
-from recon.garment.pbns import initial_weights
+from recon.garment.dress import Dresser
+from recon.garment.evaluate_ncs import _clip, hem_vertices
+from recon.garment.gltf import write_glb
+from recon.garment.ncs_train import MotionWindows, NCSTrainConfig, Step
+from recon.garment.pbns import PBNS, initial_weights
 from recon.garment.templates import GarmentSpec, RestBody, make_outfit
+from recon.poses.mocap import MocapPoses
 
 
 def _sequence(body, t=6, seed=0, yaw=0.0):
@@ -86,7 +96,7 @@ def test_gru_state_fades_when_motion_stops(body):
 
 def test_inertia_is_zero_at_constant_velocity_and_never_looks_back():
     m = torch.tensor([0.5, 1.0])
-    loss = ncs.InertiaLoss(m, fps=30.0)
+    loss = ncs.InertiaLoss(m, fps=30.0, cfg=ncs.InertiaConfig(weight=1.0))
     x0, x1 = torch.zeros(1, 2, 3), torch.full((1, 2, 3), 0.01)
     assert loss(2 * x1 - x0, x1, x0).abs().max() < 1e-12
     prev, prev2 = x1.clone().requires_grad_(), x0.clone().requires_grad_()
@@ -94,7 +104,7 @@ def test_inertia_is_zero_at_constant_velocity_and_never_looks_back():
     v = loss(x, prev, prev2)
     v.sum().backward()
     assert prev.grad is None and prev2.grad is None and x.grad.abs().sum() > 0
-    expected = 0.5 * 900 * (m * (3 * 0.03 ** 2)).sum()
+    expected = 0.5 * 900 * (m / m.mean() * (3 * 0.03 ** 2)).mean()  # masses scaled to a mean of 1
     assert v.item() == pytest.approx(expected.item(), rel=1e-5)
 
 
@@ -111,3 +121,109 @@ def test_vertex_masses_sum_to_area_times_density():
     f = np.array([[0, 1, 2], [0, 2, 3]])
     m = ncs.vertex_masses(v, f, density=0.2)
     assert m.sum() == pytest.approx(0.2) and m[0] == pytest.approx(m[2]) and m[0] > m[1]
+
+
+def test_smoothing_keeps_still_motion_and_removes_jitter():
+    x = torch.zeros(1, 40, 2, 3)
+    assert torch.allclose(ncs.smooth_time(x + 1.5, 2.0), x + 1.5)  # constants stay (edges repeated)
+    jitter = x.clone()
+    jitter[:, ::2] = 0.01
+    assert ncs.smooth_time(jitter, 2.0)[:, 5:-5].std() < 0.05 * jitter.std()
+
+
+@pytest.fixture(scope="module")
+def windows(body):
+    return MotionWindows(body, "val", body.mean_shape[None], frames=10, n=12, seed=0, smooth=1.5)
+
+
+def test_windows_stay_inside_their_clip(windows):
+    clip = torch.from_numpy(MocapPoses.load("val").clip)
+    f = windows.ends[:, None] + windows.offsets
+    assert f.shape == (12, 10) and (clip[f] == clip[f[:, :1]]).all()
+    s, d = windows.window(torch.arange(3))
+    assert s.shape == (3, 10, len(ncs.KEPT), 9) and d.shape == (3, 10, len(ncs.KEPT), 12)
+    # each window is moved so that its last frame's root translation is above the origin
+    assert windows.transforms[:, 2, 0, [0, 2], 3].abs().max() < 0.25
+    assert windows.transl[windows.ends][:, [0, 2]].abs().max() > 0.5
+
+
+def test_training_step_sends_no_gradient_back_in_time_or_into_encoders_for_augmented(body, windows):
+    """With every window augmented, only D and the blend weights learn (6.4.6); the inertia
+    term's gradient reaches the encoders only through x_t."""
+    o = make_outfit(body, [GarmentSpec("skirt", "skirt")])
+    model = ncs.NCS(torch.from_numpy(o.vertices), torch.from_numpy(o.faces),
+                    torch.from_numpy(initial_weights(RestBody(body), o)))
+    with torch.no_grad():
+        model.D.normal_(0, 1e-3)  # a fresh D is zero: no gradient would reach any code
+    cfg = NCSTrainConfig()
+    crit = L.Criterion(o, model.rest, cfg)
+    inertia = ncs.InertiaLoss(torch.from_numpy(ncs.vertex_masses(o.vertices, o.faces)), cfg=cfg.inertia)
+    step = Step(model, crit, inertia, windows, augmentation=1.0)
+    loss, terms = step(torch.arange(4))
+    loss.backward()
+    assert model.D.grad.abs().sum() > 0
+    assert all(p.grad is None or p.grad.abs().sum() == 0 for p in model.static.parameters())
+    assert all(p.grad is None or p.grad.abs().sum() == 0 for p in model.gru.parameters())
+    model.zero_grad()
+    loss, terms = Step(model, crit, inertia, windows)(torch.arange(4))
+    loss.backward()
+    assert terms["inertia"].shape == (4,) and model.dynamic[0].weight.grad.abs().sum() > 0
+
+
+def test_animated_glb_holds_the_dynamic_model(body, tmp_path):
+    """A dynamic Dresser: the .glb's morph targets are NCS's D and its weights NCS's codes, so the
+    file poses the outfit as ``Dresser.animate`` does (which differs from PBNS frame by frame)."""
+    torch.manual_seed(0)
+    o = make_outfit(body, [GarmentSpec("skirt", "skirt")])
+    pbns = PBNS(torch.from_numpy(o.vertices), torch.from_numpy(o.faces),
+                torch.from_numpy(initial_weights(RestBody(body), o)))
+    with torch.no_grad():
+        pbns.D.normal_(0, 1e-3)
+    path = tmp_path / "m.pt"
+    pbns.save(path, {"meta_json": json.dumps({"garments": ["skirt"]}), "layer": torch.zeros(len(o.vertices)),
+                     "garment_id": torch.zeros(len(o.vertices), dtype=torch.long), "shape": body.mean_shape})
+    dresser = Dresser(path=path, resolve_collisions=False)
+    assert not dresser.dynamic
+    dresser.ncs = ncs.NCS.from_pbns(dresser.model)
+    rot, glob, joints = _sequence(body, t=5)
+    transl = joints[0, :, 0] - joints[0, :1, 0] + torch.tensor([0.0, 0.9, 0.0])
+    glb = write_glb(tmp_path / "a.glb", body, body.mean_shape, rot[0], transl, 30.0, dresser)
+    assert_valid(glb)
+    moving = dresser.animate(body, rot[0], body.mean_shape, transl).vertices
+    dresser_static = Dresser(path=path, resolve_collisions=False)
+    still = dresser_static.animate(body, rot[0], body.mean_shape, transl).vertices
+    posed = pose_meshes(glb, 4)["outfit"]
+    assert np.abs(posed - moving[4]).max() < 1e-4
+    assert np.abs(moving[4] - still[4]).max() > 1e-3  # NCS is not PBNS here
+
+
+def test_a_network_trained_at_15_fps_dresses_a_30_fps_motion(body, tmp_path):
+    """The Dresser resamples the motion to the network's rate and interpolates its codes back: at
+    the shared frames (every second one) the codes are those of the network run at 15 fps."""
+    torch.manual_seed(0)
+    o = make_outfit(body, [GarmentSpec("skirt", "skirt")])
+    pbns = PBNS(torch.from_numpy(o.vertices), torch.from_numpy(o.faces),
+                torch.from_numpy(initial_weights(RestBody(body), o)))
+    path = tmp_path / "m.pt"
+    pbns.save(path, {"meta_json": json.dumps({"garments": ["skirt"]}), "layer": torch.zeros(len(o.vertices)),
+                     "garment_id": torch.zeros(len(o.vertices), dtype=torch.long), "shape": body.mean_shape})
+    dresser = Dresser(path=path, resolve_collisions=False)
+    dresser.ncs = ncs.NCS(pbns.rest, pbns.faces, pbns.weights.detach(), ncs.NCSConfig(fps=15.0))
+    rot, _, joints = _sequence(body, t=9)
+    transl = joints[0, :, 0] - joints[0, :1, 0]
+    _, z30 = dresser.sequence_codes(body, rot[0], body.mean_shape, transl, fps=30.0)
+    _, z15 = dresser.sequence_codes(body, rot[0, ::2], body.mean_shape, transl[::2], fps=15.0)
+    assert z30.shape == (9, 128) and z15.shape == (5, 128)
+    assert torch.allclose(z30[::2], z15, atol=1e-5)
+    assert torch.allclose(z30[1], 0.5 * (z15[0] + z15[1]), atol=1e-5)
+
+
+def test_hem_is_the_lowest_boundary_ring_and_held_clips_stop_dead():
+    tube = trimesh.creation.cylinder(radius=0.3, height=0.5, sections=24)
+    tube = trimesh.Trimesh(tube.vertices, tube.faces[np.abs(tube.face_normals[:, 2]) < 0.5])  # open ends
+    v = tube.vertices[:, [0, 2, 1]]  # the axis along +Y
+    hem = hem_vertices(v, tube.faces)
+    assert len(hem) == 24 and np.allclose(v[hem, 1], v[:, 1].min())
+    rot, tr = _clip(MocapPoses.load("test"), "12_01", 10, 5, hold=3)
+    assert rot.shape == (8, 24, 3, 3) and torch.equal(rot[4], rot[7]) and torch.equal(tr[4], tr[7])
+    assert tr[0, [0, 2]].abs().max() == 0  # the first frame's pelvis above the origin

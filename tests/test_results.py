@@ -9,13 +9,15 @@ import pytest
 from recon import report
 from recon.bench import runner
 from recon.garment import evaluate as garment_eval
+from recon.garment import evaluate_ncs
 from recon.smplr import evaluate as smplr_eval
 
 RESULTS = Path(__file__).resolve().parent.parent / "eval" / "results"
 CHECKED = sorted(p for p in RESULTS.glob("*.json") if "check" in json.loads(p.read_text()))
 RENDERERS = {"synth-test": runner.render, "synth-wide-test": runner.render, "smplr_anny": smplr_eval.render,
              "garment-pbns": garment_eval.render_pbns,
-             "garment-resize-": garment_eval.render_resize, "garment-reference-": garment_eval.render_reference}
+             "garment-resize-": garment_eval.render_resize, "garment-reference-": garment_eval.render_reference,
+             "garment-ncs": evaluate_ncs.render}
 RTOL, ATOL = 1e-3, 1e-6  # float noise (measured: <= 1e-4 relative); a real change moves far more
 
 

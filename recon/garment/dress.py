@@ -6,6 +6,10 @@ to every cloth vertex from its nearest body vertex and Laplacian-smoothed, so bo
 not print through; when the outfit has a trained resizer (``recon garment resize``, thesis
 5.5.6) its correction is added and a tightness can be asked for. Pose-space deformations
 (PBNS) and skinning then follow the new body.
+
+A motion (``Dresser.animate``) is dressed by the outfit's NCS (thesis ch. 6: the cloth swings,
+lags and settles) when the outfit has one and ``dynamics`` is not False, else by PBNS frame by
+frame (quasi-static).
 """
 from __future__ import annotations
 
@@ -19,8 +23,10 @@ import torch
 from recon.errors import MissingFile, ReconError
 from recon.garment import store
 from recon.garment.collide import CollisionResolver
-from recon.garment.pbns import PBNS
+from recon.garment.ncs import FPS, NCS, motion_inputs
+from recon.garment.pbns import PBNS, pose_features
 from recon.garment.resize import OutfitResizer, Transfer
+from recon.poses.mocap import resample
 
 
 @dataclass
@@ -35,9 +41,10 @@ class Dresser:
     """``Dresser("tshirt-trousers")(body, rotmats, shape, transl) -> DressedOutfit``."""
 
     def __init__(self, outfit: str = "tshirt-trousers", path: str | Path | None = None, resizer: bool = True,
-                 resolve_collisions: bool = True):
+                 resolve_collisions: bool = True, dynamics: bool | None = None):
         """``resolve_collisions``: push cloth that PBNS leaves inside the body out of it
-        (recon.garment.collide; ~1 % of the vertices, about 30-70 ms a frame on one core)."""
+        (recon.garment.collide; ~1 % of the vertices, about 30-70 ms a frame on one core).
+        ``dynamics``: motions through the outfit's NCS (None: when it has one; True: it must)."""
         path = Path(path or store.pbns_path(outfit))  # a preset, your own garment's name, or a .pt file
         if not path.exists():
             raise MissingFile(f"no trained outfit {path}: run `recon garment train --outfit {outfit}`")
@@ -55,6 +62,13 @@ class Dresser:
         if resizer and name:
             p = store.resizer_path(name, path)
             self._resizer_path = p if p.exists() else None
+        self.ncs = None
+        ncs_path = store.ncs_path(name) if name else None
+        if dynamics is not False and ncs_path is not None and ncs_path.exists():
+            self.ncs, _ = NCS.load(ncs_path)
+        elif dynamics:
+            raise MissingFile(f"{self.outfit} has no NCS (dynamic) weights: run "
+                              f"`recon garment train --model ncs --outfit {self.outfit}`")
 
     @property
     def has_resizer(self) -> bool:
@@ -99,4 +113,53 @@ class Dresser:
         if self.resolver is not None:
             verts = self.resolver(verts, out.vertices, body.faces)
         return DressedOutfit(verts.numpy(), self.model.faces.numpy(), self.garment_id, self.names)
+
+    @property
+    def dynamic(self) -> bool:
+        """Whether motions are dressed by NCS (else PBNS, frame by frame)."""
+        return self.ncs is not None
+
+    def sequence_codes(self, body, rotmats: torch.Tensor, shape: torch.Tensor, transl: torch.Tensor | None = None,
+                       fps: float = FPS, motion: float = 1.0) -> tuple[torch.Tensor, torch.Tensor]:
+        """The blend-shape model dressing a motion and its codes per frame: (D (E, N*3), (T, E)).
+        NCS's when dynamic (``motion`` scales its dynamic code: 0 = static), else PBNS's. Poses
+        in the gravity-aligned body frame (+Y up). NCS runs at the rate it was trained at: the
+        motion is resampled to it and the codes interpolated back to the motion's frames."""
+        with torch.no_grad():
+            if self.ncs is None:
+                return self.model.D.detach(), self.model.mlp(pose_features(rotmats))
+            rate = self.ncs.cfg.fps
+            r, tr = rotmats, transl
+            if abs(rate - fps) > 1e-6:  # the network steps at its training rate: resample, run, interpolate
+                tr0 = torch.zeros(len(rotmats), 3) if transl is None else transl
+                r, tr = (torch.from_numpy(x).float() for x in resample(rotmats.numpy(), tr0.numpy(), fps, rate))
+            static, dynamic, _ = motion_inputs(body, r, shape, tr, rate)
+            zs, zd, _ = self.ncs.codes(static[None], dynamic[None])
+            z = (zs + motion * zd)[0]
+            if len(z) != len(rotmats) or abs(rate - fps) > 1e-6:
+                t = np.arange(len(rotmats)) / fps * rate  # each frame's time in network steps
+                i0 = np.minimum(np.floor(t).astype(int), len(z) - 1)
+                w = torch.from_numpy(np.clip(t - i0, 0, 1)).float()[:, None]
+                z = (1 - w) * z[i0] + w * z[np.minimum(i0 + 1, len(z) - 1)]
+            return self.ncs.D.detach(), z
+
+    @torch.no_grad()
+    def animate(self, body, rotmats: torch.Tensor, shape: torch.Tensor, transl: torch.Tensor | None = None,
+                fps: float = FPS, tightness=None, motion: float = 1.0) -> DressedOutfit:
+        """Dress a motion (T, 24, 3, 3) local rotations, +Y up, at ``fps`` frames a second (NCS
+        learnt its dynamics at 30), one shape (S,) and translation (T, 3): (T, N, 3) cloth."""
+        shape = shape.reshape(-1)
+        t = len(rotmats)
+        shp = shape[None].expand(t, -1)
+        out = body(rotmats, shp, transl=transl, points_only=self.resolver is None)
+        rest = self.rest_for(body, shape, tightness=tightness)
+        if self.ncs is None:
+            verts = self.model.pose(rotmats, out.transforms, rest)
+        else:
+            _, codes = self.sequence_codes(body, rotmats, shape, transl, fps)
+            verts = self.ncs.pose_codes(codes, out.transforms, rest)
+        if self.resolver is not None:
+            verts = self.resolver(verts, out.vertices, body.faces)
+        model = self.ncs or self.model
+        return DressedOutfit(verts.numpy(), model.faces.numpy(), self.garment_id, self.names)
 

@@ -83,7 +83,8 @@ def write_glb(path: str | Path, body, shape: torch.Tensor, rotmats: torch.Tensor
         transl: (T, 3) pelvis positions in the file's frame, metres.
         dresser: a ``recon.garment.Dresser`` to add its outfit (resized to ``shape``, ``tightness``
             where the outfit has a resizer); its network must see the gravity-aligned pose, i.e.
-            +Y up in the file's frame.
+            +Y up in the file's frame. A motion is dressed by its NCS when it has one
+            (``Dresser.dynamic``), frame by frame by PBNS otherwise.
         camera: (K, (height, width)): a perspective camera at the origin looking down -Z with the
             vertical field of view of K (glTF has no principal point: it is taken as centred).
     With T = 1 the file holds the pose and no animation."""
@@ -137,11 +138,16 @@ def write_glb(path: str | Path, body, shape: torch.Tensor, rotmats: torch.Tensor
     mesh_nodes = [skinned_mesh("body", rest_v, body.faces.numpy(), body.weights.numpy(), BODY_RGBA)]
     morph = None
     if dresser is not None:
-        model = dresser.model
         rest_c = dresser.rest_for(body, shape[0], tightness=tightness).numpy()
-        d = model.D.detach().numpy().reshape(model.cfg.embedding, -1, 3)
-        with torch.no_grad():
-            morph = model.mlp(pose_features(rotmats)).numpy().astype(np.float32)  # (T, |X|)
+        if t > 1:  # a motion: NCS's blend shapes and per-frame codes where the outfit has it
+            model = dresser.ncs or dresser.model
+            d, morph = dresser.sequence_codes(body, rotmats, shape[0], transl, fps)
+        else:
+            model = dresser.model
+            with torch.no_grad():
+                d, morph = model.D.detach(), model.mlp(pose_features(rotmats))
+        d = d.numpy().reshape(model.cfg.embedding, -1, 3)
+        morph = morph.numpy().astype(np.float32)  # (T, |X|)
         mesh_nodes.append(skinned_mesh("outfit", rest_c, model.faces.numpy(), model.weights.detach().numpy(),
                                        OUTFIT_RGBA, targets=d, morph0=morph[0]))
     scene_nodes = [0] + mesh_nodes

@@ -9,24 +9,28 @@ Model (6.3.3): a static encoder (4 FC layers on the current pose) and a dynamic 
 any bias (2 per-joint FC layers, 2 FC layers, one GRU), so that no motion gives a zero dynamic
 code and the GRU state fades when motion stops; the codes are added and decoded in PBNS's
 blend-shape form (z . D, so the .glb export stays morph targets), then skinned.
-Training (6.3.4) adds ``InertiaLoss`` (eq. 6.9) to the PBNS energies, with the previous states
-as constants. Frames: the body frame, +Y up (gravity along -Y), metres, ``FPS`` frames a second.
+Training (6.3.4, recon.garment.ncs_train) adds ``InertiaLoss`` (eq. 6.9) to the PBNS energies,
+with the previous states as constants. Frames: the body frame, +Y up (gravity along -Y), metres;
+the network steps at the frame rate it was trained at (``NCSConfig.fps``).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import torch
 from torch import nn
 
+from recon import paths
 from recon.body import skeleton
-from recon.garment.pbns import remove_yaw
+from recon.garment.pbns import BlendShapeGarment, remove_yaw
 
 DROPPED = ("left_foot", "right_foot", "left_hand", "right_hand")
 KEPT = tuple(i for i, n in enumerate(skeleton.JOINT_NAMES) if n not in DROPPED)
 GRAVITY = (0.0, -1.0, 0.0)  # unit direction in the body frame
 FPS = 30.0
+SMOOTH = 2.0 / FPS  # seconds: Gaussian sigma of the trajectories the dynamic descriptors differentiate
 
 
 def rot6d(r: torch.Tensor) -> torch.Tensor:
@@ -52,14 +56,32 @@ def _derivative(x: torch.Tensor, fps: float, order: int) -> torch.Tensor:
     return (pad[:, 2:] - 2 * pad[:, 1:-1] + pad[:, :-2]) * fps * fps
 
 
+def smooth_time(x: torch.Tensor, sigma: float) -> torch.Tensor:
+    """Gaussian smoothing along dim 1 (time) of (B, T, ...), edges repeated (sigma in frames)."""
+    if sigma <= 0 or x.shape[1] < 2:
+        return x
+    r = int(np.ceil(3 * sigma))
+    k = torch.exp(-0.5 * (torch.arange(-r, r + 1, dtype=x.dtype) / sigma) ** 2)
+    k = (k / k.sum()).to(x.device)
+    b, t = x.shape[:2]
+    flat = x.reshape(b, t, -1).transpose(1, 2).reshape(-1, 1, t)
+    flat = torch.nn.functional.pad(flat, (r, r), mode="replicate")
+    out = torch.nn.functional.conv1d(flat, k.view(1, 1, -1))
+    return out.view(b, -1, t).transpose(1, 2).reshape(x.shape)
+
+
 def descriptors(rotmats: torch.Tensor, global_rotmats: torch.Tensor, joints: torch.Tensor,
-                fps: float = FPS) -> tuple[torch.Tensor, torch.Tensor]:
+                fps: float = FPS, smooth: float = SMOOTH) -> tuple[torch.Tensor, torch.Tensor]:
     """Sequences (B, T, 24, 3, 3) local / global rotations and (B, T, 24, 3) joint locations ->
-    static (B, T, K, 9) and dynamic (B, T, K, 12) descriptors."""
+    static (B, T, K, 9) and dynamic (B, T, K, 12) descriptors. The derivatives are taken of
+    trajectories smoothed over ``smooth`` seconds (Gaussian sigma): differentiated twice, mocap's
+    frame-to-frame noise outweighs the motion (30 fps val clips: the second difference of the
+    joint accelerations is 2.7x their mean) and a dynamic code read from it only jitters."""
     static = static_descriptors(rotmats, global_rotmats)
-    accel = _derivative(joints, fps, 2)
+    sigma = smooth * fps
+    accel = _derivative(smooth_time(joints, sigma), fps, 2)
     unposed = torch.einsum("btjik,btji->btjk", global_rotmats, accel)[:, :, KEPT]  # R_j^T a_j
-    return static, torch.cat([_derivative(static, fps, 1), unposed], -1)
+    return static, torch.cat([_derivative(smooth_time(static, sigma), fps, 1), unposed], -1)
 
 
 @dataclass
@@ -67,19 +89,19 @@ class NCSConfig:
     hidden: int = 256  # static encoder and the dynamic encoder's FC layers
     joint_features: int = 32  # the dynamic encoder's per-joint layers
     embedding: int = 128  # |z|, rows of D (as PBNS)
+    fps: float = FPS  # the frame rate it was trained at: its recurrent steps are frames at this rate
 
 
-class NCS(nn.Module):
-    """``NCS(rest, faces, weights)``; ``deformation(static, dynamic, h) -> (dT, h)`` per sequence,
-    ``forward(static, dynamic, transforms) -> (posed, dT)``."""
+class NCS(BlendShapeGarment):
+    """``NCS(rest, faces, weights)``; ``codes(static, dynamic, h) -> (z_static, z_dynamic, h)``
+    per sequence (B, T, ...), ``forward(static, dynamic, transforms) -> (posed, dT)`` to train,
+    ``animate(...)`` for inference. Skinning, D and the blend weights are PBNS's."""
 
     def __init__(self, rest: torch.Tensor, faces: torch.Tensor, weights: torch.Tensor, cfg: NCSConfig | None = None):
-        super().__init__()
         cfg = cfg or NCSConfig()
+        super().__init__(rest, faces, weights, cfg.embedding)
         self.cfg = cfg
         k, e, h = len(KEPT), cfg.embedding, cfg.hidden
-        self.register_buffer("rest", rest.float())
-        self.register_buffer("faces", faces.long())
         self.static = nn.Sequential(nn.Linear(9 * k, h), nn.ReLU(), nn.Linear(h, h), nn.ReLU(), nn.Linear(h, h),
                                     nn.ReLU(), nn.Linear(h, e))
         f = cfg.joint_features
@@ -87,12 +109,16 @@ class NCS(nn.Module):
         self.per_joint = nn.Sequential(nn.Linear(12, f, bias=False), nn.ReLU(), nn.Linear(f, f, bias=False), nn.ReLU())
         self.dynamic = nn.Sequential(nn.Linear(k * f, h, bias=False), nn.ReLU(), nn.Linear(h, e, bias=False))
         self.gru = nn.GRU(e, e, bias=False, batch_first=True)
-        self.D = nn.Parameter(torch.zeros(e, rest.shape[0] * 3))
-        self.weight_logits = nn.Parameter(torch.log(weights.float().clamp_min(1e-6)))
 
-    @property
-    def weights(self) -> torch.Tensor:
-        return torch.softmax(self.weight_logits, -1)
+    @classmethod
+    def from_pbns(cls, pbns: BlendShapeGarment, cfg: NCSConfig | None = None) -> NCS:
+        """An NCS with a trained PBNS's template, blend weights and D (a warm start: the static
+        encoder still has to learn PBNS's codes)."""
+        m = cls(pbns.rest, pbns.faces, pbns.weights.detach(), cfg or NCSConfig(embedding=pbns.D.shape[0]))
+        with torch.no_grad():
+            m.D.copy_(pbns.D)
+            m.weight_logits.copy_(pbns.weight_logits)
+        return m
 
     def codes(self, static: torch.Tensor, dynamic: torch.Tensor, h: torch.Tensor | None = None):
         """(B, T, K, 9), (B, T, K, 12) -> static code, dynamic code (B, T, E) and the GRU state."""
@@ -105,18 +131,43 @@ class NCS(nn.Module):
         """Rest-pose displacements (B, T, N, 3) and the GRU state. ``motion`` scales the dynamic
         code (the thesis' motion control, 6.4.6: 0 = the static model, > 1 = livelier)."""
         zs, zd, h = self.codes(static, dynamic, h)
-        z = zs + motion * zd
-        return (z @ self.D).view(*z.shape[:2], -1, 3), h
+        return self.decode(zs + motion * zd), h
 
-    def skin(self, x: torch.Tensor, transforms: torch.Tensor) -> torch.Tensor:
+    def skin_frames(self, x: torch.Tensor, transforms: torch.Tensor) -> torch.Tensor:
         """LBS of rest-pose points (B, T, N, 3) with the body's transforms (B, T, 24, 3, 4)."""
         b, t = transforms.shape[:2]
-        m = (self.weights @ transforms.reshape(b * t, 24, 12)).view(b, t, -1, 3, 4)  # PBNS.skin's form
-        return torch.einsum("btnij,btnj->btni", m[..., :3], x) + m[..., 3]
+        return self.skin(x.flatten(0, 1), transforms.flatten(0, 1)).view(b, t, -1, 3)
 
     def forward(self, static, dynamic, transforms, h=None, motion: float = 1.0):
         dt, h = self.deformation(static, dynamic, h, motion)
-        return self.skin(self.rest + dt, transforms), dt
+        return self.skin_frames(self.rest + dt, transforms), dt
+
+    def animate(self, static: torch.Tensor, dynamic: torch.Tensor, transforms: torch.Tensor,
+                rest: torch.Tensor | None = None, motion: float = 1.0, h: torch.Tensor | None = None):
+        """Inference on one sequence: descriptors (T, K, 9), (T, K, 12) and transforms
+        (T, 24, 3, 4) -> posed vertices (T, N, 3) and the GRU state (pass it back with the next
+        frames to stream). ``rest``: the outfit resized to the body (default the template)."""
+        with torch.no_grad():
+            zs, zd, h = self.codes(static[None], dynamic[None], h)
+            return self.pose_codes((zs + motion * zd)[0], transforms, rest), h
+
+    @classmethod
+    def load(cls, path: Path) -> tuple[NCS, dict]:
+        ck = paths.load_checkpoint(path, "recon garment train --model ncs")
+        sd = ck["state"]
+        m = cls(sd["rest"], sd["faces"], torch.softmax(sd["weight_logits"], -1), NCSConfig(**ck["cfg"]))
+        m.load_state_dict(sd)
+        return m.eval(), ck
+
+
+def motion_inputs(body, rotmats: torch.Tensor, shape: torch.Tensor, transl: torch.Tensor | None = None,
+                  fps: float = FPS):
+    """A body motion (T, 24, 3, 3) local rotations (+Y up), shape (S,), translation (T, 3) ->
+    static (T, K, 9) and dynamic (T, K, 12) descriptors and the joint transforms (T, 24, 3, 4)."""
+    with torch.no_grad():
+        o = body(rotmats, shape.reshape(1, -1).expand(len(rotmats), -1), transl=transl, points_only=True)
+        s, d = descriptors(rotmats[None], o.global_rotmats[None], o.joints[None], fps)
+    return s[0], d[0], o.transforms
 
 
 def vertex_masses(vertices: np.ndarray, faces: np.ndarray, density: float = 0.15) -> np.ndarray:
@@ -131,21 +182,25 @@ def vertex_masses(vertices: np.ndarray, faces: np.ndarray, density: float = 0.15
 
 @dataclass
 class InertiaConfig:
-    weight: float = 1.0
+    # in the units of the PBNS energies, whose gravity term is GravityConfig.weight x mean height:
+    # gravity weight / g (5 / 9.81) puts inertia and gravity in their physical ratio
+    weight: float = 5.0 / 9.81
 
 
 class InertiaLoss(nn.Module):
-    """Eq. 6.9, summed over particles: m / (2 dt^2) |x_t - (2 x_{t-1} - x_{t-2})|^2. The previous
-    states are constants: gradients must not travel back in time (the thesis' point against
-    SNUG), so they are detached here whatever the caller passes."""
+    """Eq. 6.9 as a mean over particles: weight x m / (2 dt^2) |x_t - (2 x_{t-1} - x_{t-2})|^2,
+    the masses scaled to a mean of 1 (the PBNS energies are per mean vertex). The previous states
+    are constants: gradients must not travel back in time (the thesis' point against SNUG), so
+    they are detached here whatever the caller passes."""
 
     def __init__(self, masses: torch.Tensor, fps: float = FPS, cfg: InertiaConfig | None = None):
         super().__init__()
         self.cfg = cfg or InertiaConfig()
         self.fps = fps
-        self.register_buffer("m", torch.as_tensor(masses))
+        m = torch.as_tensor(masses, dtype=torch.float32 if not torch.is_tensor(masses) else masses.dtype)
+        self.register_buffer("m", m / m.mean())
 
     def forward(self, x: torch.Tensor, x_prev: torch.Tensor, x_prev2: torch.Tensor) -> torch.Tensor:
         proj = 2 * x_prev.detach() - x_prev2.detach()
         d2 = ((x - proj) ** 2).sum(-1)
-        return self.cfg.weight * 0.5 * self.fps ** 2 * (self.m.to(x) * d2).sum(-1)
+        return self.cfg.weight * 0.5 * self.fps ** 2 * (self.m.to(x) * d2).mean(-1)

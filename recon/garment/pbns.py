@@ -60,21 +60,19 @@ VERTEX_MAJOR_MIN_BATCH = 12
 VERTEX_MAJOR_CHUNK_FLOATS = 1 << 18
 
 
-class PBNS(nn.Module):
-    def __init__(self, rest: torch.Tensor, faces: torch.Tensor, weights: torch.Tensor, cfg: PBNSConfig | None = None):
+class BlendShapeGarment(nn.Module):
+    """What PBNS and NCS share: a rest outfit, a blend-shape matrix D (code -> rest-pose
+    displacement, so an export stays morph targets), learned blend weights and skinning.
+    Subclasses map their input to codes (E,) and set ``cfg`` (a dataclass with ``embedding``)."""
+
+    def __init__(self, rest: torch.Tensor, faces: torch.Tensor, weights: torch.Tensor, embedding: int,
+                 optimise_weights: bool = True):
         super().__init__()
-        cfg = cfg or PBNSConfig()
-        self.cfg = cfg
         self.register_buffer("rest", rest.float())  # (N, 3) outfit in rest pose, body frame
         self.register_buffer("faces", faces.long())
-        dims = [24 * 9] + [cfg.hidden] * (cfg.layers - 1) + [cfg.embedding]
-        mods: list[nn.Module] = []
-        for a, b in zip(dims[:-1], dims[1:]):
-            mods += [nn.Linear(a, b), nn.ReLU()]
-        self.mlp = nn.Sequential(*mods)
-        self.D = nn.Parameter(torch.zeros(cfg.embedding, rest.shape[0] * 3))
+        self.D = nn.Parameter(torch.zeros(embedding, rest.shape[0] * 3))
         logits = torch.log(weights.float().clamp_min(1e-6))
-        if cfg.optimise_weights:
+        if optimise_weights:
             self.weight_logits = nn.Parameter(logits)
         else:
             self.register_buffer("weight_logits", logits)
@@ -92,11 +90,6 @@ class PBNS(nn.Module):
             self._weights_key = key
         return self._weights
 
-    def deformation(self, rotmats: torch.Tensor) -> torch.Tensor:
-        """(B, 24, 3, 3) -> rest-pose displacements dT (B, N, 3)."""
-        x = self.mlp(pose_features(rotmats))
-        return (x @ self.D).view(x.shape[0], -1, 3)
-
     def skin(self, x: torch.Tensor, transforms: torch.Tensor) -> torch.Tensor:
         """LBS of rest-pose points x ((N, 3) or (B, N, 3)) with the joint transforms (B, 24, 3, 4)
         (BodyOutput.transforms, rest -> posed). One matmul blends the transforms per vertex:
@@ -108,22 +101,19 @@ class PBNS(nn.Module):
             x = x.expand(b, -1, -1)
         return torch.einsum("bnij,bnj->bni", t[..., :3], x) + t[..., 3]
 
-    def forward(self, rotmats: torch.Tensor, transforms: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Pose the outfit, differentiably (training). transforms: (B, 24, 3, 4) rest -> posed per
-        joint (BodyOutput.transforms). Returns (posed vertices (B, N, 3), dT (B, N, 3))."""
-        dt = self.deformation(rotmats)
-        return self.skin(self.rest + dt, transforms), dt
+    def decode(self, x: torch.Tensor) -> torch.Tensor:
+        """Codes (..., E) -> rest-pose displacements dT (..., N, 3)."""
+        return (x @ self.D).view(*x.shape[:-1], -1, 3)
 
     @torch.no_grad()
-    def pose(self, rotmats: torch.Tensor, transforms: torch.Tensor, rest: torch.Tensor | None = None) -> torch.Tensor:
-        """Posed vertices (B, N, 3) for inference (no gradients): ``forward``'s result, computed
-        for batches of >= ``VERTEX_MAJOR_MIN_BATCH`` frames vertex-major in chunks of vertices.
+    def pose_codes(self, x: torch.Tensor, transforms: torch.Tensor, rest: torch.Tensor | None = None) -> torch.Tensor:
+        """Posed vertices (B, N, 3) of codes (B, E) for inference (no gradients), computed for
+        batches of >= ``VERTEX_MAJOR_MIN_BATCH`` frames vertex-major in chunks of vertices.
         ``rest``: (N, 3) or (B, N, 3) rest outfit (resized per body; default the template)."""
         rest = self.rest if rest is None else rest
-        b = rotmats.shape[0]
-        if b < VERTEX_MAJOR_MIN_BATCH:
-            return self.skin(rest + self.deformation(rotmats), transforms)
-        return self._pose_vertex_major(self.mlp(pose_features(rotmats)), transforms, rest)
+        if x.shape[0] < VERTEX_MAJOR_MIN_BATCH:
+            return self.skin(rest + self.decode(x), transforms)
+        return self._pose_vertex_major(x, transforms, rest)
 
     def _pose_vertex_major(self, x: torch.Tensor, transforms: torch.Tensor, rest: torch.Tensor) -> torch.Tensor:
         """The batch is the fastest axis: per chunk of vertices, dT (c, 3, B) is one GEMM with D,
@@ -162,6 +152,33 @@ class PBNS(nn.Module):
         sd["D"] = sd["D"].half()  # halves the file; dT moves 1 um on average, 0.01 mm at most (64 test poses)
         state = {"cfg": asdict(self.cfg), "state": sd} | extra
         paths.atomic_write(Path(path), lambda t: torch.save(state, t))
+
+
+class PBNS(BlendShapeGarment):
+    def __init__(self, rest: torch.Tensor, faces: torch.Tensor, weights: torch.Tensor, cfg: PBNSConfig | None = None):
+        cfg = cfg or PBNSConfig()
+        super().__init__(rest, faces, weights, cfg.embedding, cfg.optimise_weights)
+        self.cfg = cfg
+        dims = [24 * 9] + [cfg.hidden] * (cfg.layers - 1) + [cfg.embedding]
+        mods: list[nn.Module] = []
+        for a, b in zip(dims[:-1], dims[1:]):
+            mods += [nn.Linear(a, b), nn.ReLU()]
+        self.mlp = nn.Sequential(*mods)
+
+    def deformation(self, rotmats: torch.Tensor) -> torch.Tensor:
+        """(B, 24, 3, 3) -> rest-pose displacements dT (B, N, 3)."""
+        return self.decode(self.mlp(pose_features(rotmats)))
+
+    def forward(self, rotmats: torch.Tensor, transforms: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Pose the outfit, differentiably (training). transforms: (B, 24, 3, 4) rest -> posed per
+        joint (BodyOutput.transforms). Returns (posed vertices (B, N, 3), dT (B, N, 3))."""
+        dt = self.deformation(rotmats)
+        return self.skin(self.rest + dt, transforms), dt
+
+    def pose(self, rotmats: torch.Tensor, transforms: torch.Tensor, rest: torch.Tensor | None = None) -> torch.Tensor:
+        """``forward``'s posed vertices (B, N, 3) for inference (``pose_codes``)."""
+        with torch.no_grad():
+            return self.pose_codes(self.mlp(pose_features(rotmats)), transforms, rest)
 
     @classmethod
     def load(cls, path: Path) -> tuple[PBNS, dict]:

@@ -23,6 +23,12 @@ def pbns_path(outfit: str) -> Path:
     return (SHIPPED_DIR if name in PRESETS else user_dir()) / f"pbns_{name}.pt"
 
 
+def ncs_path(outfit: str) -> Path:
+    """NCS weights (dynamic model) of a preset (shipped) or of your own garment (the cache)."""
+    name = outfit_name(outfit)
+    return (SHIPPED_DIR if name in PRESETS else user_dir()) / f"ncs_{name}.pt"
+
+
 def resizer_path(outfit: str, pbns: str | Path | None = None) -> Path:
     """The resizer of an outfit: shipped for the presets (their templates never change), else
     beside its PBNS weights (``pbns``, default where ``recon garment train`` writes them)."""

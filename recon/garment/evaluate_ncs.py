@@ -1,0 +1,307 @@
+"""``recon garment eval --model ncs``: skinning, PBNS and NCS on held-out mocap clips
+(eval/results/garment-ncs.{json,md}).
+
+Per outfit, a row each for the skinned template (dT = 0), PBNS and NCS:
+- collision % and edge error (mm) over the frames of every test clip (the models run on every
+  frame at 30 fps; every ``STRIDE``-th frame is scored), split by the body's own
+  self-intersection as PBNS's table is (recon.garment.metrics.physical_metrics);
+- against newton's VBD run dynamically (recon.garment.reference.simulate: velocities kept, the
+  body and the pinned waist moving) on a few short held-out clips (``DYNAMIC_CLIPS``: a turn, a
+  run that stops, a walk), for the outfits' pinned garments (a skirt; ``_sim_subset``):
+  ``sim_error_mm``, the mean per-vertex distance per frame, and the hem's
+  swing: the hem centroid's horizontal offset from where skinning puts it (``hem_peak_mm`` per
+  model and for the simulation; ``hem_error_mm``: the mean distance between the model's offset
+  and the simulation's over the frames);
+- speed: frames per second on one thread for batch 1 (PBNS: one pose; NCS: one frame streamed with
+  its recurrent state) and batch 64 (64 poses; NCS: 64 frames of a sequence in one call), given
+  the body's joint transforms.
+The simulations are cached (``~/.cache/recon/garment-dynamic/``): they take minutes per clip.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+import roma
+import torch
+
+from recon import paths, report
+from recon.body import default_body
+from recon.errors import MissingFile, ReconError
+from recon.garment import reference, store
+from recon.garment.data import trained_outfit
+from recon.garment.mesh import vertex_normals
+from recon.garment.metrics import physical_metrics
+from recon.garment.ncs import NCS, motion_inputs
+from recon.garment.pbns import PBNS
+from recon.garment.self_intersection import SkinSelfIntersection
+from recon.poses.mocap import MocapPoses
+from recon.timing import median_ms
+
+MODELS = ("skinning only (dT = 0)", "PBNS", "NCS")
+STRIDE = 4
+# (clip, first frame, frames, frames the last pose is held, what happens): held-out performers. The
+# turn is the test split's fastest (root yaw rate); no test clip stops suddenly, so the run's last
+# pose is held: the body stops dead and the cloth should swing on and settle
+DYNAMIC_CLIPS = (("03_03", 975, 60, 0, "turn (3.3 rad/s)"), ("09_11", 0, 30, 30, "run, then a dead stop"),
+                 ("12_01", 0, 60, 0, "walk"))
+CHECK_CLIP = ("12_01", 0, 16, 0)  # the slice tests/test_results.py recomputes
+
+
+def _clip(split_poses: MocapPoses, name: str, start: int = 0, frames: int | None = None, hold: int = 0):
+    """Local rotations (T, 24, 3, 3) and translation (T, 3) of a clip (its first frame's pelvis
+    above the origin), its last pose repeated ``hold`` more frames."""
+    c = next((i for i, k in enumerate(split_poses.clips) if k["name"] == name), None)
+    if c is None:
+        raise ReconError(f"no clip {name} in the pose set")
+    idx = np.nonzero(split_poses.clip == c)[0][start:None if frames is None else start + frames]
+    idx = np.concatenate([idx, np.full(hold, idx[-1])])
+    rot = roma.rotvec_to_rotmat(torch.from_numpy(split_poses.rotvec[idx]).float())
+    tr = torch.from_numpy(split_poses.transl[idx]).float()
+    return rot, tr - tr[:1] * torch.tensor([1.0, 0.0, 1.0])
+
+
+@torch.no_grad()
+def run_models(pbns: PBNS, ncs: NCS | None, body, shape: torch.Tensor, rot: torch.Tensor,
+               transl: torch.Tensor) -> dict:
+    """The models on one sequence: {model: (T, N, 3)} (NCS only when given)."""
+    static, dynamic, transforms = motion_inputs(body, rot, shape, transl)
+    chunks = range(0, len(rot), 64)
+    out = {MODELS[0]: torch.cat([pbns.skin(pbns.rest, transforms[i:i + 64]) for i in chunks]),
+           MODELS[1]: torch.cat([pbns.pose(rot[i:i + 64], transforms[i:i + 64]) for i in chunks])}
+    if ncs is not None:
+        out[MODELS[2]] = ncs.animate(static, dynamic, transforms)[0]
+    return out
+
+
+def clip_rows(body, pbns: PBNS, ncs: NCS | None, shape: torch.Tensor, clips: list[tuple], stride: int = STRIDE) -> dict:
+    """Physical metrics of the three models over the scored frames of ``clips`` [(name, start,
+    frames, hold)] of the test split."""
+    test = MocapPoses.load("test")
+    models = MODELS if ncs is not None else MODELS[:2]
+    posed: dict[str, list] = {m: [] for m in models}
+    bodies = []
+    for clip in clips:
+        rot, tr = _clip(test, *clip[:4])
+        out = run_models(pbns, ncs, body, shape, rot, tr)
+        keep = torch.arange(0, len(rot), stride)
+        for m in models:
+            posed[m].append(out[m][keep])
+        with torch.no_grad():
+            bodies.append(body(rot[keep], shape.expand(len(keep), -1), transl=tr[keep]).vertices)
+    bv = torch.cat(bodies)
+    bn = vertex_normals(bv, body.faces)
+    self_pct = SkinSelfIntersection(body, shape).percent(bv)
+    faces = pbns.faces.numpy()
+    return {m: physical_metrics(torch.cat(posed[m]), faces, pbns.rest, bv, bn, self_pct) for m in models}
+
+
+def test_clips() -> list[tuple]:
+    """Every clip of the test split, whole: [(name, 0, None, 0)]."""
+    test = MocapPoses.load("test")
+    return [(test.clips[c]["name"], 0, None, 0) for c in np.unique(test.clip)]
+
+
+def hem_vertices(rest: np.ndarray, faces: np.ndarray, band: float = 0.02) -> np.ndarray:
+    """Boundary vertices within ``band`` m of the outfit's lowest point: the hem."""
+    e = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), 1)
+    u, count = np.unique(e, axis=0, return_counts=True)
+    boundary = np.unique(u[count == 1])
+    return boundary[rest[boundary, 1] <= rest[boundary, 1].min() + band]
+
+
+def _sim_subset(outfit) -> np.ndarray | None:
+    """The vertices the dynamic reference simulates: the garments with pinned vertices (a skirt
+    hangs from its waist). None when no garment is pinned: VBD with velocities does not hold a
+    garment that only rests on the shoulders (measured: the dress slid off the body and fell 1.5 m
+    within 2 s of the turn clip)."""
+    held = np.unique(outfit.garment_id[outfit.pinned])
+    return np.isin(outfit.garment_id, held) if len(held) else None
+
+
+def simulated(body, outfit_name: str) -> bool:
+    """Whether the outfit has a dynamic reference (a pinned garment)."""
+    outfit, _, _ = trained_outfit(body, store.pbns_path(outfit_name))
+    return _sim_subset(outfit) is not None
+
+
+def dynamic_path(outfit: str, clip: tuple) -> Path:
+    name, start, frames, hold = clip[:4]
+    return paths.cache_dir() / "garment-dynamic" / f"{outfit}-{name}-{start}-{frames}-{hold}.npz"
+
+
+def dynamic_reference(body, outfit_name: str, pbns: PBNS, shape: torch.Tensor, clip: tuple, log=None) -> dict:
+    """The newton simulation of ``clip`` (cached): {"vertices": (T, n, 3), "subset": (N,) bool}."""
+    path = dynamic_path(outfit_name, clip)
+    if path.exists():
+        with np.load(path) as z:
+            return {k: z[k] for k in z.files}
+    if not reference.available():
+        raise ReconError('the dynamic reference needs newton: pip install "recon[sim]" (docs/garments.md)')
+    outfit, _, _ = trained_outfit(body, store.pbns_path(outfit_name))
+    rot, tr = _clip(MocapPoses.load("test"), *clip[:4])
+    with torch.no_grad():
+        o = body(rot, shape.expand(len(rot), -1), transl=tr)
+        skinned = pbns.skin(pbns.rest, o.transforms).numpy()
+    sub = _sim_subset(outfit)
+    if sub is None:
+        raise ReconError(f"{outfit_name} has no pinned garment: no dynamic reference (see _sim_subset)")
+    ids = -np.ones(len(sub), np.int64)
+    ids[sub] = np.arange(sub.sum())
+    faces = ids[outfit.faces[sub[outfit.faces].all(1)]]
+    pinned = outfit.pinned[sub]
+    res = reference.simulate(o.vertices.numpy(), body.faces.numpy(), outfit.vertices[sub], skinned[0][sub], faces,
+                             pinned, skinned[:, sub][:, pinned], reference.DynamicConfig(), log)
+    out = {"vertices": res["vertices"].astype(np.float32), "subset": sub, "seconds": np.array(res["seconds"]),
+           "drape_settled": np.array(res["drape"]["settled"])}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    paths.atomic_write(path, lambda t: np.savez(open(t, "wb"), **out))
+    return out
+
+
+def dynamic_rows(body, outfit_name: str, pbns: PBNS, ncs: NCS, shape: torch.Tensor, clip: tuple, log=None) -> dict:
+    """Per model, on one simulated clip: sim_error_mm and the hem's swing against the simulation."""
+    sim = dynamic_reference(body, outfit_name, pbns, shape, clip, log)
+    rot, tr = _clip(MocapPoses.load("test"), *clip[:4])
+    out = run_models(pbns, ncs, body, shape, rot, tr)
+    sub = sim["subset"]
+    ref = torch.from_numpy(sim["vertices"]).float()
+    hem = hem_vertices(pbns.rest.numpy(), pbns.faces.numpy())
+    hem_sub = np.cumsum(sub)[hem] - 1  # hem indices within the simulated subset
+    skin_c = out[MODELS[0]][:, hem].mean(1)
+
+    def swing(v_hem: torch.Tensor) -> torch.Tensor:  # (T, 3) hem centroid's horizontal offset from skinning
+        d = v_hem.mean(1) - skin_c
+        return d[:, [0, 2]]
+
+    sim_swing = swing(ref[:, hem_sub])
+    rows = {}
+    for m in MODELS:
+        v = out[m][:, torch.from_numpy(np.nonzero(sub)[0])]
+        s = swing(out[m][:, hem])
+        rows[m] = {"sim_error_mm": float((v - ref).norm(dim=-1).mean() * 1000),
+                   "hem_peak_mm": float(s.norm(dim=-1).max() * 1000),
+                   "hem_error_mm": float((s - sim_swing).norm(dim=-1).mean() * 1000)}
+    return {"clip": clip[0], "start": clip[1], "frames": clip[2], "hold": clip[3], "motion": clip[4], "rows": rows,
+            "sim_hem_peak_mm": float(sim_swing.norm(dim=-1).max() * 1000), "sim_seconds": float(sim["seconds"]),
+            "simulated_vertices": int(sub.sum())}
+
+
+def _fps(fn, batch: int) -> float:
+    return 1000.0 * batch / median_ms(fn)
+
+
+@torch.no_grad()
+def speed(pbns: PBNS, ncs: NCS, body, shape: torch.Tensor) -> dict:
+    """Frames per second given the transforms: batch 1 and 64 (see the module's docstring)."""
+    rot, tr = _clip(MocapPoses.load("test"), CHECK_CLIP[0], 0, 64)
+    static, dynamic, transforms = motion_inputs(body, rot, shape, tr)
+    _, h = ncs.animate(static[:8], dynamic[:8], transforms[:8])
+    return {MODELS[1]: {"fps_batch1": _fps(lambda: pbns.pose(rot[:1], transforms[:1]), 1),
+                        "fps_batch64": _fps(lambda: pbns.pose(rot, transforms), 64)},
+            MODELS[2]: {"fps_batch1": _fps(lambda: ncs.animate(static[8:9], dynamic[8:9], transforms[8:9], h=h), 1),
+                        "fps_batch64": _fps(lambda: ncs.animate(static, dynamic, transforms), 64)}}
+
+
+def _load(outfit: str, ncs_weights: Path | None = None) -> tuple[PBNS, NCS, dict, torch.Tensor]:
+    path = Path(ncs_weights or store.ncs_path(outfit))
+    if not path.exists():
+        raise MissingFile(f"{path} not found: train it with `recon garment train --model ncs --outfit {outfit}`")
+    pbns, ck = PBNS.load(store.pbns_path(outfit))
+    ncs, nck = NCS.load(path)
+    return pbns, ncs, nck, ck["shape"][None]
+
+
+def ncs_check(outfits: list[str]) -> dict:
+    """The check slice of garment-ncs.json: skinning and PBNS (the shipped weights) on CHECK_CLIP."""
+    body = default_body()
+    out = {}
+    for o in outfits:
+        pbns, ck = PBNS.load(store.pbns_path(o))
+        rows = clip_rows(body, pbns, None, ck["shape"][None], [CHECK_CLIP])
+        out[o] = {m: {k: r[k] for k in ("collision_pct", "edge_mm")} for m, r in rows.items()}
+    return out
+
+
+def evaluate(body, outfit: str, dynamic: bool = True, ncs_weights: Path | None = None, log=None) -> dict:
+    pbns, ncs, nck, shape = _load(outfit, ncs_weights)
+    meta = json.loads(nck["meta_json"])
+    rows = clip_rows(body, pbns, ncs, shape, test_clips())
+    for m, r in speed(pbns, ncs, body, shape).items():
+        rows[m] |= r
+    dynamic = dynamic and simulated(body, outfit)
+    dyn = [dynamic_rows(body, outfit, pbns, ncs, shape, c, log) for c in DYNAMIC_CLIPS] if dynamic else []
+    if dyn:
+        for m in MODELS:
+            for k in ("sim_error_mm", "hem_error_mm"):
+                rows[m][k] = float(np.mean([d["rows"][m][k] for d in dyn]))
+    return {"outfit": meta["outfit"], "ncs_weights": path_label(ncs_weights), "vertices": int(pbns.rest.shape[0]),
+            "train_seconds": meta["train_seconds"], "train_steps": meta["curve"][-1]["step"] if meta["curve"] else 0,
+            "stride": STRIDE, "rows": rows, "dynamic_clips": dyn, "threads": torch.get_num_threads(),
+            "simulation": asdict(reference.DynamicConfig())}
+
+
+def path_label(ncs_weights: Path | None) -> str:
+    """Where the NCS weights came from: the shipped file, or (an experiment) a file's name."""
+    return "shipped" if ncs_weights is None else Path(ncs_weights).name
+
+
+def evaluate_and_report(body, outfits: list[str], out_dir: Path = report.RESULTS, dynamic: bool = True,
+                        ncs_weights: list[Path] | None = None, log=None) -> Path:
+    """garment-ncs.{json,md}; ``ncs_weights``: one NCS file per outfit instead of the shipped ones."""
+    weights = ncs_weights or [None] * len(outfits)
+    results = [evaluate(body, o, dynamic, w, log) for o, w in zip(outfits, weights, strict=True)]
+    names = [r["outfit"] for r in results]
+    data = {"outfits": results, "check": {"function": "recon.garment.evaluate_ncs:ncs_check",
+                                          "kwargs": {"outfits": names}, "values": ncs_check(names)}}
+    return report.write(Path(out_dir) / "garment-ncs", data, render(data))
+
+
+def render(data: dict) -> str:
+    lines = ["# NCS (dynamic) vs PBNS (quasi-static) vs skinning on held-out clips", "",
+             "`recon garment eval --model ncs` (recon/garment/evaluate_ncs.py). Collision % / edge error: "
+             f"every {STRIDE}th frame of every test-split clip (performers 3, 9, 12, 14), the models run on "
+             "every frame at 30 fps. Against the simulation: newton VBD with velocities (recon.garment.reference."
+             "simulate) on the clips below; hem swing = the hem centroid's horizontal offset from where "
+             "skinning puts it; only pinned garments (a skirt, simulated on its own) have them: VBD with "
+             "velocities lets a garment that rests on the shoulders slide off (the dress fell). Speed: one "
+             "thread, given the body's transforms.", ""]
+    head = ("| outfit | model | collision % | edge mm | sim_error_mm | hem_error_mm | fps b=1 | fps b=64 |",
+            "|---|---|---|---|---|---|---|---|")
+    lines += list(head)
+
+    def f(x, d=2):
+        return "-" if x is None else f"{x:,.{d}f}"
+    def label(r, m):
+        w = r.get("ncs_weights", "shipped")
+        return m if m != MODELS[2] or w == "shipped" else f"{m} ({w}, {r['train_steps']} steps, not shipped)"
+    for r in data["outfits"]:
+        for m in MODELS:
+            x = r["rows"][m]
+            lines.append(f"| {r['outfit']} | {label(r, m)} | {f(x['collision_pct'])} | {f(x['edge_mm'])} | "
+                         f"{f(x.get('sim_error_mm'), 1)} | {f(x.get('hem_error_mm'), 1)} | "
+                         f"{f(x.get('fps_batch1'), 0)} | {f(x.get('fps_batch64'), 0)} |")
+    lines += ["", "## Per simulated clip", "",
+              "| outfit | clip | motion | model | sim_error_mm | hem peak mm (sim) | hem_error_mm |",
+              "|---|---|---|---|---|---|---|"]
+    for r in data["outfits"]:
+        for d in r["dynamic_clips"]:
+            for m in MODELS:
+                x = d["rows"][m]
+                lines.append(f"| {r['outfit']} | {d['clip']} [{d['start']}:+{d['frames']}] | {d['motion']} | {m} | "
+                             f"{f(x['sim_error_mm'], 1)} | {f(x['hem_peak_mm'], 0)} ({f(d['sim_hem_peak_mm'], 0)}) | "
+                             f"{f(x['hem_error_mm'], 1)} |")
+    lines += ["", "## By the body's self-intersection (% of the covered skin inside the body)", "",
+              "| outfit | model | " + " | ".join(f"{b}: frames, collision %, edge mm" for b in
+                                               next(iter(data["outfits"]))["rows"][MODELS[0]].get(
+                                                   "by_body_self_intersection", {})) + " |"]
+    bins = list(next(iter(data["outfits"]))["rows"][MODELS[0]].get("by_body_self_intersection", {}))
+    lines.append("|---|---|" + "---|" * len(bins))
+    for r in data["outfits"]:
+        for m in MODELS:
+            b = r["rows"][m].get("by_body_self_intersection", {})
+            cells = [f"{b[k]['poses']}, {f(b[k]['collision_pct'])}, {f(b[k]['edge_mm'])}" for k in bins]
+            lines.append(f"| {r['outfit']} | {m} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
