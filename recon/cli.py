@@ -296,7 +296,7 @@ def cmd_garment_train(a) -> None:
     for o in _outfits(a.outfit):
         epochs = {"epochs": a.epochs} if a.epochs else {}
         if a.model == "ncs":
-            cfg = ncs_train.NCSTrainConfig(outfit=o, **epochs)
+            cfg = ncs_train.NCSTrainConfig(outfit=o, device=a.device, **epochs)
             meta = ncs_train.train(default_body(), cfg)
             weights = store.ncs_path(o)
         else:
@@ -552,6 +552,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"default: PBNS {default(garment_train.GarmentTrainConfig, 'epochs')}, "
                         f"NCS {default(ncs_train.NCSTrainConfig, 'epochs')}")
     p.add_argument("--poses", type=int, default=default(garment_train.GarmentTrainConfig, "poses"))
+    p.add_argument("--device", default="cpu", help="--model ncs: cpu or cuda")
     p = action(g, "resize", cmd_garment_resize, "train the body-shape + tightness resizer of trained outfits")
     p.add_argument("--outfit", nargs="+", default=["tshirt-trousers"], help=help_outfit)
     p.add_argument("--epochs", type=int, default=default(ResizeConfig, "epochs"))

@@ -67,6 +67,9 @@ class NCSTrainConfig:
     # 15 the lag builds over half as many steps of the network's own predictions (thesis 6.4.4:
     # dynamics appear sooner); the model then runs at this rate (Dresser resamples)
     fps: float = FPS
+    # "cuda" for a GPU (the thesis trains for hours there); the windows stay in CPU memory and
+    # each batch is moved, the nearest-neighbour search of validation runs on the CPU
+    device: str = "cpu"
     model: NCSConfig = field(default_factory=NCSConfig)
     edge: L.EdgeConfig = field(default_factory=lambda: _FABRIC.edge)
     bend: L.BendConfig = field(default_factory=lambda: _FABRIC.bend)
@@ -146,20 +149,22 @@ def distil_static(model: NCS, pbns: PBNS, data: MotionWindows, steps: int, seed:
     """Fit the static encoder to PBNS's codes on every frame of ``data``: NCS starts as PBNS for
     motionless input. Returns the mean rest-pose displacement error (mm) left on 512 frames."""
     g = torch.Generator().manual_seed(seed)
-    x = data.static.flatten(1)
+    device = model.D.device
+    x = data.static.flatten(1).to(device)
     with torch.no_grad():
         target = torch.cat([pbns.mlp(pose_features(data.rot[i:i + 4096])) for i in range(0, len(x), 4096)])
+    target = target.to(device)
     opt = torch.optim.Adam(model.static.parameters(), lr=1e-3)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, steps)
     for _ in range(steps):
-        j = torch.randint(len(x), (batch,), generator=g)
+        j = torch.randint(len(x), (batch,), generator=g).to(device)
         loss = ((model.static(x[j]) - target[j]) ** 2).mean()
         opt.zero_grad()
         loss.backward()
         opt.step()
         sched.step()
     with torch.no_grad():
-        j = torch.randperm(len(x), generator=g)[:512]
+        j = torch.randperm(len(x), generator=g)[:512].to(device)
         err = model.decode(model.static(x[j]) - target[j]).norm(dim=-1).mean()
     return float(err) * 1000
 
@@ -174,28 +179,36 @@ class Step:
         self.model, self.crit, self.inertia, self.data = model, crit, inertia, data
         self.body_c, self.cloth_c, self.augmentation = body_c, cloth_c, augmentation
 
+    @property
+    def device(self) -> torch.device:
+        return self.model.D.device
+
+    def body(self, i: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The posed body's vertices and normals at the last frame of windows ``i``."""
+        return self.data.body_v[i].to(self.device), self.data.body_n[i].to(self.device)
+
     def predict(self, i: torch.Tensor, augmented: int = 0, motion: float = 1.0):
         """Posed last three frames (B, 3, N, 3) and their dT."""
-        s, d = self.data.window(i)
+        s, d = (x.to(self.device) for x in self.data.window(i))
         zs, zd, _ = self.model.codes(s, d)
         zs, zd = zs[:, -3:], zd[:, -3:]
         if augmented:
             k = len(i) - augmented
-            swap = torch.randperm(len(i))[:augmented]
+            swap = torch.randperm(len(i))[:augmented].to(self.device)
             zs = torch.cat([zs[:k], zs[k:].detach()])
             zd = torch.cat([zd[:k], zd[swap].detach()])
         dt = self.model.decode(zs + motion * zd)
-        return self.model.skin_frames(self.model.rest + dt, self.data.transforms[i]), dt
+        return self.model.skin_frames(self.model.rest + dt, self.data.transforms[i].to(self.device)), dt
 
     def __call__(self, i: torch.Tensor):
         b = len(i)
         augmented = int(round(self.augmentation * b))
         x, dt = self.predict(i, augmented)
-        bc = None if self.body_c is None else self.body_c[i]
-        cc = None if self.cloth_c is None else [c[i] for c in self.cloth_c]
-        static = self.crit(x[:, 2], dt[:, 2], self.data.body_v[i], self.data.body_n[i], bc, cc)
+        bc = None if self.body_c is None else self.body_c[i].to(self.device)
+        cc = None if self.cloth_c is None else [c[i].to(self.device) for c in self.cloth_c]
+        static = self.crit(x[:, 2], dt[:, 2], *self.body(i), bc, cc)
         inertia = self.inertia(x[:, 2], x[:, 1], x[:, 0])
-        keep = torch.arange(b) < b - augmented  # augmented windows: static energies only
+        keep = torch.arange(b, device=self.device) < b - augmented  # augmented windows: static energies only
         loss = (static + torch.where(keep, inertia, torch.zeros_like(inertia))).mean()
         return loss, {**self.crit.terms, "inertia": inertia[keep]}
 
@@ -211,7 +224,7 @@ def validate(step: Step, chunk: int = 32) -> dict:
         i = torch.arange(a, min(len(data), a + chunk))
         x, dt = step.predict(i)
         still, _ = step.predict(i, motion=0.0)
-        v, bv, bn = x[:, 2], data.body_v[i], data.body_n[i]
+        v, (bv, bn) = x[:, 2], step.body(i)
         inertia = step.inertia(v, x[:, 1], x[:, 0])
         agg["loss"].append(crit(v, dt[:, 2], bv, bn) + inertia)
         agg["inertia"].append(inertia)
@@ -240,10 +253,11 @@ def train(body, cfg: NCSTrainConfig | None = None, out: Path | None = None, log=
                             fps=cfg.fps)
     val_w = MotionWindows(body, "val", shape[None], frames, cfg.val_samples, cfg.seed + 1, smooth=cfg.smooth_motion,
                           fps=cfg.fps)
-    distil_mm = distil_static(model, pbns, train_w, cfg.distil_steps, cfg.seed)
     crit = L.Criterion(outfit, model.rest, cfg)
     inertia = InertiaLoss(torch.from_numpy(vertex_masses(outfit.vertices, outfit.faces)), cfg.fps, cfg.inertia)
     body_c, cloth_c = candidates(model, crit, train_w.ends, train_w.transforms[:, 2], train_w.body_v, cfg.candidates)
+    model, crit, inertia = model.to(cfg.device), crit.to(cfg.device), inertia.to(cfg.device)
+    distil_mm = distil_static(model, pbns, train_w, cfg.distil_steps, cfg.seed)
     step = Step(model, crit, inertia, train_w, body_c, cloth_c, cfg.motion_augmentation)
     val_step = Step(model, crit, inertia, val_w)
     log(f"ncs {name}: {len(outfit.vertices)} vertices; windows of {frames} frames, {len(train_w)} train / "
@@ -267,7 +281,7 @@ def train(body, cfg: NCSTrainConfig | None = None, out: Path | None = None, log=
             "vertices": int(len(outfit.vertices)), "window_frames": frames, "distil_mm": round(distil_mm, 3),
             "val_start": start, "train_seconds": round(time.time() - t0, 1), "threads": torch.get_num_threads(),
             "garments": [g.name for g in outfit.garments], "curve": curve["history"]}
-    model.save(out, {"meta_json": json.dumps(meta), "layer": torch.from_numpy(outfit.layer),
+    model.cpu().save(out, {"meta_json": json.dumps(meta), "layer": torch.from_numpy(outfit.layer),
                      "garment_id": torch.from_numpy(outfit.garment_id), "shape": shape})
     shutil.rmtree(run_dir_for(out), ignore_errors=True)
     return meta
