@@ -42,13 +42,14 @@ def pose_set(split: str, n: int, min_distance: float, seed: int) -> torch.Tensor
     return roma.rotvec_to_rotmat(torch.from_numpy(m.rotvec[idx]).float())
 
 
-def posed_bodies(body, rotmats: torch.Tensor, shape: torch.Tensor, chunk: int = 64):
+def posed_bodies(body, rotmats: torch.Tensor, shape: torch.Tensor, chunk: int = 64,
+                 transl: torch.Tensor | None = None):
     """Body vertices, vertex normals and joint transforms for all poses (no gradient)."""
     vs, ns, ts = [], [], []
     with torch.no_grad():
         for i in range(0, len(rotmats), chunk):
             r = rotmats[i:i + chunk]
-            o = body(r, shape.expand(len(r), -1))
+            o = body(r, shape.expand(len(r), -1), transl=None if transl is None else transl[i:i + chunk])
             vs.append(o.vertices)
             ns.append(vertex_normals(o.vertices, body.faces))
             ts.append(o.transforms)

@@ -129,14 +129,15 @@ class Dresser:
             if self.ncs is None:
                 return self.model.D.detach(), self.model.mlp(pose_features(rotmats))
             rate = self.ncs.cfg.fps
+            resampled = abs(rate - fps) > 1e-6  # the network steps at its training rate: resample, run, interpolate
             r, tr = rotmats, transl
-            if abs(rate - fps) > 1e-6:  # the network steps at its training rate: resample, run, interpolate
+            if resampled:
                 tr0 = torch.zeros(len(rotmats), 3) if transl is None else transl
                 r, tr = (torch.from_numpy(x).float() for x in resample(rotmats.numpy(), tr0.numpy(), fps, rate))
             static, dynamic, _ = motion_inputs(body, r, shape, tr, rate)
             zs, zd, _ = self.ncs.codes(static[None], dynamic[None])
             z = (zs + motion * zd)[0]
-            if len(z) != len(rotmats) or abs(rate - fps) > 1e-6:
+            if resampled:
                 t = np.arange(len(rotmats)) / fps * rate  # each frame's time in network steps
                 i0 = np.minimum(np.floor(t).astype(int), len(z) - 1)
                 w = torch.from_numpy(np.clip(t - i0, 0, 1)).float()[:, None]

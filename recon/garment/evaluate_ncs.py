@@ -31,14 +31,14 @@ from recon import paths, report
 from recon.body import default_body
 from recon.errors import MissingFile, ReconError
 from recon.garment import reference, store
-from recon.garment.data import trained_outfit
-from recon.garment.mesh import vertex_normals
+from recon.garment.data import posed_bodies, trained_outfit
+from recon.garment.evaluate import frames_per_second
+from recon.garment.mesh import boundary_loops
 from recon.garment.metrics import physical_metrics
 from recon.garment.ncs import NCS, motion_inputs
 from recon.garment.pbns import PBNS
 from recon.garment.self_intersection import SkinSelfIntersection
 from recon.poses.mocap import MocapPoses
-from recon.timing import median_ms
 
 MODELS = ("skinning only (dT = 0)", "PBNS", "NCS")
 STRIDE = 4
@@ -82,17 +82,16 @@ def clip_rows(body, pbns: PBNS, ncs: NCS | None, shape: torch.Tensor, clips: lis
     test = MocapPoses.load("test")
     models = MODELS if ncs is not None else MODELS[:2]
     posed: dict[str, list] = {m: [] for m in models}
-    bodies = []
+    rots, trs = [], []
     for clip in clips:
         rot, tr = _clip(test, *clip[:4])
         out = run_models(pbns, ncs, body, shape, rot, tr)
         keep = torch.arange(0, len(rot), stride)
         for m in models:
             posed[m].append(out[m][keep])
-        with torch.no_grad():
-            bodies.append(body(rot[keep], shape.expand(len(keep), -1), transl=tr[keep]).vertices)
-    bv = torch.cat(bodies)
-    bn = vertex_normals(bv, body.faces)
+        rots.append(rot[keep])
+        trs.append(tr[keep])
+    bv, bn, _ = posed_bodies(body, torch.cat(rots), shape, transl=torch.cat(trs))
     self_pct = SkinSelfIntersection(body, shape).percent(bv)
     faces = pbns.faces.numpy()
     return {m: physical_metrics(torch.cat(posed[m]), faces, pbns.rest, bv, bn, self_pct) for m in models}
@@ -106,9 +105,7 @@ def test_clips() -> list[tuple]:
 
 def hem_vertices(rest: np.ndarray, faces: np.ndarray, band: float = 0.02) -> np.ndarray:
     """Boundary vertices within ``band`` m of the outfit's lowest point: the hem."""
-    e = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), 1)
-    u, count = np.unique(e, axis=0, return_counts=True)
-    boundary = np.unique(u[count == 1])
+    boundary = np.unique(np.concatenate(boundary_loops(faces)))
     return boundary[rest[boundary, 1] <= rest[boundary, 1].min() + band]
 
 
@@ -157,7 +154,10 @@ def dynamic_reference(body, outfit_name: str, pbns: PBNS, shape: torch.Tensor, c
     out = {"vertices": res["vertices"].astype(np.float32), "subset": sub, "seconds": np.array(res["seconds"]),
            "drape_settled": np.array(res["drape"]["settled"])}
     path.parent.mkdir(parents=True, exist_ok=True)
-    paths.atomic_write(path, lambda t: np.savez(open(t, "wb"), **out))
+    def save(tmp):
+        with open(tmp, "wb") as f:  # a file object: np.savez would append ".npz" to the temporary name
+            np.savez(f, **out)
+    paths.atomic_write(path, save)
     return out
 
 
@@ -189,20 +189,17 @@ def dynamic_rows(body, outfit_name: str, pbns: PBNS, ncs: NCS, shape: torch.Tens
             "simulated_vertices": int(sub.sum())}
 
 
-def _fps(fn, batch: int) -> float:
-    return 1000.0 * batch / median_ms(fn)
-
-
 @torch.no_grad()
 def speed(pbns: PBNS, ncs: NCS, body, shape: torch.Tensor) -> dict:
     """Frames per second given the transforms: batch 1 and 64 (see the module's docstring)."""
     rot, tr = _clip(MocapPoses.load("test"), CHECK_CLIP[0], 0, 64)
     static, dynamic, transforms = motion_inputs(body, rot, shape, tr)
     _, h = ncs.animate(static[:8], dynamic[:8], transforms[:8])
-    return {MODELS[1]: {"fps_batch1": _fps(lambda: pbns.pose(rot[:1], transforms[:1]), 1),
-                        "fps_batch64": _fps(lambda: pbns.pose(rot, transforms), 64)},
-            MODELS[2]: {"fps_batch1": _fps(lambda: ncs.animate(static[8:9], dynamic[8:9], transforms[8:9], h=h), 1),
-                        "fps_batch64": _fps(lambda: ncs.animate(static, dynamic, transforms), 64)}}
+    fps = frames_per_second
+    return {MODELS[1]: {"fps_batch1": fps(lambda: pbns.pose(rot[:1], transforms[:1]), 1),
+                        "fps_batch64": fps(lambda: pbns.pose(rot, transforms), 64)},
+            MODELS[2]: {"fps_batch1": fps(lambda: ncs.animate(static[8:9], dynamic[8:9], transforms[8:9], h=h), 1),
+                        "fps_batch64": fps(lambda: ncs.animate(static, dynamic, transforms), 64)}}
 
 
 def _load(outfit: str, ncs_weights: Path | None = None) -> tuple[PBNS, NCS, dict, torch.Tensor]:
@@ -293,11 +290,9 @@ def render(data: dict) -> str:
                 lines.append(f"| {r['outfit']} | {d['clip']} [{d['start']}:+{d['frames']}] | {d['motion']} | {m} | "
                              f"{f(x['sim_error_mm'], 1)} | {f(x['hem_peak_mm'], 0)} ({f(d['sim_hem_peak_mm'], 0)}) | "
                              f"{f(x['hem_error_mm'], 1)} |")
+    bins = list(data["outfits"][0]["rows"][MODELS[0]].get("by_body_self_intersection", {}))
     lines += ["", "## By the body's self-intersection (% of the covered skin inside the body)", "",
-              "| outfit | model | " + " | ".join(f"{b}: frames, collision %, edge mm" for b in
-                                               next(iter(data["outfits"]))["rows"][MODELS[0]].get(
-                                                   "by_body_self_intersection", {})) + " |"]
-    bins = list(next(iter(data["outfits"]))["rows"][MODELS[0]].get("by_body_self_intersection", {}))
+              "| outfit | model | " + " | ".join(f"{b}: frames, collision %, edge mm" for b in bins) + " |"]
     lines.append("|---|---|" + "---|" * len(bins))
     for r in data["outfits"]:
         for m in MODELS:

@@ -28,8 +28,7 @@ import torch
 
 from recon.garment import losses as L
 from recon.garment import store
-from recon.garment.data import trained_outfit
-from recon.garment.mesh import vertex_normals
+from recon.garment.data import posed_bodies, trained_outfit
 from recon.garment.metrics import collision_pct
 from recon.garment.ncs import FPS, NCS, InertiaConfig, InertiaLoss, NCSConfig, descriptors, smooth_time, vertex_masses
 from recon.garment.pbns import PBNS, pose_features
@@ -127,14 +126,7 @@ class MotionWindows:
         t3 = transforms[e[:, None] + torch.arange(-2, 1)].clone()  # (n, 3, 24, 3, 4)
         t3[..., 3] -= off[:, None, None]
         self.transforms = t3
-        vs, ns = [], []
-        with torch.no_grad():
-            for i in range(0, len(e), 64):
-                j = e[i:i + 64]
-                o = body(rot[j], shape.expand(len(j), -1), transl=transl[j] - off[i:i + 64])
-                vs.append(o.vertices)
-                ns.append(vertex_normals(o.vertices, body.faces))
-        self.body_v, self.body_n = torch.cat(vs), torch.cat(ns)
+        self.body_v, self.body_n, _ = posed_bodies(body, rot[e], shape, transl=transl[e] - off)
 
     def __len__(self) -> int:
         return len(self.ends)
