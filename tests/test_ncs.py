@@ -13,7 +13,7 @@ from recon.body.lbs import forward_kinematics
 from recon.garment import losses as L
 from recon.garment import ncs
 from recon.garment.dress import Dresser
-from recon.garment.evaluate_ncs import _clip, hem_vertices
+from recon.garment.evaluate_ncs import SHOULDER_BAND, _clip, hem_vertices, simulated_part
 from recon.garment.gltf import write_glb
 from recon.garment.ncs_train import MotionWindows, NCSTrainConfig, Step
 from recon.garment.pbns import PBNS, initial_weights
@@ -227,3 +227,19 @@ def test_hem_is_the_lowest_boundary_ring_and_held_clips_stop_dead():
     rot, tr = _clip(MocapPoses.load("test"), "12_01", 10, 5, hold=3)
     assert rot.shape == (8, 24, 3, 3) and torch.equal(rot[4], rot[7]) and torch.equal(tr[4], tr[7])
     assert tr[0, [0, 2]].abs().max() == 0  # the first frame's pelvis above the origin
+
+
+def test_the_reference_simulates_pinned_garments_or_holds_an_unpinned_outfit_by_its_top_band():
+    class Outfit:  # two garments stacked in y; what simulated_part reads of an outfit
+        vertices = np.stack([np.zeros(8), np.linspace(0.0, 0.7, 8), np.zeros(8)], 1)
+        garment_id = np.array([0, 0, 0, 0, 1, 1, 1, 1])
+        pinned = np.zeros(8, bool)
+
+    skirt = Outfit()
+    skirt.pinned = np.array([0, 0, 0, 1, 0, 0, 0, 0], bool)  # garment 0 hangs from a pin
+    sub, held = simulated_part(skirt)
+    assert sub.tolist() == [True] * 4 + [False] * 4 and held.tolist() == skirt.pinned.tolist()
+    sub, held = simulated_part(Outfit())  # nothing pinned: all of it, held at each garment's top
+    top = np.array([3, 7])
+    assert sub.all() and np.nonzero(held)[0].tolist() == top.tolist()
+    assert np.diff(Outfit.vertices[:, 1])[0] > SHOULDER_BAND  # the next vertex down is free

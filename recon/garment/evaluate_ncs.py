@@ -6,8 +6,9 @@ Per outfit, a row each for the skinned template (dT = 0), PBNS and NCS:
   frame at 30 fps; every ``STRIDE``-th frame is scored), split by the body's own
   self-intersection as PBNS's table is (recon.garment.metrics.physical_metrics);
 - against newton's VBD run dynamically (recon.garment.reference.simulate: velocities kept, the
-  body and the pinned waist moving) on a few short held-out clips (``DYNAMIC_CLIPS``: a turn, a
-  run that stops, a walk), for the outfits' pinned garments (a skirt; ``_sim_subset``):
+  body and the held vertices moving) on a few short held-out clips (``DYNAMIC_CLIPS``: a turn, a
+  run that stops, a walk), for the outfits' pinned garments (a skirt), or the whole outfit held at
+  its shoulders when nothing is pinned (a dress; ``simulated_part``):
   ``sim_error_mm``, the mean per-vertex distance per frame, and the hem's
   swing: the hem centroid's horizontal offset from where skinning puts it (``hem_peak_mm`` per
   model and for the simulation; ``hem_error_mm``: the mean distance between the model's offset
@@ -48,6 +49,7 @@ STRIDE = 4
 DYNAMIC_CLIPS = (("03_03", 975, 60, 0, "turn (3.3 rad/s)"), ("09_11", 0, 30, 30, "run, then a dead stop"),
                  ("12_01", 0, 60, 0, "walk"))
 CHECK_CLIP = ("12_01", 0, 16, 0)  # the slice tests/test_results.py recomputes
+SHOULDER_BAND = 0.04  # m: what holds an outfit without pins (a dress) in the dynamic reference
 
 
 def _clip(split_poses: MocapPoses, name: str, start: int = 0, frames: int | None = None, hold: int = 0):
@@ -109,19 +111,21 @@ def hem_vertices(rest: np.ndarray, faces: np.ndarray, band: float = 0.02) -> np.
     return boundary[rest[boundary, 1] <= rest[boundary, 1].min() + band]
 
 
-def _sim_subset(outfit) -> np.ndarray | None:
-    """The vertices the dynamic reference simulates: the garments with pinned vertices (a skirt
-    hangs from its waist). None when no garment is pinned: VBD with velocities does not hold a
-    garment that only rests on the shoulders (measured: the dress slid off the body and fell 1.5 m
-    within 2 s of the turn clip)."""
+def simulated_part(outfit) -> tuple[np.ndarray, np.ndarray]:
+    """(simulated, held): the vertices the dynamic reference simulates, and those of them it moves
+    with the skinned outfit. Garments with pinned vertices (a skirt hangs from its waist) are
+    simulated, held by their pins. An outfit with none (a dress) is simulated whole, held by a band
+    of ``SHOULDER_BAND`` m at the top of each garment: VBD has no friction, and with velocities a
+    dress that only rests on the shoulders slid off the body (measured: its hem 1.5 m down within
+    2 s of the turn clip). Both (N,) bool."""
     held = np.unique(outfit.garment_id[outfit.pinned])
-    return np.isin(outfit.garment_id, held) if len(held) else None
-
-
-def simulated(body, outfit_name: str) -> bool:
-    """Whether the outfit has a dynamic reference (a pinned garment)."""
-    outfit, _, _ = trained_outfit(body, store.pbns_path(outfit_name))
-    return _sim_subset(outfit) is not None
+    if len(held):
+        return np.isin(outfit.garment_id, held), outfit.pinned.copy()
+    y, top = outfit.vertices[:, 1], np.zeros(len(outfit.vertices), bool)
+    for g in np.unique(outfit.garment_id):
+        mine = outfit.garment_id == g
+        top |= mine & (y >= y[mine].max() - SHOULDER_BAND)
+    return np.ones(len(y), bool), top
 
 
 def dynamic_path(outfit: str, clip: tuple) -> Path:
@@ -142,13 +146,11 @@ def dynamic_reference(body, outfit_name: str, pbns: PBNS, shape: torch.Tensor, c
     with torch.no_grad():
         o = body(rot, shape.expand(len(rot), -1), transl=tr)
         skinned = pbns.skin(pbns.rest, o.transforms).numpy()
-    sub = _sim_subset(outfit)
-    if sub is None:
-        raise ReconError(f"{outfit_name} has no pinned garment: no dynamic reference (see _sim_subset)")
+    sub, held = simulated_part(outfit)
     ids = -np.ones(len(sub), np.int64)
     ids[sub] = np.arange(sub.sum())
     faces = ids[outfit.faces[sub[outfit.faces].all(1)]]
-    pinned = outfit.pinned[sub]
+    pinned = held[sub]
     res = reference.simulate(o.vertices.numpy(), body.faces.numpy(), outfit.vertices[sub], skinned[0][sub], faces,
                              pinned, skinned[:, sub][:, pinned], reference.DynamicConfig(), log)
     out = {"vertices": res["vertices"].astype(np.float32), "subset": sub, "seconds": np.array(res["seconds"]),
@@ -228,7 +230,6 @@ def evaluate(body, outfit: str, dynamic: bool = True, ncs_weights: Path | None =
     rows = clip_rows(body, pbns, ncs, shape, test_clips())
     for m, r in speed(pbns, ncs, body, shape).items():
         rows[m] |= r
-    dynamic = dynamic and simulated(body, outfit)
     dyn = [dynamic_rows(body, outfit, pbns, ncs, shape, c, log) for c in DYNAMIC_CLIPS] if dynamic else []
     if dyn:
         for m in MODELS:
