@@ -263,9 +263,10 @@ def render(data: dict) -> str:
              f"every {STRIDE}th frame of every test-split clip (performers 3, 9, 12, 14), the models run on "
              "every frame at 30 fps. Against the simulation: newton VBD with velocities (recon.garment.reference."
              "simulate) on the clips below; hem swing = the hem centroid's horizontal offset from where "
-             "skinning puts it; only pinned garments (a skirt, simulated on its own) have them: VBD with "
-             "velocities lets a garment that rests on the shoulders slide off (the dress fell). Speed: one "
-             "thread, given the body's transforms.", ""]
+             "skinning puts it. Simulated: pinned garments on their own (a skirt); an outfit without pins (a "
+             "dress) held by its top band (`simulated_part`), else VBD with velocities lets it slide off; an "
+             "outfit without rows below was evaluated before it was held. Speed: one thread, given the body's "
+             "transforms.", ""]
     head = ("| outfit | model | collision % | edge mm | sim_error_mm | hem_error_mm | fps b=1 | fps b=64 |",
             "|---|---|---|---|---|---|---|---|")
     lines += list(head)
