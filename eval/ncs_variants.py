@@ -1,24 +1,33 @@
-"""NCS training variants on tshirt-skirt, short runs side by side: how much dynamics each learns.
+"""NCS training variants on tshirt-skirt side by side: how much dynamics each learns and, with
+``--simulation``, how close each comes to the dynamic newton reference.
 
     OMP_NUM_THREADS=1 .venv/bin/python eval/ncs_variants.py [--steps 400] [--only recipe,no-smoothing]
+    OMP_NUM_THREADS=1 .venv/bin/python eval/ncs_variants.py --full --simulation --only "recipe,static part frozen"
 
-Each variant is the recipe (``NCSTrainConfig``) with one change, trained for ``--steps`` steps
-(1,600 train / 120 val windows) into the cache; the row is its validation at the end:
+Each variant is the recipe (``NCSTrainConfig``) with one change. Short runs (default): ``--steps``
+steps on 1,600 train / 120 val windows -> eval/results/garment-ncs-variants.{json,md}. ``--full``:
+the recipe's own windows and length (2,400 steps, what ``recon garment train --model ncs`` runs)
+-> garment-ncs-variants-full.{json,md}; a variant's file already in the cache is scored, not
+retrained (``--retrain`` to redo it). A row is the variant's validation at the end:
 ``dynamic_mm``, how far the dynamic code moves the cloth (mean over vertices: NCS against its own
-motion control 0), with inertia, collisions and strain. -> eval/results/garment-ncs-variants.{json,md}
+motion control 0), with inertia, collisions and strain; ``--simulation`` adds the mean per-vertex
+error against the dynamic simulations of the test clips (recon.garment.evaluate_ncs), of NCS and
+of NCS at motion control 0 (its static part), beside PBNS's.
 """
 from __future__ import annotations
 
 import argparse
+import json
 import time
 from dataclasses import replace
 
+import numpy as np
 import torch
 
 from recon import paths, report
 from recon.body import default_body
-from recon.garment import ncs_train
-from recon.garment.ncs import InertiaConfig
+from recon.garment import evaluate_ncs, ncs_train
+from recon.garment.ncs import NCS, InertiaConfig, NCSConfig
 
 BASE = dict(samples=1600, val_samples=120, distil_steps=800)
 RECIPE = ncs_train.NCSTrainConfig()
@@ -30,8 +39,41 @@ VARIANTS = {
     "inertia x10": {"inertia": InertiaConfig(weight=10 * RECIPE.inertia.weight)},
     "15 fps": {"fps": 15.0},
     "soft edges first (continuation 0.1)": {"edge_warmup": 0.1},
+    "static part frozen (PBNS)": {"freeze_static": True},
+    "static part frozen; its residual force removed": {"freeze_static": True, "remove_static_force": True},
+    "static part frozen; residual force removed; 32 dynamic modes": {
+        "freeze_static": True, "remove_static_force": True, "model": NCSConfig(dynamic_modes=32)},
 }
 KEYS = ("val_dynamic_mm", "val_inertia", "val_collision_pct", "val_edge_mm")
+HEADERS = ["variant", "steps", "dynamic mm", "inertia", "collision %", "edge mm", "train s", "sim_error_mm",
+           "sim_error_mm at motion 0"]
+
+
+def against_simulation(body, outfit: str, path) -> dict:
+    """Mean over DYNAMIC_CLIPS of sim_error_mm for PBNS, NCS and NCS at motion control 0."""
+    pbns, ncs, _, shape = evaluate_ncs._load(outfit, path)
+    rows = [evaluate_ncs.dynamic_rows(body, outfit, pbns, ncs, shape, c)["rows"] for c in evaluate_ncs.DYNAMIC_CLIPS]
+    models = (evaluate_ncs.MODELS[1], evaluate_ncs.MODELS[2], evaluate_ncs.STATIC_PART)
+    return {m: float(np.mean([r[m]["sim_error_mm"] for r in rows])) for m in models}
+
+
+def render(data: dict) -> str:
+    full = data.get("full", False)
+    how = ("the recipe's windows and length" if full else
+           f"{data['steps']} steps on {data['base']['samples']:,} train / {data['base']['val_samples']} val windows")
+    length = "the full recipe" if full else f"{data['steps']} steps"
+    lines = [f"# NCS training variants ({data['outfit']}, {length})",
+             "", f"`eval/ncs_variants.py{' --full' if full else ''}`; {report.describe(data['machine'])}. The recipe "
+             f"(`NCSTrainConfig`) with one change each ({how}), validated on the val performers' windows. "
+             "dynamic mm: how far the dynamic code moves the cloth (mean over vertices). For scale, the newton "
+             "simulation's skirt hem swings up to 21 cm from where skinning puts it in the test turn "
+             "([garment-ncs.md](garment-ncs.md)). sim_error_mm: mean per-vertex error against the dynamic "
+             "simulations of garment-ncs.md's three test clips; at motion 0: the variant's static part alone."]
+    if data.get("pbns_sim_error_mm") is not None:
+        lines[-1] += f" PBNS's sim_error_mm on the same clips: {data['pbns_sim_error_mm']:.1f}."
+    rows = [r + [None] * (len(HEADERS) - len(r)) for r in data["rows"]]
+    lines += ["", report.table(rows, HEADERS, ["", "", ".2f", ".4f", ".2f", ".2f", "", ".1f", ".1f"])]
+    return "\n".join(lines)
 
 
 def main() -> None:
@@ -39,31 +81,39 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=400)
     ap.add_argument("--outfit", default="tshirt-skirt")
     ap.add_argument("--only", default=None, help="comma-separated variant names")
+    ap.add_argument("--full", action="store_true", help="the recipe's windows and length (2,400 steps)")
+    ap.add_argument("--simulation", action="store_true", help="also score against the dynamic simulations")
+    ap.add_argument("--retrain", action="store_true", help="--full: retrain variants already in the cache")
     a = ap.parse_args()
     torch.set_num_threads(1)
     body = default_body()
     names = a.only.split(",") if a.only else list(VARIANTS)
-    epochs = max(1, round(a.steps / (BASE["samples"] // RECIPE.batch)))
-    rows = []
+    base = {} if a.full else BASE
+    epochs = RECIPE.epochs if a.full else max(1, round(a.steps / (BASE["samples"] // RECIPE.batch)))
+    folder = paths.cache_dir() / ("ncs-variants-full" if a.full else "ncs-variants")
+    rows, pbns_err = [], None
     for name in names:
-        cfg = replace(RECIPE, outfit=a.outfit, epochs=epochs, **BASE, **VARIANTS[name])
-        out = paths.cache_dir() / "ncs-variants" / f"{name.replace(' ', '_')}.pt"
+        cfg = replace(RECIPE, outfit=a.outfit, epochs=epochs, **base, **VARIANTS[name])
+        out = folder / f"{a.outfit}-{name.replace(' ', '_').replace(',', '')}.pt"
         t0 = time.time()
-        meta = ncs_train.train(body, cfg, out=out, progress=False)
+        if a.full and out.exists() and not a.retrain:
+            meta = json.loads(NCS.load(out)[1]["meta_json"])
+        else:
+            meta = ncs_train.train(body, cfg, out=out, progress=False)
+            meta["train_seconds"] = round(time.time() - t0)
         last = meta["curve"][-1]
-        rows.append([name, last["step"]] + [last[k] for k in KEYS] + [round(time.time() - t0)])
+        row = [name, last["step"]] + [last[k] for k in KEYS] + [round(meta["train_seconds"])]
+        if a.simulation:
+            sim = against_simulation(body, a.outfit, out)
+            pbns_err = sim[evaluate_ncs.MODELS[1]]
+            row += [sim[evaluate_ncs.MODELS[2]], sim[evaluate_ncs.STATIC_PART]]
+        rows.append(row)
         print(rows[-1], flush=True)
-    data = {"outfit": a.outfit, "steps": a.steps, "base": BASE, "rows": rows, "machine": report.machine()}
-    md = "\n".join([
-        f"# NCS training variants ({a.outfit}, {a.steps} steps each)", "",
-        f"`eval/ncs_variants.py --steps {a.steps}`; {report.describe(data['machine'])}. The recipe "
-        "(`NCSTrainConfig`) with one change each, validated on 120 windows of the val performers. "
-        "dynamic mm: how far the dynamic code moves the cloth (mean over vertices). For scale, the "
-        "newton simulation's skirt hem swings up to 21 cm from where skinning puts it in the test turn "
-        "([garment-ncs.md](garment-ncs.md)).", "",
-        report.table(rows, ["variant", "steps", "dynamic mm", "inertia", "collision %", "edge mm", "seconds"],
-                     ["", "", ".2f", ".4f", ".2f", ".2f", ""])])
-    print(report.write(report.RESULTS / "garment-ncs-variants", data, md).read_text())
+    data = {"outfit": a.outfit, "steps": a.steps, "full": a.full, "base": base or {"samples": RECIPE.samples,
+            "val_samples": RECIPE.val_samples}, "rows": rows, "pbns_sim_error_mm": pbns_err,
+            "machine": report.machine()}
+    stem = "garment-ncs-variants-full" if a.full else "garment-ncs-variants"
+    print(report.write(report.RESULTS / stem, data, render(data)).read_text())
 
 
 if __name__ == "__main__":

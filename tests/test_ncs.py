@@ -15,7 +15,7 @@ from recon.garment import ncs
 from recon.garment.dress import Dresser
 from recon.garment.evaluate_ncs import SHOULDER_BAND, _clip, hem_vertices, simulated_part
 from recon.garment.gltf import write_glb
-from recon.garment.ncs_train import MotionWindows, NCSTrainConfig, Step
+from recon.garment.ncs_train import MotionWindows, NCSTrainConfig, Step, distil_static, param_groups
 from recon.garment.pbns import PBNS, initial_weights
 from recon.garment.templates import GarmentSpec, RestBody, make_outfit
 from recon.poses.mocap import MocapPoses
@@ -80,6 +80,27 @@ def test_no_motion_no_dynamic_code(body):
         zs2, zd2, _ = model.codes(s2, d2)
     assert zd2.abs().max() > 0 and not torch.allclose(moving, still)
     assert torch.allclose(still, (zs2 @ model.D).view_as(still), atol=1e-6)
+
+
+def test_dynamic_modes_are_reached_by_the_dynamic_code_only(body, windows):
+    """NCSConfig.dynamic_modes adds rows to D after PBNS's: the static code is zero there, so at
+    motion control 0 NCS decodes with PBNS's rows alone; the dynamic code reaches all rows."""
+    o = make_outfit(body, [GarmentSpec("skirt", "skirt")])
+    torch.manual_seed(0)
+    pbns = PBNS(torch.from_numpy(o.vertices), torch.from_numpy(o.faces),
+                torch.from_numpy(initial_weights(RestBody(body), o)))
+    with torch.no_grad():
+        pbns.D.normal_(0, 1e-3)
+    model = ncs.NCS.from_pbns(pbns, ncs.NCSConfig(dynamic_modes=8))
+    assert model.D.shape == (136, pbns.D.shape[1]) and torch.equal(model.D[:128], pbns.D)
+    with torch.no_grad():
+        model.D[128:].normal_(0, 1e-3)
+        s, d = ncs.descriptors(*_sequence(body))
+        zs, zd, _ = model.codes(s, d)
+        still, _ = model.deformation(s, d, motion=0.0)
+    assert zs.shape[-1] == zd.shape[-1] == 136 and zs[..., 128:].abs().max() == 0 and zd[..., 128:].abs().max() > 0
+    assert torch.allclose(still, (zs[..., :128] @ pbns.D).view_as(still), atol=1e-6)
+    assert np.isfinite(distil_static(model, pbns, windows, steps=2, seed=0))  # the static code has 128 entries
 
 
 def test_gru_state_fades_when_motion_stops(body):
@@ -168,6 +189,34 @@ def test_training_step_sends_no_gradient_back_in_time_or_into_encoders_for_augme
     loss, terms = Step(model, crit, inertia, windows)(torch.arange(4))
     loss.backward()
     assert terms["inertia"].shape == (4,) and model.dynamic[0].weight.grad.abs().sum() > 0
+
+
+def test_frozen_static_part_keeps_pbns_and_trains_the_dynamic_branch(body, windows):
+    """freeze_static: a training step changes the dynamic branch only, so NCS at motion control 0
+    still decodes the distilled PBNS codes."""
+    o = make_outfit(body, [GarmentSpec("skirt", "skirt")])
+    model = ncs.NCS(torch.from_numpy(o.vertices), torch.from_numpy(o.faces),
+                    torch.from_numpy(initial_weights(RestBody(body), o)))
+    with torch.no_grad():
+        model.D.normal_(0, 1e-3)
+    cfg = NCSTrainConfig(freeze_static=True)
+    before = {n: p.detach().clone() for n, p in model.named_parameters()}
+    opt = torch.optim.Adam(param_groups(model, cfg))
+    crit = L.Criterion(o, model.rest, cfg)
+    inertia = ncs.InertiaLoss(torch.from_numpy(ncs.vertex_masses(o.vertices, o.faces)), cfg=cfg.inertia)
+    loss, _ = Step(model, crit, inertia, windows)(torch.arange(4))
+    loss.backward()
+    opt.step()
+    changed = {n for n, p in model.named_parameters() if not torch.equal(p, before[n])}
+    assert changed and all(n.split(".")[0] in ("per_joint", "dynamic", "gru") for n in changed)
+    assert len(param_groups(model, NCSTrainConfig())) == 3
+    # with dynamic-only rows in D, those rows train and PBNS's stay
+    modes = ncs.NCS.from_pbns(model, ncs.NCSConfig(dynamic_modes=4))
+    opt = torch.optim.Adam(param_groups(modes, cfg))
+    d0 = modes.D.detach().clone()
+    Step(modes, crit, inertia, windows)(torch.arange(4))[0].backward()
+    opt.step()
+    assert torch.equal(modes.D[:128], d0[:128]) and not torch.equal(modes.D[128:], d0[128:])
 
 
 def test_animated_glb_holds_the_dynamic_model(body, tmp_path):

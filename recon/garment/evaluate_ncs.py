@@ -12,7 +12,8 @@ Per outfit, a row each for the skinned template (dT = 0), PBNS and NCS:
   ``sim_error_mm``, the mean per-vertex distance per frame, and the hem's
   swing: the hem centroid's horizontal offset from where skinning puts it (``hem_peak_mm`` per
   model and for the simulation; ``hem_error_mm``: the mean distance between the model's offset
-  and the simulation's over the frames);
+  and the simulation's over the frames), also for NCS at motion control 0 (``STATIC_PART``: its
+  static part alone, which tells what its dynamics add);
 - speed: frames per second on one thread for batch 1 (PBNS: one pose; NCS: one frame streamed with
   its recurrent state) and batch 64 (64 poses; NCS: 64 frames of a sequence in one call), given
   the body's joint transforms.
@@ -42,6 +43,7 @@ from recon.garment.self_intersection import SkinSelfIntersection
 from recon.poses.mocap import MocapPoses
 
 MODELS = ("skinning only (dT = 0)", "PBNS", "NCS")
+STATIC_PART = "NCS at motion control 0 (its static part)"
 STRIDE = 4
 # (clip, first frame, frames, frames the last pose is held, what happens): held-out performers. The
 # turn is the test split's fastest (root yaw rate); no test clip stops suddenly, so the run's last
@@ -179,8 +181,10 @@ def dynamic_rows(body, outfit_name: str, pbns: PBNS, ncs: NCS, shape: torch.Tens
         return d[:, [0, 2]]
 
     sim_swing = swing(ref[:, hem_sub])
+    static, dynamic, transforms = motion_inputs(body, rot, shape, tr)
+    out[STATIC_PART] = ncs.animate(static, dynamic, transforms, motion=0.0)[0]
     rows = {}
-    for m in MODELS:
+    for m in (*MODELS, STATIC_PART):
         v = out[m][:, torch.from_numpy(np.nonzero(sub)[0])]
         s = swing(out[m][:, hem])
         rows[m] = {"sim_error_mm": float((v - ref).norm(dim=-1).mean() * 1000),
@@ -235,6 +239,7 @@ def evaluate(body, outfit: str, dynamic: bool = True, ncs_weights: Path | None =
         for m in MODELS:
             for k in ("sim_error_mm", "hem_error_mm"):
                 rows[m][k] = float(np.mean([d["rows"][m][k] for d in dyn]))
+        rows[MODELS[2]]["sim_error_static_mm"] = float(np.mean([d["rows"][STATIC_PART]["sim_error_mm"] for d in dyn]))
     return {"outfit": meta["outfit"], "ncs_weights": path_label(ncs_weights), "vertices": int(pbns.rest.shape[0]),
             "train_seconds": meta["train_seconds"], "train_steps": meta["curve"][-1]["step"] if meta["curve"] else 0,
             "stride": STRIDE, "rows": rows, "dynamic_clips": dyn, "threads": torch.get_num_threads(),
@@ -266,9 +271,10 @@ def render(data: dict) -> str:
              "skinning puts it. Simulated: pinned garments on their own (a skirt); an outfit without pins (a "
              "dress) held by its top band (`simulated_part`), else VBD with velocities lets it slide off; an "
              "outfit without rows below was evaluated before it was held. Speed: one thread, given the body's "
-             "transforms.", ""]
-    head = ("| outfit | model | collision % | edge mm | sim_error_mm | hem_error_mm | fps b=1 | fps b=64 |",
-            "|---|---|---|---|---|---|---|---|")
+             "transforms. sim_error_mm at motion 0: NCS with its dynamic code off (motion control 0), its "
+             "static part alone.", ""]
+    head = ("| outfit | model | collision % | edge mm | sim_error_mm | sim_error_mm at motion 0 | hem_error_mm | "
+            "fps b=1 | fps b=64 |", "|---|---|---|---|---|---|---|---|---|")
     lines += list(head)
 
     def f(x, d=2):
@@ -280,14 +286,15 @@ def render(data: dict) -> str:
         for m in MODELS:
             x = r["rows"][m]
             lines.append(f"| {r['outfit']} | {label(r, m)} | {f(x['collision_pct'])} | {f(x['edge_mm'])} | "
-                         f"{f(x.get('sim_error_mm'), 1)} | {f(x.get('hem_error_mm'), 1)} | "
+                         f"{f(x.get('sim_error_mm'), 1)} | {f(x.get('sim_error_static_mm'), 1)} | "
+                         f"{f(x.get('hem_error_mm'), 1)} | "
                          f"{f(x.get('fps_batch1'), 0)} | {f(x.get('fps_batch64'), 0)} |")
     lines += ["", "## Per simulated clip", "",
               "| outfit | clip | motion | model | sim_error_mm | hem peak mm (sim) | hem_error_mm |",
               "|---|---|---|---|---|---|---|"]
     for r in data["outfits"]:
         for d in r["dynamic_clips"]:
-            for m in MODELS:
+            for m in (m for m in (*MODELS, STATIC_PART) if m in d["rows"]):
                 x = d["rows"][m]
                 lines.append(f"| {r['outfit']} | {d['clip']} [{d['start']}:+{d['frames']}] | {d['motion']} | {m} | "
                              f"{f(x['sim_error_mm'], 1)} | {f(x['hem_peak_mm'], 0)} ({f(d['sim_hem_peak_mm'], 0)}) | "

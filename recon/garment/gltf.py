@@ -146,7 +146,7 @@ def write_glb(path: str | Path, body, shape: torch.Tensor, rotmats: torch.Tensor
             model = dresser.model
             with torch.no_grad():
                 d, morph = model.D.detach(), model.mlp(pose_features(rotmats))
-        d = d.numpy().reshape(model.cfg.embedding, -1, 3)
+        d = d.numpy().reshape(len(d), -1, 3)
         morph = morph.numpy().astype(np.float32)  # (T, |X|)
         mesh_nodes.append(skinned_mesh("outfit", rest_c, model.faces.numpy(), model.weights.detach().numpy(),
                                        OUTFIT_RGBA, targets=d, morph0=morph[0]))

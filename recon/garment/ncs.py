@@ -89,6 +89,9 @@ class NCSConfig:
     hidden: int = 256  # static encoder and the dynamic encoder's FC layers
     joint_features: int = 32  # the dynamic encoder's per-joint layers
     embedding: int = 128  # |z|, rows of D (as PBNS)
+    # extra rows of D that only the dynamic code reaches (PBNS's rows are its static modes; a
+    # swing may need others): D has embedding + dynamic_modes rows
+    dynamic_modes: int = 0
     fps: float = FPS  # the frame rate it was trained at: its recurrent steps are frames at this rate
 
 
@@ -99,11 +102,11 @@ class NCS(BlendShapeGarment):
 
     def __init__(self, rest: torch.Tensor, faces: torch.Tensor, weights: torch.Tensor, cfg: NCSConfig | None = None):
         cfg = cfg or NCSConfig()
-        super().__init__(rest, faces, weights, cfg.embedding)
+        super().__init__(rest, faces, weights, cfg.embedding + cfg.dynamic_modes)
         self.cfg = cfg
-        k, e, h = len(KEPT), cfg.embedding, cfg.hidden
+        k, e, h = len(KEPT), cfg.embedding + cfg.dynamic_modes, cfg.hidden
         self.static = nn.Sequential(nn.Linear(9 * k, h), nn.ReLU(), nn.Linear(h, h), nn.ReLU(), nn.Linear(h, h),
-                                    nn.ReLU(), nn.Linear(h, e))
+                                    nn.ReLU(), nn.Linear(h, cfg.embedding))
         f = cfg.joint_features
         # no bias anywhere in the dynamic branch: zero motion -> zero code (6.3.3)
         self.per_joint = nn.Sequential(nn.Linear(12, f, bias=False), nn.ReLU(), nn.Linear(f, f, bias=False), nn.ReLU())
@@ -116,14 +119,14 @@ class NCS(BlendShapeGarment):
         encoder still has to learn PBNS's codes)."""
         m = cls(pbns.rest, pbns.faces, pbns.weights.detach(), cfg or NCSConfig(embedding=pbns.D.shape[0]))
         with torch.no_grad():
-            m.D.copy_(pbns.D)
+            m.D[:len(pbns.D)].copy_(pbns.D)
             m.weight_logits.copy_(pbns.weight_logits)
         return m
 
     def codes(self, static: torch.Tensor, dynamic: torch.Tensor, h: torch.Tensor | None = None):
         """(B, T, K, 9), (B, T, K, 12) -> static code, dynamic code (B, T, E) and the GRU state."""
         b, t = static.shape[:2]
-        zs = self.static(static.reshape(b, t, -1))
+        zs = nn.functional.pad(self.static(static.reshape(b, t, -1)), (0, self.cfg.dynamic_modes))
         zd, h = self.gru(self.dynamic(self.per_joint(dynamic).reshape(b, t, -1)), h)
         return zs, zd, h
 
