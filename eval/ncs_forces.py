@@ -38,8 +38,7 @@ def forces(outfit_name: str, n: int, seed: int = 1) -> dict:
     inertia = InertiaLoss(masses, cfg.fps, cfg.inertia)
     rot = w.rot[w.ends[:, None] + torch.arange(-2, 1)]  # (n, 3, 24, 3, 3)
     with torch.no_grad():
-        dt = pbns.deformation(rot.flatten(0, 1)).view(n, 3, -1, 3)
-        x = pbns.skin((pbns.rest + dt).flatten(0, 1), w.transforms.flatten(0, 1)).view(n, 3, -1, 3)
+        x, dt = (y.view(n, 3, -1, 3) for y in pbns(rot.flatten(0, 1), w.transforms.flatten(0, 1)))
     xt = x[:, 2].clone().requires_grad_(True)
     crit(xt, dt[:, 2], w.body_v, w.body_n)
     terms = {k: e for k, e in crit.terms.items() if e.requires_grad}  # the pins act on dT, not on x

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import time
 from dataclasses import replace
 
 import numpy as np
@@ -95,12 +94,10 @@ def main() -> None:
     for name in names:
         cfg = replace(RECIPE, outfit=a.outfit, epochs=epochs, **base, **VARIANTS[name])
         out = folder / f"{a.outfit}-{name.replace(' ', '_').replace(',', '')}.pt"
-        t0 = time.time()
         if a.full and out.exists() and not a.retrain:
             meta = json.loads(NCS.load(out)[1]["meta_json"])
         else:
             meta = ncs_train.train(body, cfg, out=out, progress=False)
-            meta["train_seconds"] = round(time.time() - t0)
         last = meta["curve"][-1]
         row = [name, last["step"]] + [last[k] for k in KEYS] + [round(meta["train_seconds"])]
         if a.simulation:

@@ -69,14 +69,17 @@ def _clip(split_poses: MocapPoses, name: str, start: int = 0, frames: int | None
 
 @torch.no_grad()
 def run_models(pbns: PBNS, ncs: NCS | None, body, shape: torch.Tensor, rot: torch.Tensor,
-               transl: torch.Tensor) -> dict:
-    """The models on one sequence: {model: (T, N, 3)} (NCS only when given)."""
+               transl: torch.Tensor, static_part: bool = False) -> dict:
+    """The models on one sequence: {model: (T, N, 3)} (NCS only when given; ``static_part``: also
+    NCS at motion control 0, under ``STATIC_PART``)."""
     static, dynamic, transforms = motion_inputs(body, rot, shape, transl)
     chunks = range(0, len(rot), 64)
     out = {MODELS[0]: torch.cat([pbns.skin(pbns.rest, transforms[i:i + 64]) for i in chunks]),
            MODELS[1]: torch.cat([pbns.pose(rot[i:i + 64], transforms[i:i + 64]) for i in chunks])}
     if ncs is not None:
         out[MODELS[2]] = ncs.animate(static, dynamic, transforms)[0]
+        if static_part:
+            out[STATIC_PART] = ncs.animate(static, dynamic, transforms, motion=0.0)[0]
     return out
 
 
@@ -169,7 +172,7 @@ def dynamic_rows(body, outfit_name: str, pbns: PBNS, ncs: NCS, shape: torch.Tens
     """Per model, on one simulated clip: sim_error_mm and the hem's swing against the simulation."""
     sim = dynamic_reference(body, outfit_name, pbns, shape, clip, log)
     rot, tr = _clip(MocapPoses.load("test"), *clip[:4])
-    out = run_models(pbns, ncs, body, shape, rot, tr)
+    out = run_models(pbns, ncs, body, shape, rot, tr, static_part=True)
     sub = sim["subset"]
     ref = torch.from_numpy(sim["vertices"]).float()
     hem = hem_vertices(pbns.rest.numpy(), pbns.faces.numpy())
@@ -181,8 +184,6 @@ def dynamic_rows(body, outfit_name: str, pbns: PBNS, ncs: NCS, shape: torch.Tens
         return d[:, [0, 2]]
 
     sim_swing = swing(ref[:, hem_sub])
-    static, dynamic, transforms = motion_inputs(body, rot, shape, tr)
-    out[STATIC_PART] = ncs.animate(static, dynamic, transforms, motion=0.0)[0]
     rows = {}
     for m in (*MODELS, STATIC_PART):
         v = out[m][:, torch.from_numpy(np.nonzero(sub)[0])]
