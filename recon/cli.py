@@ -63,6 +63,7 @@ from recon.smplr.lifter import WEIGHTS as LIFTER_WEIGHTS
 from recon.smplr.lifter import LifterConfig
 from recon.smplr.model import WEIGHTS as SMPLR_WEIGHTS
 from recon.synth import dataset
+from recon.synth.scene import SynthConfig
 
 RESULTS = str(report.RESULTS)
 
@@ -179,7 +180,9 @@ def cmd_synth_bench(a) -> None:
 
 
 def cmd_synth_generate(a) -> None:
-    out = dataset.generate(Path(a.out), a.split, a.seed, a.n, workers=a.workers, store_vertices=not a.no_vertices)
+    cfg = SynthConfig(**dataset.WIDE) if a.framing == "wide" else None
+    out = dataset.generate(Path(a.out), a.split, a.seed, a.n, workers=a.workers, store_vertices=not a.no_vertices,
+                           cfg=cfg)
     if a.verify:
         _verify(out, None)
     print(f"{out}: {len(dataset.SynthDataset(out))} samples")
@@ -422,6 +425,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--n", type=int, default=1000)
     p.add_argument("--workers", type=int, default=default(dataset.generate, "workers"), help="render processes")
     p.add_argument("--no-vertices", action="store_true", help="do not store vertices (smaller shards)")
+    p.add_argument("--framing", default="standard", choices=["standard", "wide"],
+                   help="wide: framed as the synth-wide benchmarks (512 px, people 30-90 %% of the height, off-centre)")
     p.add_argument("--verify", action="store_true", help="re-hash the shards against the manifest")
 
     # eval

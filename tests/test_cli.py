@@ -96,3 +96,19 @@ def test_demo_writes_png_obj_glb(tmp_path, body, mocap):
     mesh = trimesh.load(tmp_path / "body0.glb", force="mesh")
     assert len(mesh.vertices) > 1000
     assert not list(tmp_path.glob(".*"))  # no temp files left behind
+
+
+def test_synth_generate_framing_wide_is_the_wide_benchmarks_framing(monkeypatch, tmp_path):
+    seen = {}
+
+    def generate(out, split, seed, n, workers, store_vertices, cfg):
+        seen["cfg"] = cfg
+        raise SystemExit(0)
+
+    monkeypatch.setattr(cli.dataset, "generate", generate)
+    for framing, size in (("wide", 512), ("standard", None)):
+        with pytest.raises(SystemExit):
+            main(["synth", "generate", "--out", str(tmp_path), "--n", "2", "--framing", framing])
+        assert (seen["cfg"] and seen["cfg"].size) == size
+    assert seen["cfg"] is None  # standard: the generator's defaults
+    assert cli.dataset.bench_config("synth-wide-test") == cli.SynthConfig(**cli.dataset.WIDE)
