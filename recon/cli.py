@@ -63,7 +63,6 @@ from recon.smplr.lifter import WEIGHTS as LIFTER_WEIGHTS
 from recon.smplr.lifter import LifterConfig
 from recon.smplr.model import WEIGHTS as SMPLR_WEIGHTS
 from recon.synth import dataset
-from recon.synth.scene import SynthConfig
 
 RESULTS = str(report.RESULTS)
 
@@ -180,7 +179,7 @@ def cmd_synth_bench(a) -> None:
 
 
 def cmd_synth_generate(a) -> None:
-    cfg = SynthConfig(**dataset.WIDE) if a.framing == "wide" else None
+    cfg = dataset.bench_config("synth-wide-test") if a.framing == "wide" else None
     out = dataset.generate(Path(a.out), a.split, a.seed, a.n, workers=a.workers, store_vertices=not a.no_vertices,
                            cfg=cfg)
     if a.verify:

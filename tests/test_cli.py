@@ -110,5 +110,6 @@ def test_synth_generate_framing_wide_is_the_wide_benchmarks_framing(monkeypatch,
         with pytest.raises(SystemExit):
             main(["synth", "generate", "--out", str(tmp_path), "--n", "2", "--framing", framing])
         assert (seen["cfg"] and seen["cfg"].size) == size
+        if framing == "wide":
+            assert seen["cfg"] == cli.dataset.bench_config("synth-wide-val")
     assert seen["cfg"] is None  # standard: the generator's defaults
-    assert cli.dataset.bench_config("synth-wide-test") == cli.SynthConfig(**cli.dataset.WIDE)
