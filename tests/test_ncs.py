@@ -13,7 +13,7 @@ from recon.body.lbs import forward_kinematics
 from recon.garment import losses as L
 from recon.garment import ncs
 from recon.garment.dress import Dresser
-from recon.garment.evaluate_ncs import SHOULDER_BAND, _clip, hem_vertices, simulated_part
+from recon.garment.evaluate_ncs import _clip, hem_vertices
 from recon.garment.gltf import write_glb
 from recon.garment.ncs_train import MotionWindows, NCSTrainConfig, Step, distil_static, param_groups
 from recon.garment.pbns import PBNS, initial_weights
@@ -113,6 +113,24 @@ def test_gru_state_fades_when_motion_stops(body):
         still = torch.zeros(1, 60, len(ncs.KEPT), 12)
         _, zd, _ = model.codes(s[:, -1:].expand(-1, 60, -1, -1), still, h)
     assert zd[0, -1].norm() < 0.05 * zd[0, 0].norm()
+
+
+def test_the_dynamic_branch_keeps_a_gradient_when_every_hidden_unit_is_negative(body):
+    """No biases: a hidden unit fed by the per-joint layers (outputs >= 0 under a ReLU) whose weights
+    turn negative is off for every input, and with ReLUs the whole branch died in training (every
+    hidden unit off, the dynamic code zero for good). The leaky activations keep a gradient."""
+    o = make_outfit(body, [GarmentSpec("skirt", "skirt")])
+    model = ncs.NCS(torch.from_numpy(o.vertices), torch.from_numpy(o.faces),
+                    torch.from_numpy(initial_weights(RestBody(body), o)))
+    with torch.no_grad():
+        model.dynamic[0].weight.copy_(-model.dynamic[0].weight.abs())
+    s, d = ncs.descriptors(*_sequence(body, t=4))
+    pj = model.per_joint(d).abs().detach()  # what ReLU per-joint layers would feed: >= 0
+    assert (model.dynamic[0](pj.reshape(1, 4, -1))[:, 1:] < 0).all()  # every hidden unit below zero (frame 0: at rest)
+    model.dynamic(pj.reshape(1, 4, -1)).square().sum().backward()
+    assert model.dynamic[0].weight.grad.abs().max() > 0
+    acts = [m for m in (*model.per_joint, *model.dynamic) if not isinstance(m, torch.nn.Linear)]
+    assert acts and all(isinstance(m, torch.nn.LeakyReLU) for m in acts)
 
 
 def test_inertia_is_zero_at_constant_velocity_and_never_looks_back():
@@ -279,16 +297,74 @@ def test_hem_is_the_lowest_boundary_ring_and_held_clips_stop_dead():
 
 
 def test_the_reference_simulates_pinned_garments_or_holds_an_unpinned_outfit_by_its_top_band():
-    class Outfit:  # two garments stacked in y; what simulated_part reads of an outfit
+    class Outfit:  # two garments stacked in y; what ncs.hanging_part reads of an outfit
         vertices = np.stack([np.zeros(8), np.linspace(0.0, 0.7, 8), np.zeros(8)], 1)
         garment_id = np.array([0, 0, 0, 0, 1, 1, 1, 1])
         pinned = np.zeros(8, bool)
 
     skirt = Outfit()
     skirt.pinned = np.array([0, 0, 0, 1, 0, 0, 0, 0], bool)  # garment 0 hangs from a pin
-    sub, held = simulated_part(skirt)
+    sub, held = ncs.hanging_part(skirt)
     assert sub.tolist() == [True] * 4 + [False] * 4 and held.tolist() == skirt.pinned.tolist()
-    sub, held = simulated_part(Outfit())  # nothing pinned: all of it, held at each garment's top
+    sub, held = ncs.hanging_part(Outfit())  # nothing pinned: all of it, held at each garment's top
     top = np.array([3, 7])
     assert sub.all() and np.nonzero(held)[0].tolist() == top.tolist()
-    assert np.diff(Outfit.vertices[:, 1])[0] > SHOULDER_BAND  # the next vertex down is free
+    assert np.diff(Outfit.vertices[:, 1])[0] > ncs.SHOULDER_BAND  # the next vertex down is free
+
+
+def test_swing_basis_rises_from_the_held_waist_to_the_hem(body):
+    """swing_basis: the hanging part's lowest membrane modes, zero where it is held, one horizontal
+    axis per row, mass-orthogonal; the first has one sign and is largest at the hem (a pendulum's
+    swing)."""
+    o = make_outfit(body, [GarmentSpec("skirt", "skirt")])
+    n, masses = len(o.vertices), ncs.vertex_masses(o.vertices, o.faces)
+    hanging, held = ncs.hanging_part(o)
+    rows = ncs.swing_basis(o.vertices, o.faces, masses, hanging, held, 4)
+    assert ncs.SWING_AXES == (0, 2) and rows.shape == (8, n * 3) and rows.dtype == np.float32
+    f = rows.reshape(4, 2, n, 3)
+    assert np.abs(f[:, :, held]).max() == 0 and held.any()
+    assert np.abs(f[..., 1]).max() == 0  # nothing vertical
+    for j, axis in enumerate(ncs.SWING_AXES):  # row (k, axis) moves along that axis only
+        assert np.abs(f[:, j, :, 2 - axis]).max() == 0
+        assert np.allclose(np.abs(f[:, j, :, axis]).max(1), ncs.SWING_AMPLITUDE)
+    phi = f[:, 0, :, 0].astype(np.float64)
+    gram = (phi * masses) @ phi.T
+    assert np.abs(gram - np.diag(np.diag(gram))).max() < 1e-3 * np.diag(gram).min()
+    first = phi[0] * np.sign(phi[0].sum())
+    assert first.min() > -1e-6
+    hem = hem_vertices(o.vertices, o.faces)
+    assert first[hem].mean() > 0.9 * first.max() > 0.2 * first[hem].mean()
+
+
+def test_swing_modes_are_appended_to_D_from_the_outfit(body):
+    o = make_outfit(body, [GarmentSpec("skirt", "skirt")])
+    pbns = PBNS(torch.from_numpy(o.vertices), torch.from_numpy(o.faces),
+                torch.from_numpy(initial_weights(RestBody(body), o)))
+    cfg = ncs.NCSConfig(dynamic_modes=2, swing_modes=3)
+    with pytest.raises(ValueError, match="outfit"):
+        ncs.NCS.from_pbns(pbns, cfg)
+    model = ncs.NCS.from_pbns(pbns, cfg, o)
+    basis = ncs.swing_basis(o.vertices, o.faces, ncs.vertex_masses(o.vertices, o.faces), *ncs.hanging_part(o), 3)
+    assert model.D.shape == (128 + 2 + 6, pbns.D.shape[1]) and model.gru.hidden_size == 136
+    assert torch.equal(model.D[-6:], torch.from_numpy(basis)) and model.D[128:130].abs().max() == 0
+    s, d = ncs.descriptors(*_sequence(body))
+    zs, zd, _ = model.codes(s, d)
+    assert zs.shape[-1] == 136 and zs[..., 128:].abs().max() == 0
+    only = ncs.NCS.from_pbns(pbns, ncs.NCSConfig(swing_modes=3, dynamic_in_static_rows=False), o)
+    _, zd, _ = only.codes(s, d)
+    assert zd[..., :128].abs().max() == 0 and zd[..., 128:].abs().max() > 0
+
+
+def test_motion_codes_run_the_network_at_its_own_rate(body):
+    """A 15-fps NCS dressing a 30-fps motion steps at 15 fps: its codes at the even frames are those
+    of the network run on every second frame (the motion resampled), the odd ones interpolated."""
+    o = make_outfit(body, [GarmentSpec("skirt", "skirt")])
+    torch.manual_seed(0)
+    model = ncs.NCS(torch.from_numpy(o.vertices), torch.from_numpy(o.faces),
+                    torch.from_numpy(initial_weights(RestBody(body), o)), ncs.NCSConfig(fps=15.0))
+    rot = _sequence(body, t=9)[0][0]
+    shape = body.mean_shape
+    z30 = model.motion_codes(body, rot, shape, fps=30.0)
+    z15 = model.motion_codes(body, rot[::2], shape, fps=15.0)
+    assert z30.shape == (9, 128) and torch.allclose(z30[::2], z15, atol=1e-5)
+    assert torch.allclose(z30[1], 0.5 * (z15[0] + z15[1]), atol=1e-5)

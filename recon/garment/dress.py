@@ -23,10 +23,9 @@ import torch
 from recon.errors import MissingFile, ReconError
 from recon.garment import store
 from recon.garment.collide import CollisionResolver
-from recon.garment.ncs import FPS, NCS, motion_inputs
+from recon.garment.ncs import FPS, NCS
 from recon.garment.pbns import PBNS, pose_features
 from recon.garment.resize import OutfitResizer, Transfer
-from recon.poses.mocap import resample
 
 
 @dataclass
@@ -122,26 +121,12 @@ class Dresser:
     def sequence_codes(self, body, rotmats: torch.Tensor, shape: torch.Tensor, transl: torch.Tensor | None = None,
                        fps: float = FPS, motion: float = 1.0) -> tuple[torch.Tensor, torch.Tensor]:
         """The blend-shape model dressing a motion and its codes per frame: (D (E, N*3), (T, E)).
-        NCS's when dynamic (``motion`` scales its dynamic code: 0 = static), else PBNS's. Poses
-        in the gravity-aligned body frame (+Y up). NCS runs at the rate it was trained at: the
-        motion is resampled to it and the codes interpolated back to the motion's frames."""
+        NCS's when dynamic (``motion`` scales its dynamic code: 0 = static; ``NCS.motion_codes``),
+        else PBNS's. Poses in the gravity-aligned body frame (+Y up)."""
         with torch.no_grad():
             if self.ncs is None:
                 return self.model.D.detach(), self.model.mlp(pose_features(rotmats))
-            rate = self.ncs.cfg.fps
-            resampled = abs(rate - fps) > 1e-6  # the network steps at its training rate: resample, run, interpolate
-            r, tr = rotmats, transl
-            if resampled:
-                tr0 = torch.zeros(len(rotmats), 3) if transl is None else transl
-                r, tr = (torch.from_numpy(x).float() for x in resample(rotmats.numpy(), tr0.numpy(), fps, rate))
-            static, dynamic, _ = motion_inputs(body, r, shape, tr, rate)
-            zs, zd, _ = self.ncs.codes(static[None], dynamic[None])
-            z = (zs + motion * zd)[0]
-            if resampled:
-                t = np.arange(len(rotmats)) / fps * rate  # each frame's time in network steps
-                i0 = np.minimum(np.floor(t).astype(int), len(z) - 1)
-                w = torch.from_numpy(np.clip(t - i0, 0, 1)).float()[:, None]
-                z = (1 - w) * z[i0] + w * z[np.minimum(i0 + 1, len(z) - 1)]
+            z = self.ncs.motion_codes(body, rotmats, shape, transl, fps, motion)
             return self.ncs.D.detach(), z
 
     @torch.no_grad()

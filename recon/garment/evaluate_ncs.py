@@ -8,7 +8,7 @@ Per outfit, a row each for the skinned template (dT = 0), PBNS and NCS:
 - against newton's VBD run dynamically (recon.garment.reference.simulate: velocities kept, the
   body and the held vertices moving) on a few short held-out clips (``DYNAMIC_CLIPS``: a turn, a
   run that stops, a walk), for the outfits' pinned garments (a skirt), or the whole outfit held at
-  its shoulders when nothing is pinned (a dress; ``simulated_part``):
+  its shoulders when nothing is pinned (a dress; ``recon.garment.ncs.hanging_part``):
   ``sim_error_mm``, the mean per-vertex distance per frame, and the hem's
   swing: the hem centroid's horizontal offset from where skinning puts it (``hem_peak_mm`` per
   model and for the simulation; ``hem_error_mm``: the mean distance between the model's offset
@@ -37,7 +37,7 @@ from recon.garment.data import posed_bodies, trained_outfit
 from recon.garment.evaluate import frames_per_second
 from recon.garment.mesh import boundary_loops
 from recon.garment.metrics import physical_metrics
-from recon.garment.ncs import NCS, motion_inputs
+from recon.garment.ncs import NCS, hanging_part, motion_inputs
 from recon.garment.pbns import PBNS
 from recon.garment.self_intersection import SkinSelfIntersection
 from recon.poses.mocap import MocapPoses
@@ -51,7 +51,6 @@ STRIDE = 4
 DYNAMIC_CLIPS = (("03_03", 975, 60, 0, "turn (3.3 rad/s)"), ("09_11", 0, 30, 30, "run, then a dead stop"),
                  ("12_01", 0, 60, 0, "walk"))
 CHECK_CLIP = ("12_01", 0, 16, 0)  # the slice tests/test_results.py recomputes
-SHOULDER_BAND = 0.04  # m: what holds an outfit without pins (a dress) in the dynamic reference
 
 
 def _clip(split_poses: MocapPoses, name: str, start: int = 0, frames: int | None = None, hold: int = 0):
@@ -72,14 +71,15 @@ def run_models(pbns: PBNS, ncs: NCS | None, body, shape: torch.Tensor, rot: torc
                transl: torch.Tensor, static_part: bool = False) -> dict:
     """The models on one sequence: {model: (T, N, 3)} (NCS only when given; ``static_part``: also
     NCS at motion control 0, under ``STATIC_PART``)."""
-    static, dynamic, transforms = motion_inputs(body, rot, shape, transl)
+    with torch.no_grad():
+        transforms = body(rot, shape.expand(len(rot), -1), transl=transl, points_only=True).transforms
     chunks = range(0, len(rot), 64)
     out = {MODELS[0]: torch.cat([pbns.skin(pbns.rest, transforms[i:i + 64]) for i in chunks]),
            MODELS[1]: torch.cat([pbns.pose(rot[i:i + 64], transforms[i:i + 64]) for i in chunks])}
-    if ncs is not None:
-        out[MODELS[2]] = ncs.animate(static, dynamic, transforms)[0]
+    if ncs is not None:  # at the rate it was trained at (NCS.motion_codes resamples)
+        out[MODELS[2]] = ncs.pose_codes(ncs.motion_codes(body, rot, shape, transl), transforms)
         if static_part:
-            out[STATIC_PART] = ncs.animate(static, dynamic, transforms, motion=0.0)[0]
+            out[STATIC_PART] = ncs.pose_codes(ncs.motion_codes(body, rot, shape, transl, motion=0.0), transforms)
     return out
 
 
@@ -116,23 +116,6 @@ def hem_vertices(rest: np.ndarray, faces: np.ndarray, band: float = 0.02) -> np.
     return boundary[rest[boundary, 1] <= rest[boundary, 1].min() + band]
 
 
-def simulated_part(outfit) -> tuple[np.ndarray, np.ndarray]:
-    """(simulated, held): the vertices the dynamic reference simulates, and those of them it moves
-    with the skinned outfit. Garments with pinned vertices (a skirt hangs from its waist) are
-    simulated, held by their pins. An outfit with none (a dress) is simulated whole, held by a band
-    of ``SHOULDER_BAND`` m at the top of each garment: VBD has no friction, and with velocities a
-    dress that only rests on the shoulders slid off the body (measured: its hem 1.5 m down within
-    2 s of the turn clip). Both (N,) bool."""
-    held = np.unique(outfit.garment_id[outfit.pinned])
-    if len(held):
-        return np.isin(outfit.garment_id, held), outfit.pinned.copy()
-    y, top = outfit.vertices[:, 1], np.zeros(len(outfit.vertices), bool)
-    for g in np.unique(outfit.garment_id):
-        mine = outfit.garment_id == g
-        top |= mine & (y >= y[mine].max() - SHOULDER_BAND)
-    return np.ones(len(y), bool), top
-
-
 def dynamic_path(outfit: str, clip: tuple) -> Path:
     name, start, frames, hold = clip[:4]
     return paths.cache_dir() / "garment-dynamic" / f"{outfit}-{name}-{start}-{frames}-{hold}.npz"
@@ -151,7 +134,7 @@ def dynamic_reference(body, outfit_name: str, pbns: PBNS, shape: torch.Tensor, c
     with torch.no_grad():
         o = body(rot, shape.expand(len(rot), -1), transl=tr)
         skinned = pbns.skin(pbns.rest, o.transforms).numpy()
-    sub, held = simulated_part(outfit)
+    sub, held = hanging_part(outfit)
     ids = -np.ones(len(sub), np.int64)
     ids[sub] = np.arange(sub.sum())
     faces = ids[outfit.faces[sub[outfit.faces].all(1)]]
@@ -270,7 +253,7 @@ def render(data: dict) -> str:
              "every frame at 30 fps. Against the simulation: newton VBD with velocities (recon.garment.reference."
              "simulate) on the clips below; hem swing = the hem centroid's horizontal offset from where "
              "skinning puts it. Simulated: pinned garments on their own (a skirt); an outfit without pins (a "
-             "dress) held by its top band (`simulated_part`), else VBD with velocities lets it slide off; an "
+             "dress) held by its top band (`hanging_part`), else VBD with velocities lets it slide off; an "
              "outfit without rows below was evaluated before it was held. Speed: one thread, given the body's "
              "transforms. sim_error_mm at motion 0: NCS with its dynamic code off (motion control 0), its "
              "static part alone.", ""]

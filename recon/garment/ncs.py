@@ -8,7 +8,10 @@ Body motion descriptors (6.3.2), per joint, hands and feet dropped:
 Model (6.3.3): a static encoder (4 FC layers on the current pose) and a dynamic encoder without
 any bias (2 per-joint FC layers, 2 FC layers, one GRU), so that no motion gives a zero dynamic
 code and the GRU state fades when motion stops; the codes are added and decoded in PBNS's
-blend-shape form (z . D, so the .glb export stays morph targets), then skinned.
+blend-shape form (z . D, so the .glb export stays morph targets), then skinned. D may have
+rows that only the dynamic code reaches: free ones (``dynamic_modes``) and the hanging part's
+lowest membrane modes (``swing_modes``, ``swing_basis``), since PBNS's static rows hold little of
+the cloth's response to inertia (eval/results/ncs-basis-tshirt-skirt.md).
 Training (6.3.4, recon.garment.ncs_train) adds ``InertiaLoss`` (eq. 6.9) to the PBNS energies,
 with the previous states as constants. Frames: the body frame, +Y up (gravity along -Y), metres;
 the network steps at the frame rate it was trained at (``NCSConfig.fps``).
@@ -20,16 +23,24 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from scipy.sparse import diags
+from scipy.sparse.linalg import eigsh
 from torch import nn
 
 from recon import paths
 from recon.body import skeleton
+from recon.garment.mesh import cotan_laplacian
 from recon.garment.pbns import BlendShapeGarment, remove_yaw
+from recon.poses.mocap import resample
 
 DROPPED = ("left_foot", "right_foot", "left_hand", "right_hand")
 KEPT = tuple(i for i, n in enumerate(skeleton.JOINT_NAMES) if n not in DROPPED)
 GRAVITY = (0.0, -1.0, 0.0)  # unit direction in the body frame
 FPS = 30.0
+SHOULDER_BAND = 0.04  # m: what holds an outfit without pins (a dress) when it swings
+SWING_AXES = (0, 2)  # horizontal: a hanging cloth's swing is, to first order (a pendulum's)
+SWING_AMPLITUDE = 0.01  # m: a swing row of D moves its field's largest vertex this far per unit of code
+LEAK = 0.1  # negative slope of the dynamic branch's activations
 SMOOTH = 2.0 / FPS  # seconds: Gaussian sigma of the trajectories the dynamic descriptors differentiate
 
 
@@ -92,6 +103,13 @@ class NCSConfig:
     # extra rows of D that only the dynamic code reaches (PBNS's rows are its static modes; a
     # swing may need others): D has embedding + dynamic_modes rows
     dynamic_modes: int = 0
+    # k: 2k more rows of D that only the dynamic code reaches, initialised to the k lowest-frequency
+    # fields of the hanging part (``swing_basis``) along x and z: PBNS's static modes span only
+    # mm of the response to inertia that free vertices give (cm at a skirt's hem)
+    swing_modes: int = 0
+    # False: the dynamic code reaches only the rows after PBNS's (dynamic and swing modes); PBNS's
+    # rows carry vertical modes the dynamic branch otherwise uses to bounce the cloth on its stretch
+    dynamic_in_static_rows: bool = True
     fps: float = FPS  # the frame rate it was trained at: its recurrent steps are frames at this rate
 
 
@@ -102,32 +120,44 @@ class NCS(BlendShapeGarment):
 
     def __init__(self, rest: torch.Tensor, faces: torch.Tensor, weights: torch.Tensor, cfg: NCSConfig | None = None):
         cfg = cfg or NCSConfig()
-        super().__init__(rest, faces, weights, cfg.embedding + cfg.dynamic_modes)
+        super().__init__(rest, faces, weights, cfg.embedding + cfg.dynamic_modes + len(SWING_AXES) * cfg.swing_modes)
         self.cfg = cfg
-        k, e, h = len(KEPT), cfg.embedding + cfg.dynamic_modes, cfg.hidden
+        k, e, h = len(KEPT), len(self.D), cfg.hidden
         self.static = nn.Sequential(nn.Linear(9 * k, h), nn.ReLU(), nn.Linear(h, h), nn.ReLU(), nn.Linear(h, h),
                                     nn.ReLU(), nn.Linear(h, cfg.embedding))
         f = cfg.joint_features
-        # no bias anywhere in the dynamic branch: zero motion -> zero code (6.3.3)
-        self.per_joint = nn.Sequential(nn.Linear(12, f, bias=False), nn.ReLU(), nn.Linear(f, f, bias=False), nn.ReLU())
-        self.dynamic = nn.Sequential(nn.Linear(k * f, h, bias=False), nn.ReLU(), nn.Linear(h, e, bias=False))
+        # no bias anywhere in the dynamic branch: zero motion -> zero code (6.3.3). Leaky: without
+        # biases a ReLU unit fed by ReLU outputs (all >= 0) dies for good once its weights turn
+        # negative; with ReLUs the whole branch died within a few hundred steps (every hidden unit off)
+        act = nn.LeakyReLU(LEAK)
+        self.per_joint = nn.Sequential(nn.Linear(12, f, bias=False), act, nn.Linear(f, f, bias=False), act)
+        self.dynamic = nn.Sequential(nn.Linear(k * f, h, bias=False), act, nn.Linear(h, e, bias=False))
         self.gru = nn.GRU(e, e, bias=False, batch_first=True)
 
     @classmethod
-    def from_pbns(cls, pbns: BlendShapeGarment, cfg: NCSConfig | None = None) -> NCS:
+    def from_pbns(cls, pbns: BlendShapeGarment, cfg: NCSConfig | None = None, outfit=None) -> NCS:
         """An NCS with a trained PBNS's template, blend weights and D (a warm start: the static
-        encoder still has to learn PBNS's codes)."""
+        encoder still has to learn PBNS's codes). ``outfit`` (its pins and garments) is needed
+        for ``cfg.swing_modes``."""
         m = cls(pbns.rest, pbns.faces, pbns.weights.detach(), cfg or NCSConfig(embedding=pbns.D.shape[0]))
         with torch.no_grad():
             m.D[:len(pbns.D)].copy_(pbns.D)
             m.weight_logits.copy_(pbns.weight_logits)
+            if m.cfg.swing_modes:
+                if outfit is None:
+                    raise ValueError("swing_modes need the outfit: NCS.from_pbns(pbns, cfg, outfit)")
+                masses = vertex_masses(outfit.vertices, outfit.faces)
+                basis = swing_basis(outfit.vertices, outfit.faces, masses, *hanging_part(outfit), m.cfg.swing_modes)
+                m.D[len(m.D) - len(basis):].copy_(torch.from_numpy(basis))
         return m
 
     def codes(self, static: torch.Tensor, dynamic: torch.Tensor, h: torch.Tensor | None = None):
         """(B, T, K, 9), (B, T, K, 12) -> static code, dynamic code (B, T, E) and the GRU state."""
         b, t = static.shape[:2]
-        zs = nn.functional.pad(self.static(static.reshape(b, t, -1)), (0, self.cfg.dynamic_modes))
+        zs = nn.functional.pad(self.static(static.reshape(b, t, -1)), (0, len(self.D) - self.cfg.embedding))
         zd, h = self.gru(self.dynamic(self.per_joint(dynamic).reshape(b, t, -1)), h)
+        if not self.cfg.dynamic_in_static_rows:
+            zd = nn.functional.pad(zd[..., self.cfg.embedding:], (self.cfg.embedding, 0))
         return zs, zd, h
 
     def deformation(self, static, dynamic, h=None, motion: float = 1.0):
@@ -154,6 +184,28 @@ class NCS(BlendShapeGarment):
             zs, zd, h = self.codes(static[None], dynamic[None], h)
             return self.pose_codes((zs + motion * zd)[0], transforms, rest), h
 
+    def motion_codes(self, body, rotmats: torch.Tensor, shape: torch.Tensor, transl: torch.Tensor | None = None,
+                     fps: float = FPS, motion: float = 1.0) -> torch.Tensor:
+        """Codes (T, E) dressing a motion (T, 24, 3, 3) at ``fps`` from rest (decode or
+        ``pose_codes`` them). The network steps at the rate it was trained at: the motion is
+        resampled to it and the codes interpolated back to the motion's frames."""
+        rate = self.cfg.fps
+        resampled = abs(rate - fps) > 1e-6
+        r, tr = rotmats, transl
+        with torch.no_grad():
+            if resampled:
+                tr0 = torch.zeros(len(rotmats), 3) if transl is None else transl
+                r, tr = (torch.from_numpy(x).float() for x in resample(rotmats.numpy(), tr0.numpy(), fps, rate))
+            static, dynamic, _ = motion_inputs(body, r, shape, tr, rate)
+            zs, zd, _ = self.codes(static[None], dynamic[None])
+            z = (zs + motion * zd)[0]
+        if resampled:
+            t = np.arange(len(rotmats)) / fps * rate  # each frame's time in network steps
+            i0 = np.minimum(np.floor(t).astype(int), len(z) - 1)
+            w = torch.from_numpy(np.clip(t - i0, 0, 1)).float()[:, None]
+            z = (1 - w) * z[i0] + w * z[np.minimum(i0 + 1, len(z) - 1)]
+        return z
+
     @classmethod
     def load(cls, path: Path) -> tuple[NCS, dict]:
         ck = paths.load_checkpoint(path, "recon garment train --model ncs")
@@ -171,6 +223,46 @@ def motion_inputs(body, rotmats: torch.Tensor, shape: torch.Tensor, transl: torc
         o = body(rotmats, shape.reshape(1, -1).expand(len(rotmats), -1), transl=transl, points_only=True)
         s, d = descriptors(rotmats[None], o.global_rotmats[None], o.joints[None], fps)
     return s[0], d[0], o.transforms
+
+
+def hanging_part(outfit) -> tuple[np.ndarray, np.ndarray]:
+    """(hanging, held): the vertices that swing with the body's motion, and those of them that
+    move with the skinned outfit. Garments with pinned vertices (a skirt hangs from its waist)
+    hang, held by their pins. An outfit with none (a dress) hangs whole, held by a band of
+    ``SHOULDER_BAND`` m at the top of each garment (the dynamic reference, VBD without friction,
+    lets a dress that only rests on the shoulders slide off: its hem 1.5 m down within 2 s of a
+    turn). Both (N,) bool."""
+    held = np.unique(outfit.garment_id[outfit.pinned])
+    if len(held):
+        return np.isin(outfit.garment_id, held), outfit.pinned.copy()
+    y, top = outfit.vertices[:, 1], np.zeros(len(outfit.vertices), bool)
+    for g in np.unique(outfit.garment_id):
+        mine = outfit.garment_id == g
+        top |= mine & (y >= y[mine].max() - SHOULDER_BAND)
+    return np.ones(len(y), bool), top
+
+
+def swing_basis(vertices: np.ndarray, faces: np.ndarray, masses: np.ndarray, hanging: np.ndarray,
+                held: np.ndarray, k: int) -> np.ndarray:
+    """(2k, N * 3) rows of D: the k lowest vibration modes of the hanging part's membrane (the
+    cotangent Laplacian against the lumped masses, zero at the held vertices: the first rises
+    from the waist to the hem, as a pendulum's swing), each along ``SWING_AXES``, its largest vertex
+    moved ``SWING_AMPLITUDE``; zero elsewhere. Modal bases are the classic reduced space of
+    deformable dynamics (Pentland & Williams 1989)."""
+    ids = -np.ones(len(vertices), np.int64)
+    ids[hanging] = np.arange(hanging.sum())
+    lap = cotan_laplacian(vertices[hanging], ids[faces[hanging[faces].all(1)]])
+    free = ~held[hanging]
+    m = masses[hanging][free]
+    # shift-invert about a small negative value: the smallest eigenvalues of a positive definite pencil
+    _, phi = eigsh(lap[free][:, free].tocsc(), k=k, M=diags(m / m.mean()).tocsc(), sigma=-1e-6, which="LM",
+                   v0=np.ones(len(m)))
+    phi *= np.where(phi.sum(0) < 0, -1.0, 1.0)  # a sign per mode, for reproducible rows
+    fields = np.zeros((k, len(vertices)))
+    fields[:, np.nonzero(hanging)[0][free]] = phi.T
+    fields *= SWING_AMPLITUDE / np.abs(fields).max(1, keepdims=True)
+    rows = fields[:, None, :, None] * np.eye(3)[None, list(SWING_AXES), None, :]  # (k, axes, N, 3)
+    return rows.reshape(len(SWING_AXES) * k, -1).astype(np.float32)
 
 
 def vertex_masses(vertices: np.ndarray, faces: np.ndarray, density: float = 0.15) -> np.ndarray:

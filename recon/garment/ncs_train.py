@@ -181,7 +181,7 @@ def param_groups(model: NCS, cfg: NCSTrainConfig) -> list[dict]:
         for p in rest:
             p.requires_grad_(False)
         e = model.cfg.embedding
-        if not model.cfg.dynamic_modes:
+        if len(model.D) == e:
             model.D.requires_grad_(False)
             return [{"params": dynamic, "lr": cfg.lr_dynamic}]
         model.D.register_hook(lambda g: torch.cat([torch.zeros_like(g[:e]), g[e:]]))  # PBNS's rows stay
@@ -285,7 +285,7 @@ def train(body, cfg: NCSTrainConfig | None = None, out: Path | None = None, log=
     outfit, shape, name = trained_outfit(body, pbns_path)
     out = Path(out or store.ncs_path(name))
     pbns, _ = PBNS.load(pbns_path)
-    model = NCS.from_pbns(pbns, NCSConfig(**{**asdict(cfg.model), "fps": cfg.fps}))
+    model = NCS.from_pbns(pbns, NCSConfig(**{**asdict(cfg.model), "fps": cfg.fps}), outfit)
     with torch.no_grad():
         model.dynamic[-1].weight.mul_(cfg.dynamic_init)  # start near PBNS: a small dynamic code
     frames = int(round(cfg.window * cfg.fps))
