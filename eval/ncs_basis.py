@@ -109,7 +109,7 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--outfit", default="tshirt-skirt")
     ap.add_argument("--n", type=int, default=6)
-    ap.add_argument("--swing-modes", type=int, default=NCSTrainConfig().model.swing_modes or 16)
+    ap.add_argument("--swing-modes", type=int, default=16)
     a = ap.parse_args()
     torch.set_num_threads(1)
     data = {**responses(a.outfit, a.n, a.swing_modes), "machine": report.machine()}

@@ -126,8 +126,8 @@ class Dresser:
         with torch.no_grad():
             if self.ncs is None:
                 return self.model.D.detach(), self.model.mlp(pose_features(rotmats))
-            z = self.ncs.motion_codes(body, rotmats, shape, transl, fps, motion)
-            return self.ncs.D.detach(), z
+            zs, zd = self.ncs.motion_codes(body, rotmats, shape, transl, fps)
+            return self.ncs.D.detach(), zs + motion * zd
 
     @torch.no_grad()
     def animate(self, body, rotmats: torch.Tensor, shape: torch.Tensor, transl: torch.Tensor | None = None,

@@ -77,9 +77,10 @@ def run_models(pbns: PBNS, ncs: NCS | None, body, shape: torch.Tensor, rot: torc
     out = {MODELS[0]: torch.cat([pbns.skin(pbns.rest, transforms[i:i + 64]) for i in chunks]),
            MODELS[1]: torch.cat([pbns.pose(rot[i:i + 64], transforms[i:i + 64]) for i in chunks])}
     if ncs is not None:  # at the rate it was trained at (NCS.motion_codes resamples)
-        out[MODELS[2]] = ncs.pose_codes(ncs.motion_codes(body, rot, shape, transl), transforms)
+        zs, zd = ncs.motion_codes(body, rot, shape, transl)
+        out[MODELS[2]] = ncs.pose_codes(zs + zd, transforms)
         if static_part:
-            out[STATIC_PART] = ncs.pose_codes(ncs.motion_codes(body, rot, shape, transl, motion=0.0), transforms)
+            out[STATIC_PART] = ncs.pose_codes(zs, transforms)
     return out
 
 

@@ -185,10 +185,11 @@ class NCS(BlendShapeGarment):
             return self.pose_codes((zs + motion * zd)[0], transforms, rest), h
 
     def motion_codes(self, body, rotmats: torch.Tensor, shape: torch.Tensor, transl: torch.Tensor | None = None,
-                     fps: float = FPS, motion: float = 1.0) -> torch.Tensor:
-        """Codes (T, E) dressing a motion (T, 24, 3, 3) at ``fps`` from rest (decode or
-        ``pose_codes`` them). The network steps at the rate it was trained at: the motion is
-        resampled to it and the codes interpolated back to the motion's frames."""
+                     fps: float = FPS) -> tuple[torch.Tensor, torch.Tensor]:
+        """The static and dynamic codes (T, E) of a motion (T, 24, 3, 3) at ``fps``, from rest:
+        ``pose_codes(z_static + motion * z_dynamic, ...)`` dresses it (motion control). The
+        network steps at the rate it was trained at: the motion is resampled to it and the codes
+        interpolated back to the motion's frames."""
         rate = self.cfg.fps
         resampled = abs(rate - fps) > 1e-6
         r, tr = rotmats, transl
@@ -198,13 +199,14 @@ class NCS(BlendShapeGarment):
                 r, tr = (torch.from_numpy(x).float() for x in resample(rotmats.numpy(), tr0.numpy(), fps, rate))
             static, dynamic, _ = motion_inputs(body, r, shape, tr, rate)
             zs, zd, _ = self.codes(static[None], dynamic[None])
-            z = (zs + motion * zd)[0]
+        zs, zd = zs[0], zd[0]
         if resampled:
             t = np.arange(len(rotmats)) / fps * rate  # each frame's time in network steps
-            i0 = np.minimum(np.floor(t).astype(int), len(z) - 1)
+            i0 = np.minimum(np.floor(t).astype(int), len(zs) - 1)
+            i1 = np.minimum(i0 + 1, len(zs) - 1)
             w = torch.from_numpy(np.clip(t - i0, 0, 1)).float()[:, None]
-            z = (1 - w) * z[i0] + w * z[np.minimum(i0 + 1, len(z) - 1)]
-        return z
+            zs, zd = ((1 - w) * z[i0] + w * z[i1] for z in (zs, zd))
+        return zs, zd
 
     @classmethod
     def load(cls, path: Path) -> tuple[NCS, dict]:
