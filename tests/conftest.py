@@ -2,11 +2,9 @@ import os
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
-# The same float kernels on every x86 machine (set before torch loads): the committed check slices
-# (tests/test_results.py) hold the backbone's outputs, which differ in the last bits between AVX2 and
-# AVX-512 kernels, and its crop search can turn such bits into another crop. Record them likewise.
-for _var, _isa in (("ATEN_CPU_CAPABILITY", "avx2"), ("ONEDNN_MAX_CPU_ISA", "AVX2"), ("MKL_CBWR", "AVX2")):
-    os.environ.setdefault(_var, _isa)
+from recon import kernels  # noqa: E402
+
+kernels.pin()  # before torch loads: the committed check slices are recorded likewise
 
 from pathlib import Path  # noqa: E402
 

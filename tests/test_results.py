@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from recon import report
+from recon import kernels, report
 from recon.bench import runner
 from recon.garment import evaluate as garment_eval
 from recon.garment import evaluate_ncs
@@ -65,3 +65,17 @@ def test_the_comparison_notices_a_changed_number():
     assert differences({"a": {"b": [1.0, 2.0]}}, {"a": {"b": [1.0, 2.01]}}) == ["/a/b[1]: 2.0 != 2.01"]
     assert differences({"a": 1, "c": None}, {"a": 2, "c": None}) == ["/a: 1 != 2"]
     assert differences({"a": 1.0}, {}) == ["/a: missing"]
+
+
+def test_a_check_holds_values_per_cpu_vendor(tmp_path):
+    """AMD and Intel compute some slices apart (recon.kernels): the values recorded for this CPU's
+    vendor are the committed ones where a check has them, and ``record_check`` stores them."""
+    stem = tmp_path / "r"
+    check = {"function": "builtins:dict", "kwargs": {"a": 1.0}, "values": {"a": 2.0}}
+    (tmp_path / "r.json").write_text(json.dumps({"rows": [1], "check": check}))
+    assert differences(*report.recompute_check(stem)) == ["/a: 2.0 != 1.0"]
+    assert report.record_check(stem) == {"a": 1.0}
+    data = report.read(stem)
+    assert data["rows"] == [1] and data["check"]["values"] == {"a": 2.0}
+    assert data["check"]["values_by_cpu"] == {kernels.vendor(): {"a": 1.0}}
+    assert differences(*report.recompute_check(stem)) == []
