@@ -1,6 +1,7 @@
 """Records the check slices of results files as computed on this machine's CPU vendor (AMD and
 Intel compute some apart, ``recon.kernels``; a check's plain ``values`` were recorded on AMD EPYC
-machines), with the tests' settings: pinned kernels, one thread, no ../shared. Run on a machine of the other vendor when a slice fails only there:
+machines), with the tests' settings: pinned kernels, one thread, no ../shared. Run it on a
+machine of the other vendor when a slice fails only there:
 
     RECON_SHARED_DIR=$(mktemp -d) .venv/bin/python eval/record_checks.py synth-test synth-wide-test
 """

@@ -82,4 +82,5 @@ def test_valid_test_poses_drop_the_poses_where_the_body_passes_through_itself(bo
     assert torch.equal(kept, rot[[0, 2]])
     assert bv.shape == (2, body.num_vertices, 3) and bn.shape == bv.shape and len(bt) == 2
     with torch.no_grad():
-        assert torch.allclose(bv, body(kept, shape.expand(2, -1)).vertices)
+        # float noise only: a batch of 3 and one of 2 take other kernel paths (measured 2e-7 m on an Intel Xeon)
+        assert torch.allclose(bv, body(kept, shape.expand(2, -1)).vertices, atol=1e-6)
