@@ -30,6 +30,11 @@ from recon.garment.ncs import NCS, InertiaConfig, NCSConfig
 
 BASE = dict(samples=1600, val_samples=120, distil_steps=800)
 RECIPE = ncs_train.NCSTrainConfig()
+_SWING_ONLY = NCSConfig(swing_modes=16, dynamic_in_static_rows=False)
+# rows scored against the dynamic simulations say which: before 2026-11-25 (session 8) the cloth
+# started at rest and was damped against the world; since, it starts and is damped with the skinned
+# outfit and each clip is scored after a lead-in (recon.garment.reference.simulate, evaluate_ncs)
+SIMULATION = "carried, lead-in"
 VARIANTS = {
     "recipe": {},
     "no motion smoothing": {"smooth_motion": 0.0},
@@ -43,12 +48,23 @@ VARIANTS = {
     "static part frozen; residual force removed; 32 dynamic modes": {
         "freeze_static": True, "remove_static_force": True, "model": NCSConfig(dynamic_modes=32)},
     "static part frozen; 16 swing modes": {"freeze_static": True, "model": NCSConfig(swing_modes=16)},
-    "static part frozen; 16 swing modes; the dynamic code on them only": {
-        "freeze_static": True, "model": NCSConfig(swing_modes=16, dynamic_in_static_rows=False)},
+    "static part frozen; 16 swing modes; the dynamic code on them only; whole outfit": {
+        "freeze_static": True, "hanging_only": False, "model": _SWING_ONLY},
+    "static part frozen; 16 swing modes; the dynamic code on them only": {"freeze_static": True, "model": _SWING_ONLY},
+    "static part frozen; 16 fixed swing modes; the dynamic code on them only; whole outfit": {
+        "freeze_static": True, "train_dynamic_rows": False, "hanging_only": False, "model": _SWING_ONLY},
+    "static part frozen; 16 fixed swing modes; the dynamic code on them only": {
+        "freeze_static": True, "train_dynamic_rows": False, "model": _SWING_ONLY},
+    "static part frozen; 16 fixed swing modes; the dynamic code on them only; 7200 steps": {
+        "freeze_static": True, "train_dynamic_rows": False, "model": _SWING_ONLY, "epochs": 24},
+    "static part frozen; 16 fixed swing modes; the dynamic code on them only; seed 1": {
+        "freeze_static": True, "train_dynamic_rows": False, "model": _SWING_ONLY, "seed": 1},
+    "static part frozen; 16 fixed swing modes; the dynamic code on them only; 2 s windows": {
+        "freeze_static": True, "train_dynamic_rows": False, "model": _SWING_ONLY, "window": 2.0},
 }
 KEYS = ("val_dynamic_mm", "val_inertia", "val_collision_pct", "val_edge_mm")
 HEADERS = ["variant", "steps", "dynamic mm", "inertia", "collision %", "edge mm", "train s", "sim_error_mm",
-           "sim_error_mm at motion 0", "hem_error_mm"]
+           "sim_error_mm at motion 0", "hem_error_mm", "simulation", "PBNS sim_error_mm", "PBNS hem_error_mm"]
 
 
 def against_simulation(body, outfit: str, path) -> dict:
@@ -74,15 +90,24 @@ def render(data: dict) -> str:
              "simulations of garment-ncs.md's three test clips; at motion 0: the variant's static part alone. "
              "Rows marked (ReLU) were trained before the dynamic branch's activations became leaky: with ReLUs "
              "and no biases every hidden unit of that branch switched off for good within a few hundred steps "
-             "(docs/garments.md), which bounded what any of those variants could learn."]
-    if data.get("pbns_sim_error_mm") is not None:
-        lines[-1] += f" PBNS's sim_error_mm on the same clips: {data['pbns_sim_error_mm']:.1f}."
-    if data.get("pbns_hem_error_mm") is not None:
-        lines[-1] += (" hem_error_mm: the hem's swing against the simulation's (garment-ncs.md), PBNS's "
-                      f"{data['pbns_hem_error_mm']:.1f}.")
+             "(docs/garments.md), which bounded what any of those variants could learn. hem_error_mm: the hem's "
+             "swing against the simulation's (garment-ncs.md). simulation: which references a row was scored "
+             "against, with PBNS's errors on them: \"at rest, still air\" (until 2026-11-25) started the cloth at "
+             "rest around a moving body and damped its velocity in the world; \"carried, lead-in\" starts it at "
+             "the skinned outfit's velocity, damps its velocity relative to it and scores each clip after a "
+             "lead-in (recon/garment/reference.py). Variants without \"whole outfit\" whose dynamic code moves "
+             "the hanging part alone train on it alone (`NCSTrainConfig.hanging_only`); a whole-outfit row was "
+             "trained on every garment. The validation windows depend on the seed and the window length."]
     rows = [r + [None] * (len(HEADERS) - len(r)) for r in data["rows"]]
-    lines += ["", report.table(rows, HEADERS, ["", "", ".2f", ".4f", ".2f", ".2f", "", ".1f", ".1f", ".1f"])]
+    lines += ["", report.table(rows, HEADERS, ["", "", ".2f", ".4f", ".2f", ".2f", "", ".1f", ".1f", ".1f", "",
+                                               ".1f", ".1f"])]
     return "\n".join(lines)
+
+
+def merge_rows(old: list[list], new: list[list]) -> list[list]:
+    """``old`` rows with those of the same variant replaced by ``new``'s, the rest of ``new`` after."""
+    fresh = {r[0]: r for r in new}
+    return [fresh.pop(r[0], r) for r in old] + list(fresh.values())
 
 
 def main() -> None:
@@ -100,9 +125,9 @@ def main() -> None:
     base = {} if a.full else BASE
     epochs = RECIPE.epochs if a.full else max(1, round(a.steps / (BASE["samples"] // RECIPE.batch)))
     folder = paths.cache_dir() / ("ncs-variants-full" if a.full else "ncs-variants")
-    rows, pbns_err, pbns_hem = [], None, None
+    rows = []
     for name in names:
-        cfg = replace(RECIPE, outfit=a.outfit, epochs=epochs, **base, **VARIANTS[name])
+        cfg = replace(RECIPE, **{"outfit": a.outfit, "epochs": epochs, **base, **VARIANTS[name]})
         out = folder / f"{a.outfit}-{name.replace(' ', '_').replace(',', '')}.pt"
         if a.full and out.exists() and not a.retrain:
             meta = json.loads(NCS.load(out)[1]["meta_json"])
@@ -112,17 +137,17 @@ def main() -> None:
         row = [name, last["step"]] + [last[k] for k in KEYS] + [round(meta["train_seconds"])]
         if a.simulation:
             sim = against_simulation(body, a.outfit, out)
-            pbns_err, pbns_hem = (sim[evaluate_ncs.MODELS[1]][k] for k in ("sim_error_mm", "hem_error_mm"))
             row += [sim[evaluate_ncs.MODELS[2]]["sim_error_mm"], sim[evaluate_ncs.STATIC_PART]["sim_error_mm"],
-                    sim[evaluate_ncs.MODELS[2]]["hem_error_mm"]]
+                    sim[evaluate_ncs.MODELS[2]]["hem_error_mm"], SIMULATION,
+                    sim[evaluate_ncs.MODELS[1]]["sim_error_mm"], sim[evaluate_ncs.MODELS[1]]["hem_error_mm"]]
         rows.append(row)
         print(rows[-1], flush=True)
+    stem = report.RESULTS / ("garment-ncs-variants-full" if a.full else "garment-ncs-variants")
+    if a.only and stem.with_suffix(".json").exists():  # the other variants' rows stay
+        rows = merge_rows(json.loads(stem.with_suffix(".json").read_text())["rows"], rows)
     data = {"outfit": a.outfit, "steps": a.steps, "full": a.full, "base": base or {"samples": RECIPE.samples,
-            "val_samples": RECIPE.val_samples}, "rows": rows, "pbns_sim_error_mm": pbns_err,
-            "pbns_hem_error_mm": pbns_hem,
-            "machine": report.machine()}
-    stem = "garment-ncs-variants-full" if a.full else "garment-ncs-variants"
-    print(report.write(report.RESULTS / stem, data, render(data)).read_text())
+            "val_samples": RECIPE.val_samples}, "rows": rows, "machine": report.machine()}
+    print(report.write(stem, data, render(data)).read_text())
 
 
 if __name__ == "__main__":

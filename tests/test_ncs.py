@@ -1,5 +1,6 @@
 """Neural Cloth Simulation (thesis ch. 6): descriptors, the bias-free dynamic branch, inertia."""
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -11,11 +12,21 @@ from gltf_check import assert_valid, pose_meshes
 from recon.body import skeleton
 from recon.body.lbs import forward_kinematics
 from recon.garment import losses as L
-from recon.garment import ncs
+from recon.garment import ncs, store
+from recon.garment.data import trained_outfit
 from recon.garment.dress import Dresser
 from recon.garment.evaluate_ncs import _clip, hem_vertices
 from recon.garment.gltf import write_glb
-from recon.garment.ncs_train import MotionWindows, NCSTrainConfig, Step, distil_static, param_groups
+from recon.garment.ncs_train import (
+    MotionWindows,
+    NCSTrainConfig,
+    Step,
+    distil_static,
+    hanging_part_to_train,
+    param_groups,
+    part_outfit,
+    train,
+)
 from recon.garment.pbns import PBNS, initial_weights
 from recon.garment.templates import GarmentSpec, RestBody, make_outfit
 from recon.poses.mocap import MocapPoses
@@ -235,6 +246,14 @@ def test_frozen_static_part_keeps_pbns_and_trains_the_dynamic_branch(body, windo
     Step(modes, crit, inertia, windows)(torch.arange(4))[0].backward()
     opt.step()
     assert torch.equal(modes.D[:128], d0[:128]) and not torch.equal(modes.D[128:], d0[128:])
+    # train_dynamic_rows=False: D stays whole, the dynamic branch alone trains
+    fixed = replace(cfg, train_dynamic_rows=False)
+    modes = ncs.NCS.from_pbns(model, ncs.NCSConfig(dynamic_modes=4))
+    opt = torch.optim.Adam(param_groups(modes, fixed))
+    d0 = modes.D.detach().clone()
+    Step(modes, crit, inertia, windows)(torch.arange(4))[0].backward()
+    opt.step()
+    assert torch.equal(modes.D, d0) and modes.per_joint[0].weight.grad.abs().sum() > 0
 
 
 def test_animated_glb_holds_the_dynamic_model(body, tmp_path):
@@ -368,3 +387,64 @@ def test_motion_codes_run_the_network_at_its_own_rate(body):
     z15 = sum(model.motion_codes(body, rot[::2], shape, fps=15.0))
     assert z30.shape == (9, 128) and torch.allclose(z30[::2], z15, atol=1e-5)
     assert torch.allclose(z30[1], 0.5 * (z15[0] + z15[1]), atol=1e-5)
+
+
+def test_training_on_the_hanging_part_alone_matches_the_whole_outfit(body, windows):
+    """With the static part frozen and the dynamic code on the swing rows only, nothing outside
+    the hanging skirt can move: the part shares the encoders, its loss gradient on them points
+    where the whole outfit's does (the top's energies are constants; the cloth-cloth collisions
+    between the two are off here), and ``set_part`` writes the skirt's columns of D alone."""
+    o = make_outfit(body, [GarmentSpec("top", "top", sleeve=0.0), GarmentSpec("skirt", "skirt")])
+    pbns = PBNS(torch.from_numpy(o.vertices), torch.from_numpy(o.faces),
+                torch.from_numpy(initial_weights(RestBody(body), o)))
+    mcfg = ncs.NCSConfig(swing_modes=2, dynamic_in_static_rows=False)
+    cfg = NCSTrainConfig(freeze_static=True, model=mcfg, collision=replace(NCSTrainConfig().collision, weight=0.0))
+    model = ncs.NCS.from_pbns(pbns, mcfg, o)
+    part = hanging_part_to_train(model, o, cfg)
+    skirt = o.garment_id == [i for i, g in enumerate(o.garments) if g.pinned.any()][0]
+    assert np.array_equal(part, np.nonzero(skirt)[0])
+    assert hanging_part_to_train(model, o, replace(cfg, hanging_only=False)) is None
+    assert hanging_part_to_train(model, o, replace(cfg, freeze_static=False)) is None
+    cloth = part_outfit(o, part)
+    sub = model.part(part, cloth.faces)
+    assert sub.gru is model.gru and torch.equal(sub.rest, model.rest[part])
+
+    def grads(m, outfit):
+        crit = L.Criterion(outfit, m.rest, cfg)
+        inertia = ncs.InertiaLoss(torch.from_numpy(ncs.vertex_masses(outfit.vertices, outfit.faces)), cfg=cfg.inertia)
+        model.zero_grad()
+        Step(m, crit, inertia, windows)(torch.arange(4))[0].backward()
+        return model.dynamic[0].weight.grad.clone()
+
+    param_groups(model, replace(cfg, train_dynamic_rows=False))
+    g_part, g_all = grads(sub, cloth), grads(model, o)
+    # the energies are per mean vertex: the same direction, scaled by the vertex counts (Adam's
+    # steps do not see the scale)
+    assert torch.nn.functional.cosine_similarity(g_part.flatten(), g_all.flatten(), 0) > 0.9999
+    assert abs(g_part.norm() / g_all.norm() / (len(o.vertices) / len(part)) - 1) < 0.05
+    d0 = model.D.detach().clone()
+    with torch.no_grad():
+        sub.D[-1] += 1.0
+    model.set_part(part, sub)
+    moved = (model.D - d0).view(len(d0), -1, 3).abs().sum((0, 2)) > 0
+    assert torch.equal(moved, torch.from_numpy(skirt))
+
+
+@pytest.mark.slow
+def test_training_on_the_hanging_part_writes_a_whole_outfit_model(body, tmp_path):
+    """``train`` on the shipped tshirt-skirt with the static part frozen and the dynamic code on
+    fixed swing modes trains the skirt alone: the saved model covers the whole outfit, decodes
+    PBNS's D on every row it had, and its dynamic code moves the skirt and nothing else."""
+    cfg = NCSTrainConfig(samples=32, val_samples=8, epochs=1, distil_steps=10, freeze_static=True,
+                         train_dynamic_rows=False, model=ncs.NCSConfig(swing_modes=2, dynamic_in_static_rows=False))
+    meta = train(body, cfg, out=tmp_path / "n.pt", log=lambda *_: None, progress=False)
+    model, _ = ncs.NCS.load(tmp_path / "n.pt")
+    pbns, _ = PBNS.load(store.pbns_path("tshirt-skirt"))
+    assert meta["trained_vertices"] < meta["vertices"] == len(model.rest)
+    assert torch.equal(model.D[:len(pbns.D)], pbns.D)
+    assert meta["curve"][-1]["val_dynamic_mm"] > 0
+    s, d = ncs.descriptors(*_sequence(body))
+    zs, zd, _ = model.codes(s, d)
+    moved = model.decode(zd).abs().sum((0, 1, 3)) > 0
+    hanging, _ = ncs.hanging_part(trained_outfit(body, store.pbns_path("tshirt-skirt"))[0])
+    assert moved.any() and not moved[torch.from_numpy(~hanging)].any()

@@ -151,6 +151,24 @@ class NCS(BlendShapeGarment):
                 m.D[len(m.D) - len(basis):].copy_(torch.from_numpy(basis))
         return m
 
+    def part(self, vertices: np.ndarray, faces: np.ndarray) -> NCS:
+        """An NCS of the outfit's ``vertices`` (sorted indices) alone, meshed by ``faces`` (indices
+        into them), that shares this one's encoders and GRU (the same modules) and holds its own
+        copy of those vertices' columns of D (``set_part`` writes them back)."""
+        idx = torch.from_numpy(vertices)
+        m = NCS(self.rest[idx].cpu(), torch.from_numpy(faces), self.weights.detach()[idx].cpu(), self.cfg)
+        m = m.to(self.D.device)
+        with torch.no_grad():
+            m.D.copy_(self.D.view(len(self.D), -1, 3)[:, idx].reshape(len(self.D), -1))
+            m.weight_logits.copy_(self.weight_logits[idx])
+        m.static, m.per_joint, m.dynamic, m.gru = self.static, self.per_joint, self.dynamic, self.gru
+        return m
+
+    @torch.no_grad()
+    def set_part(self, vertices: np.ndarray, part: NCS) -> None:
+        """Writes ``part``'s columns of D (see ``part``) back into this model's."""
+        self.D.view(len(self.D), -1, 3)[:, torch.from_numpy(vertices)] = part.D.view(len(part.D), -1, 3)
+
     def codes(self, static: torch.Tensor, dynamic: torch.Tensor, h: torch.Tensor | None = None):
         """(B, T, K, 9), (B, T, K, 12) -> static code, dynamic code (B, T, E) and the GRU state."""
         b, t = static.shape[:2]

@@ -17,13 +17,19 @@ drape stops when the particles moved less than ``settle_mm`` in the last frame (
 over particles: a few light particles at sliver triangles keep jittering by millimetres) or
 after ``frames`` frames.
 
-Dynamic (``simulate``, for NCS): the drape of the first frame, then velocities are kept (times
-``keep_velocity`` a frame) while the body mesh and the pinned vertices move linearly from frame to
-frame, 20 substeps a frame. A skirt hanging from its pinned waist holds this way (strain < 1 % on
-the test clips, measured), which the free fall above does not contradict: the pins carry it.
+Dynamic (``simulate``, for NCS): the drape of the first frame, then velocities are kept while the
+body mesh and the pinned vertices move linearly from frame to frame, 20 substeps a frame. Given
+where the body carries the cloth (the skinned outfit), the cloth starts at that velocity (a clip
+cut from a run does not start with the cloth at rest around a running body) and ``keep_velocity``
+damps its velocity relative to it, a frame at a time (the fabric's damping of its swing; the air
+moves with the body). Damped relative to the world instead, the same 5 % a frame is a wind of still
+air, 5 m/s^2 on a runner's skirt at 3.5 m/s, which blows it back by tens of cm. A skirt hanging
+from its pinned waist holds this way (strain < 1 % on the test clips, measured), which the free
+fall above does not contradict: the pins carry it.
 
 Body sign: a posed body self-intersects (armpits, groin), which breaks ray-parity inside tests;
 the collider uses the pseudo-normal sign instead.
+
 """
 from __future__ import annotations
 
@@ -147,16 +153,22 @@ class DynamicConfig(DrapeConfig):
 
 
 def simulate(body_frames: np.ndarray, body_faces: np.ndarray, rest: np.ndarray, start: np.ndarray, faces: np.ndarray,
-             pinned: np.ndarray, pinned_frames: np.ndarray, cfg: DynamicConfig | None = None, log=None) -> dict:
+             pinned: np.ndarray, pinned_frames: np.ndarray, cfg: DynamicConfig | None = None,
+             carried: np.ndarray | None = None, log=None) -> dict:
     """Dynamic cloth on a moving body: ``body_frames`` (T, V, 3) at ``cfg.fps``, the cloth
     settled quasi-statically on frame 0 (from ``start``), then stepped with its velocities through
     the motion; the body collider and the pinned vertices (``pinned_frames`` (T, P, 3)) move
-    linearly between frames. Returns {"vertices": (T, N, 3), "drape": settling record, "seconds"}."""
+    linearly between frames. ``carried`` (T, N, 3): where the body carries the cloth (the skinned
+    outfit); the cloth starts at its velocity and ``cfg.keep_velocity`` damps the velocity relative
+    to it (None: the cloth starts at rest and is damped relative to the world, a drag of still air).
+    Returns {"vertices": (T, N, 3), "drape": settling record, "seconds"}."""
     cfg = cfg or DynamicConfig()
     t0 = time.time()
     model, collider, pipeline, contacts, solver = _system(body_frames[0], body_faces, rest, start, faces, pinned, cfg)
     s0, s1, control = model.state(), model.state(), model.control()
     s0, info = _settle(s0, s1, control, pipeline, contacts, solver, cfg)
+    if carried is not None:
+        s0.particle_qd.assign(((carried[1] - carried[0]) * cfg.fps).astype(np.float32))
     s1.particle_q.assign(s0.particle_q)
     pins = np.nonzero(pinned)[0]
     dt = 1.0 / cfg.fps / cfg.substeps
@@ -166,6 +178,7 @@ def simulate(body_frames: np.ndarray, body_faces: np.ndarray, rest: np.ndarray, 
     for t in range(1, len(body_frames)):
         body_v = (body_frames[t] - body_frames[t - 1]) * cfg.fps
         pin_v = (pinned_frames[t] - pinned_frames[t - 1]) * cfg.fps
+        carry_v = 0.0 if carried is None else (carried[t] - carried[t - 1]) * cfg.fps
         mesh.velocities.assign(body_v.astype(np.float32))
         for k in range(cfg.substeps):
             a = (k + 1) / cfg.substeps
@@ -182,7 +195,7 @@ def simulate(body_frames: np.ndarray, body_faces: np.ndarray, rest: np.ndarray, 
             solver.step(s0, s1, control, contacts, dt)
             s0, s1 = s1, s0
             if decay < 1.0:
-                s0.particle_qd.assign(s0.particle_qd.numpy() * decay)
+                s0.particle_qd.assign((carry_v + (s0.particle_qd.numpy() - carry_v) * decay).astype(np.float32))
         out.append(s0.particle_q.numpy().copy())
         if log:
             log(f"frame {t}: {time.time() - t0:.0f} s")
