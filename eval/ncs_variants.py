@@ -61,6 +61,8 @@ VARIANTS = {
         "freeze_static": True, "train_dynamic_rows": False, "model": _SWING_ONLY, "seed": 1},
     "static part frozen; 16 fixed swing modes; the dynamic code on them only; 2 s windows": {
         "freeze_static": True, "train_dynamic_rows": False, "model": _SWING_ONLY, "window": 2.0},
+    "static part frozen; 16 fixed swing modes; the dynamic code on them only; dynamic lr 0.01": {
+        "freeze_static": True, "train_dynamic_rows": False, "model": _SWING_ONLY, "lr_dynamic": 0.01},
 }
 KEYS = ("val_dynamic_mm", "val_inertia", "val_collision_pct", "val_edge_mm")
 HEADERS = ["variant", "steps", "dynamic mm", "inertia", "collision %", "edge mm", "train s", "sim_error_mm",
