@@ -298,8 +298,10 @@ def cmd_garment_train(a) -> None:
     for o in _outfits(a.outfit):
         epochs = {"epochs": a.epochs} if a.epochs else {}
         if a.model == "ncs":
-            cfg = ncs_train.NCSTrainConfig(outfit=o, device=a.device, **epochs)
-            meta = ncs_train.train(default_body(), cfg)
+            if a.epochs:
+                raise ReconError("--epochs is PBNS's: NCS takes --chunks and --steps")
+            more = {k: v for k, v in (("chunks", a.chunks), ("steps", a.steps), ("workers", a.workers)) if v}
+            meta = ncs_train.train(default_body(), ncs_train.NCSTrainConfig(outfit=o, **more))
             weights = store.ncs_path(o)
         else:
             cfg = garment_train.GarmentTrainConfig(outfit=o, poses=a.poses, **epochs)
@@ -325,7 +327,7 @@ def cmd_garment_eval(a) -> None:
         if weights and len(weights) != len(outfits):
             raise ReconError("--ncs-weights takes one file per outfit")
         print(Path(garment_eval_ncs.evaluate_and_report(body, outfits, Path(a.out), dynamic=not a.no_simulation,
-                                                         ncs_weights=weights, log=print)).read_text())
+                                                         ncs_weights=weights, log=print, val=a.val)).read_text())
         return
     print(Path(garment_eval.evaluate_and_report(body, outfits, a.n, Path(a.out))).read_text())
     for o in outfits:  # the resizing table, for outfits with a trained resizer
@@ -553,10 +555,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--outfit", nargs="+", default=["tshirt-trousers"], help=help_outfit)
     p.add_argument("--model", choices=("pbns", "ncs"), default="pbns", help=help_model)
     p.add_argument("--epochs", type=int, default=None,
-                   help=f"default: PBNS {default(garment_train.GarmentTrainConfig, 'epochs')}, "
-                        f"NCS {default(ncs_train.NCSTrainConfig, 'epochs')}")
+                   help=f"PBNS: default {default(garment_train.GarmentTrainConfig, 'epochs')}")
     p.add_argument("--poses", type=int, default=default(garment_train.GarmentTrainConfig, "poses"))
-    p.add_argument("--device", default="cpu", help="--model ncs: cpu or cuda")
+    p.add_argument("--chunks", type=int, default=None,
+                   help=f"NCS: train chunks to integrate (default {default(ncs_train.NCSTrainConfig, 'chunks')})")
+    p.add_argument("--steps", type=int, default=None,
+                   help=f"NCS: fitting steps (default {default(ncs_train.NCSTrainConfig, 'steps')})")
+    p.add_argument("--workers", type=int, default=None,
+                   help=f"NCS: processes integrating chunks (default {default(ncs_train.NCSTrainConfig, 'workers')})")
     p = action(g, "resize", cmd_garment_resize, "train the body-shape + tightness resizer of trained outfits")
     p.add_argument("--outfit", nargs="+", default=["tshirt-trousers"], help=help_outfit)
     p.add_argument("--epochs", type=int, default=default(ResizeConfig, "epochs"))
@@ -568,6 +574,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="--model ncs: skip the newton simulations (minutes a clip; cached once run)")
     p.add_argument("--ncs-weights", nargs="+", default=None,
                    help="--model ncs: NCS files to evaluate instead of the shipped ones (one per outfit)")
+    p.add_argument("--val", action="store_true",
+                   help="--model ncs: against the val performers' simulations (what the recipe is tuned on)")
     p.add_argument("--n", type=int, default=default(garment_eval.evaluate_and_report, "n_poses"),
                    help="held-out test poses")
     p.add_argument("--out", default=RESULTS)

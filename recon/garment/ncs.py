@@ -8,13 +8,13 @@ Body motion descriptors (6.3.2), per joint, hands and feet dropped:
 Model (6.3.3): a static encoder (4 FC layers on the current pose) and a dynamic encoder without
 any bias (2 per-joint FC layers, 2 FC layers, one GRU), so that no motion gives a zero dynamic
 code and the GRU state fades when motion stops; the codes are added and decoded in PBNS's
-blend-shape form (z . D, so the .glb export stays morph targets), then skinned. D may have
-rows that only the dynamic code reaches: free ones (``dynamic_modes``) and the hanging part's
-lowest membrane modes (``swing_modes``, ``swing_basis``), since PBNS's static rows hold little of
-the cloth's response to inertia (eval/results/ncs-basis-tshirt-skirt.md).
-Training (6.3.4, recon.garment.ncs_train) adds ``InertiaLoss`` (eq. 6.9) to the PBNS energies,
-with the previous states as constants. Frames: the body frame, +Y up (gravity along -Y), metres;
-the network steps at the frame rate it was trained at (``NCSConfig.fps``).
+blend-shape form (z . D, so the .glb export stays morph targets), then skinned. D holds PBNS's
+rows, which the static code reaches, and ``NCSConfig.dynamic`` rows that both codes reach: the
+principal fields of the cloth's motion found by training (recon.garment.ncs_train).
+Training (6.3.4) minimises the PBNS energies plus ``InertiaLoss`` (eq. 6.9), the previous states
+constants (recon.garment.integrate, recon.garment.ncs_train). Frames: the body frame, +Y up
+(gravity along -Y), metres; the network steps at the frame rate it was trained at
+(``NCSConfig.fps``).
 """
 from __future__ import annotations
 
@@ -23,13 +23,10 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from scipy.sparse import diags
-from scipy.sparse.linalg import eigsh
 from torch import nn
 
 from recon import paths
 from recon.body import skeleton
-from recon.garment.mesh import cotan_laplacian
 from recon.garment.pbns import BlendShapeGarment, remove_yaw
 from recon.poses.mocap import resample
 
@@ -38,8 +35,6 @@ KEPT = tuple(i for i, n in enumerate(skeleton.JOINT_NAMES) if n not in DROPPED)
 GRAVITY = (0.0, -1.0, 0.0)  # unit direction in the body frame
 FPS = 30.0
 SHOULDER_BAND = 0.04  # m: what holds an outfit without pins (a dress) when it swings
-SWING_AXES = (0, 2)  # horizontal: a hanging cloth's swing is, to first order (a pendulum's)
-SWING_AMPLITUDE = 0.01  # m: a swing row of D moves its field's largest vertex this far per unit of code
 LEAK = 0.1  # negative slope of the dynamic branch's activations
 SMOOTH = 2.0 / FPS  # seconds: Gaussian sigma of the trajectories the dynamic descriptors differentiate
 
@@ -97,86 +92,52 @@ def descriptors(rotmats: torch.Tensor, global_rotmats: torch.Tensor, joints: tor
 
 @dataclass
 class NCSConfig:
-    hidden: int = 256  # static encoder and the dynamic encoder's FC layers
+    hidden: int = 256  # the static encoder's and the dynamic encoder's FC layers
     joint_features: int = 32  # the dynamic encoder's per-joint layers
-    embedding: int = 128  # |z|, rows of D (as PBNS)
-    # extra rows of D that only the dynamic code reaches (PBNS's rows are its static modes; a
-    # swing may need others): D has embedding + dynamic_modes rows
-    dynamic_modes: int = 0
-    # k: 2k more rows of D that only the dynamic code reaches, initialised to the k lowest-frequency
-    # fields of the hanging part (``swing_basis``) along x and z: PBNS's static modes span only
-    # mm of the response to inertia that free vertices give (cm at a skirt's hem)
-    swing_modes: int = 0
-    # False: the dynamic code reaches only the rows after PBNS's (dynamic and swing modes); PBNS's
-    # rows carry vertical modes the dynamic branch otherwise uses to bounce the cloth on its stretch
-    dynamic_in_static_rows: bool = True
+    embedding: int = 128  # rows of D that the static code alone reaches: PBNS's
+    # rows of D after PBNS's that both codes reach, the GRU's width: the principal fields of the
+    # cloth's motion about PBNS (its own drape's correction and the swing), set by training
+    dynamic: int = 32
     fps: float = FPS  # the frame rate it was trained at: its recurrent steps are frames at this rate
 
 
 class NCS(BlendShapeGarment):
     """``NCS(rest, faces, weights)``; ``codes(static, dynamic, h) -> (z_static, z_dynamic, h)``
-    per sequence (B, T, ...), ``forward(static, dynamic, transforms) -> (posed, dT)`` to train,
-    ``animate(...)`` for inference. Skinning, D and the blend weights are PBNS's."""
+    per sequence (B, T, ...), ``forward(static, dynamic, transforms) -> (posed, dT)``,
+    ``animate(...)`` for inference. Skinning, D's first rows and the blend weights are PBNS's."""
 
     def __init__(self, rest: torch.Tensor, faces: torch.Tensor, weights: torch.Tensor, cfg: NCSConfig | None = None):
         cfg = cfg or NCSConfig()
-        super().__init__(rest, faces, weights, cfg.embedding + cfg.dynamic_modes + len(SWING_AXES) * cfg.swing_modes)
+        super().__init__(rest, faces, weights, cfg.embedding + cfg.dynamic)
         self.cfg = cfg
         k, e, h = len(KEPT), len(self.D), cfg.hidden
         self.static = nn.Sequential(nn.Linear(9 * k, h), nn.ReLU(), nn.Linear(h, h), nn.ReLU(), nn.Linear(h, h),
-                                    nn.ReLU(), nn.Linear(h, cfg.embedding))
+                                    nn.ReLU(), nn.Linear(h, e))
         f = cfg.joint_features
         # no bias anywhere in the dynamic branch: zero motion -> zero code (6.3.3). Leaky: without
         # biases a ReLU unit fed by ReLU outputs (all >= 0) dies for good once its weights turn
         # negative; with ReLUs the whole branch died within a few hundred steps (every hidden unit off)
         act = nn.LeakyReLU(LEAK)
         self.per_joint = nn.Sequential(nn.Linear(12, f, bias=False), act, nn.Linear(f, f, bias=False), act)
-        self.dynamic = nn.Sequential(nn.Linear(k * f, h, bias=False), act, nn.Linear(h, e, bias=False))
-        self.gru = nn.GRU(e, e, bias=False, batch_first=True)
+        self.dynamic = nn.Sequential(nn.Linear(k * f, h, bias=False), act, nn.Linear(h, cfg.dynamic, bias=False))
+        self.gru = nn.GRU(cfg.dynamic, cfg.dynamic, bias=False, batch_first=True)
 
     @classmethod
-    def from_pbns(cls, pbns: BlendShapeGarment, cfg: NCSConfig | None = None, outfit=None) -> NCS:
-        """An NCS with a trained PBNS's template, blend weights and D (a warm start: the static
-        encoder still has to learn PBNS's codes). ``outfit`` (its pins and garments) is needed
-        for ``cfg.swing_modes``."""
+    def from_pbns(cls, pbns: BlendShapeGarment, cfg: NCSConfig | None = None) -> NCS:
+        """An NCS with a trained PBNS's template, blend weights and D (its dynamic rows zero)."""
         m = cls(pbns.rest, pbns.faces, pbns.weights.detach(), cfg or NCSConfig(embedding=pbns.D.shape[0]))
         with torch.no_grad():
             m.D[:len(pbns.D)].copy_(pbns.D)
             m.weight_logits.copy_(pbns.weight_logits)
-            if m.cfg.swing_modes:
-                if outfit is None:
-                    raise ValueError("swing_modes need the outfit: NCS.from_pbns(pbns, cfg, outfit)")
-                masses = vertex_masses(outfit.vertices, outfit.faces)
-                basis = swing_basis(outfit.vertices, outfit.faces, masses, *hanging_part(outfit), m.cfg.swing_modes)
-                m.D[len(m.D) - len(basis):].copy_(torch.from_numpy(basis))
         return m
-
-    def part(self, vertices: np.ndarray, faces: np.ndarray) -> NCS:
-        """An NCS of the outfit's ``vertices`` (sorted indices) alone, meshed by ``faces`` (indices
-        into them), that shares this one's encoders and GRU (the same modules) and holds its own
-        copy of those vertices' columns of D (``set_part`` writes them back)."""
-        idx = torch.from_numpy(vertices)
-        m = NCS(self.rest[idx].cpu(), torch.from_numpy(faces), self.weights.detach()[idx].cpu(), self.cfg)
-        m = m.to(self.D.device)
-        with torch.no_grad():
-            m.D.copy_(self.D.view(len(self.D), -1, 3)[:, idx].reshape(len(self.D), -1))
-            m.weight_logits.copy_(self.weight_logits[idx])
-        m.static, m.per_joint, m.dynamic, m.gru = self.static, self.per_joint, self.dynamic, self.gru
-        return m
-
-    @torch.no_grad()
-    def set_part(self, vertices: np.ndarray, part: NCS) -> None:
-        """Writes ``part``'s columns of D (see ``part``) back into this model's."""
-        self.D.view(len(self.D), -1, 3)[:, torch.from_numpy(vertices)] = part.D.view(len(part.D), -1, 3)
 
     def codes(self, static: torch.Tensor, dynamic: torch.Tensor, h: torch.Tensor | None = None):
-        """(B, T, K, 9), (B, T, K, 12) -> static code, dynamic code (B, T, E) and the GRU state."""
+        """(B, T, K, 9), (B, T, K, 12) -> static code, dynamic code (B, T, E) and the GRU state.
+        The dynamic code is zero on PBNS's rows."""
         b, t = static.shape[:2]
-        zs = nn.functional.pad(self.static(static.reshape(b, t, -1)), (0, len(self.D) - self.cfg.embedding))
+        zs = self.static(static.reshape(b, t, -1))
         zd, h = self.gru(self.dynamic(self.per_joint(dynamic).reshape(b, t, -1)), h)
-        if not self.cfg.dynamic_in_static_rows:
-            zd = nn.functional.pad(zd[..., self.cfg.embedding:], (self.cfg.embedding, 0))
-        return zs, zd, h
+        return zs, nn.functional.pad(zd, (self.cfg.embedding, 0)), h
 
     def deformation(self, static, dynamic, h=None, motion: float = 1.0):
         """Rest-pose displacements (B, T, N, 3) and the GRU state. ``motion`` scales the dynamic
@@ -262,29 +223,6 @@ def hanging_part(outfit) -> tuple[np.ndarray, np.ndarray]:
     return np.ones(len(y), bool), top
 
 
-def swing_basis(vertices: np.ndarray, faces: np.ndarray, masses: np.ndarray, hanging: np.ndarray,
-                held: np.ndarray, k: int) -> np.ndarray:
-    """(2k, N * 3) rows of D: the k lowest vibration modes of the hanging part's membrane (the
-    cotangent Laplacian against the lumped masses, zero at the held vertices: the first rises
-    from the waist to the hem, as a pendulum's swing), each along ``SWING_AXES``, its largest vertex
-    moved ``SWING_AMPLITUDE``; zero elsewhere. Modal bases are the classic reduced space of
-    deformable dynamics (Pentland & Williams 1989)."""
-    ids = -np.ones(len(vertices), np.int64)
-    ids[hanging] = np.arange(hanging.sum())
-    lap = cotan_laplacian(vertices[hanging], ids[faces[hanging[faces].all(1)]])
-    free = ~held[hanging]
-    m = masses[hanging][free]
-    # shift-invert about a small negative value: the smallest eigenvalues of a positive definite pencil
-    _, phi = eigsh(lap[free][:, free].tocsc(), k=k, M=diags(m / m.mean()).tocsc(), sigma=-1e-6, which="LM",
-                   v0=np.ones(len(m)))
-    phi *= np.where(phi.sum(0) < 0, -1.0, 1.0)  # a sign per mode, for reproducible rows
-    fields = np.zeros((k, len(vertices)))
-    fields[:, np.nonzero(hanging)[0][free]] = phi.T
-    fields *= SWING_AMPLITUDE / np.abs(fields).max(1, keepdims=True)
-    rows = fields[:, None, :, None] * np.eye(3)[None, list(SWING_AXES), None, :]  # (k, axes, N, 3)
-    return rows.reshape(len(SWING_AXES) * k, -1).astype(np.float32)
-
-
 def vertex_masses(vertices: np.ndarray, faces: np.ndarray, density: float = 0.15) -> np.ndarray:
     """Lumped masses (N,) in kg: a third of each adjacent face's area times ``density`` (kg/m^2;
     0.15: a light cotton)."""
@@ -300,13 +238,20 @@ class InertiaConfig:
     # in the units of the PBNS energies, whose gravity term is GravityConfig.weight x mean height:
     # gravity weight / g (5 / 9.81) puts inertia and gravity in their physical ratio
     weight: float = 5.0 / 9.81
+    # share of the cloth's velocity relative to where the body carries it (the skinned outfit) that
+    # it keeps from one frame to the next: the fabric's and the air's damping, the air moving with
+    # the body. 0.95 is the reference simulation's (reference.DynamicConfig); 1 is the thesis' eq.
+    # 6.8, whose only damping is the implicit step's
+    keep_velocity: float = 0.95
 
 
 class InertiaLoss(nn.Module):
-    """Eq. 6.9 as a mean over particles: weight x m / (2 dt^2) |x_t - (2 x_{t-1} - x_{t-2})|^2,
-    the masses scaled to a mean of 1 (the PBNS energies are per mean vertex). The previous states
-    are constants: gradients must not travel back in time (the thesis' point against SNUG), so
-    they are detached here whatever the caller passes."""
+    """Eq. 6.9 as a mean over particles: weight x m / (2 dt^2) |x_t - x_proj|^2 with the projection
+    x_proj = x_{t-1} + v, v = c + keep (x_{t-1} - x_{t-2} - c): the previous velocity, its part
+    relative to the body's carrying motion c damped (``InertiaConfig.keep_velocity``); c = 0 when
+    not given (the world frame). The masses are scaled to a mean of 1 (the PBNS energies are per
+    mean vertex). The previous states are constants: gradients must not travel back in time (the
+    thesis' point against SNUG), so they are detached here whatever the caller passes."""
 
     def __init__(self, masses: torch.Tensor, fps: float = FPS, cfg: InertiaConfig | None = None):
         super().__init__()
@@ -315,7 +260,17 @@ class InertiaLoss(nn.Module):
         m = torch.as_tensor(masses, dtype=torch.float32 if not torch.is_tensor(masses) else masses.dtype)
         self.register_buffer("m", m / m.mean())
 
-    def forward(self, x: torch.Tensor, x_prev: torch.Tensor, x_prev2: torch.Tensor) -> torch.Tensor:
-        proj = 2 * x_prev.detach() - x_prev2.detach()
-        d2 = ((x - proj) ** 2).sum(-1)
+    def projection(self, x_prev: torch.Tensor, x_prev2: torch.Tensor,
+                   carry: torch.Tensor | None = None) -> torch.Tensor:
+        """x_proj from the two previous states and the carrying motion over this frame (detached)."""
+        x_prev, v = x_prev.detach(), (x_prev - x_prev2).detach()
+        c = torch.zeros_like(v) if carry is None else carry.detach()
+        return x_prev + c + self.cfg.keep_velocity * (v - c)
+
+    def to_projection(self, x: torch.Tensor, proj: torch.Tensor) -> torch.Tensor:
+        d2 = ((x - proj.detach()) ** 2).sum(-1)
         return self.cfg.weight * 0.5 * self.fps ** 2 * (self.m.to(x) * d2).mean(-1)
+
+    def forward(self, x: torch.Tensor, x_prev: torch.Tensor, x_prev2: torch.Tensor,
+                carry: torch.Tensor | None = None) -> torch.Tensor:
+        return self.to_projection(x, self.projection(x_prev, x_prev2, carry))

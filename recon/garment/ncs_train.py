@@ -1,34 +1,56 @@
-"""Unsupervised training of NCS outfits (``recon garment ncs``, thesis 6.3.4): the PBNS energies
-(recon.garment.losses, the same fabric as the outfit's PBNS) plus the inertia term of eq. 6.9,
-on windows of body motion cut from the retargeted mocap at 30 fps.
+"""Training of NCS outfits (``recon garment train --model ncs``, thesis 6.3.4): the PBNS energies
+(recon.garment.losses, the fabric of the outfit's PBNS) plus the inertia term of eq. 6.9 with the
+previous states constants, on motion cut from the retargeted mocap's train split at 30 fps. No
+simulator and no cloth data: only the body's motion and the energies.
 
-A sample is a window of ``window`` seconds ending at a frame t of a train clip. The network runs
-over the window from a zero recurrent state and predicts the last three frames; the inertia term
-compares x_t with 2 x_{t-1} - x_{t-2}, both detached (no gradient back in time), and the static
-energies apply to x_t only (the thesis: applying them to all three biases the sampling).
-Motion augmentation (6.4.6): in a fifth of each batch the dynamic code is swapped with another
-sample's and only the static energies apply, with no gradient to the encoders.
+The thesis trains the network on that loss directly, the previous states being the network's own
+earlier predictions, so the swing grows by about one frame's worth each time the network has
+converged on the last one: one hour to a day on a GPU. On a CPU budget of 30 minutes that loop
+learnt ~1 mm of motion against the simulation's 16-27 cm (docs/garments.md). Here the same loss is
+minimised frame after frame by a solver instead (recon.garment.integrate), which gives the loss's
+fixed point, the cloth trajectory the thesis' training converges to, and the network learns it:
 
-Warm start: the outfit's trained PBNS gives the template, the blend weights and D, and the static
-encoder is first distilled from PBNS's codes on the train frames, so training starts from PBNS's
-quasi-static solution and spends its budget on the dynamics. Validation: windows of the val
-split's clips (other performers). An interrupted run resumes from ``.<weights>.run/``.
+1. chunks: ``chunk`` frames of the train split's clips (smoothed by ``smooth_motion``); the cloth
+   settles ``settle`` frames on each chunk's first pose, then is integrated through the chunk in
+   ``workers`` processes (resumable: each chunk is kept in ``.<weights>.run/``);
+2. fields: the principal components of the cloth's rest-pose displacement from PBNS over every
+   frame (mass-weighted), ``NCSConfig.dynamic`` of them, become the rows of D after PBNS's: PBNS
+   is not the energies' equilibrium (settled on a still body, a skirt's cloth moves 4-7 cm from
+   PBNS's drape), so the displacement holds a static correction as well as the swing;
+3. networks: the static encoder is distilled from PBNS's codes on PBNS's rows and, with the bias-free
+   dynamic branch, fitted to the chunks' coefficients on the new rows (frames after ``lead``, the
+   swing building up), the two codes adding as the thesis' model adds them. The chunks and their
+   left-right mirror images train; chunks of the val performers select the checkpoint.
+
+Motion augmentation (6.4.6) trains the thesis' decoder on swapped dynamic codes under the static
+energies; here the decoder's rows are fixed fields, so it has nothing to train and is not used.
+Motion control (scaling the dynamic code at inference) is the model's (``NCS.deformation``).
 """
 from __future__ import annotations
 
+import hashlib
 import json
+import multiprocessing as mp
 import shutil
 import time
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import roma
 import torch
+from scipy.spatial import cKDTree
 
+from recon import paths
+from recon.body import default_body, skeleton
+from recon.body.lbs import mirror_rotmats
 from recon.garment import losses as L
 from recon.garment import store
 from recon.garment.data import posed_bodies, trained_outfit
+from recon.garment.integrate import IntegrateConfig, Preconditioner, integrate, settle, unpose
+from recon.garment.mesh import nearest
 from recon.garment.metrics import collision_pct
 from recon.garment.ncs import (
     FPS,
@@ -39,13 +61,14 @@ from recon.garment.ncs import (
     descriptors,
     hanging_part,
     smooth_time,
+    static_descriptors,
     vertex_masses,
 )
 from recon.garment.pbns import PBNS, pose_features
 from recon.garment.templates import Outfit
-from recon.garment.train import GarmentTrainConfig, candidates, edge_scale, run_dir_for
+from recon.garment.train import GarmentTrainConfig, run_dir_for
 from recon.poses.mocap import MocapPoses
-from recon.training import Trainer, epoch_batches
+from recon.training import Trainer
 
 _FABRIC = GarmentTrainConfig()  # NCS trains on the fabric its PBNS was trained with
 DYNAMIC_BRANCH = ("per_joint", "dynamic", "gru")  # NCS's modules that read the motion
@@ -54,51 +77,33 @@ DYNAMIC_BRANCH = ("per_joint", "dynamic", "gru")  # NCS's modules that read the 
 @dataclass
 class NCSTrainConfig:
     outfit: str = "tshirt-skirt"
-    window: float = 1.0  # seconds of motion per sample (thesis: 0.5 s tight to 2 s loose garments)
-    samples: int = 4800  # windows of the train split
-    val_samples: int = 240  # windows of the val split
-    epochs: int = 8
-    batch: int = 16
-    lr: float = 1e-3  # the static encoder and the blend weights
-    lr_dynamic: float = 3e-3  # the dynamic encoder and the GRU (they start from scratch)
-    lr_psd: float = 3e-4  # D, PBNS's rate
-    # stiffness continuation (as PBNS's): edges start at this fraction of their weight, rising to
-    # full by mid-training; soft edges let the slow swinging modes of the cloth develop
-    edge_warmup: float = 1.0
+    chunk: int = 120  # frames of motion per integrated trajectory (4 s at 30 fps)
+    settle: int = 20  # frames on a chunk's first pose held still, before it
+    lead: int = 20  # a chunk's first frames, not learnt from: its swing builds up from rest
+    chunks: int = 40  # train chunks (x2 with their mirror images)
+    # the share of train chunks whose body stops dead (its pose held) halfway: the train split
+    # (dance, climbing, walks) has few stops, and a stop is where the cloth swings on most
+    stops: float = 0.3
+    val_chunks: int = 4  # chunks of the val performers (as many stopping), to select the checkpoint
+    workers: int = 2  # processes integrating chunks
+    integrate: IntegrateConfig = field(default_factory=lambda: IntegrateConfig(iterations=20))
+    mirror: bool = True  # the chunks' left-right mirror images train too (pose mirroring, 6.4.4)
+    smooth_motion: float = 1.5  # Gaussian sigma (frames) of the motions: mocap jitter is no motion
+    steps: int = 3000
+    batch: int = 16  # chunks per step
+    lr: float = 3e-3
+    weight_decay: float = 0.01
+    distil_steps: int = 1500  # the static encoder <- PBNS's codes, before fitting
+    distil_frames: int = 256  # frames of PBNS codes per fitting step, which keep PBNS's rows
+    # then the thesis' loss on the predictions (``Physics``: the energies, the inertia against the
+    # solved past) joins the fitting: the principal fields, a linear space, stretch and push into
+    # the body what the solver's cloth does not (edge error 0.3 mm solved, 0.9 mm in 48 fields)
+    physics_steps: int = 300
+    physics_chunks: int = 4  # chunks per step
+    physics_frames: int = 8  # frames per chunk
+    physics_lr: float = 1e-3
     seed: int = 0
-    candidates: int = 8
-    motion_augmentation: float = 0.2  # fraction of each batch (thesis 6.4.6: 20 %)
-    distil_steps: int = 1500  # static encoder <- PBNS codes, before training
-    dynamic_init: float = 1.0  # scale of the dynamic encoder's last layer at the start (< 1: nearer PBNS)
-    # the static encoder (distilled from PBNS), PBNS's rows of D and the blend weights stay as they
-    # start: NCS at motion control 0 is PBNS; the dynamic branch (and D's dynamic-only rows) train
-    freeze_static: bool = False
-    # with ``freeze_static``: D's dynamic-only rows train too (False: they stay as initialised; the
-    # swing modes along x and z stay horizontal, where training turns a third of them vertical)
-    train_dynamic_rows: bool = True
-    # when only the hanging part should move (the static part frozen, the dynamic code on the swing
-    # rows only, no dynamic_modes), train on the hanging garments alone (2.7x faster steps on
-    # tshirt-skirt): the energies of the rest are constants, except that trained swing rows would
-    # grow columns on the rest (a skirt's swing moving the t-shirt) to relax its static residual
-    # forces; here they stay zero there, as the modes start. Cloth-cloth collisions between the
-    # two are left out
-    hanging_only: bool = True
-    # the dynamic part u = x - x_static is trained on E(x_s + u) - E(x_s) - F_s . u (+ inertia),
-    # F_s = dE/dx at the static prediction x_s: the static model's residual force (on PBNS's cloth
-    # ~100x the inertial force, eval/results/ncs-forces-tshirt-skirt.md) is left to the static
-    # branch, the dynamic one sees the stiffness about x_s and the inertia
-    remove_static_force: bool = False
-    # Gaussian sigma (frames) of the training motions: the cloth follows the body, so mocap's
-    # frame-to-frame jitter enters the inertia term as an unlearnable signal
-    smooth_motion: float = 1.5
-    # frames a second of the training motions (the pose set's 30, or 15 = every second frame): at
-    # 15 the lag builds over half as many steps of the network's own predictions (thesis 6.4.4:
-    # dynamics appear sooner); the model then runs at this rate (Dresser resamples)
-    fps: float = FPS
-    # "cuda" for a GPU (the thesis trains for hours there); the windows stay in CPU memory and
-    # each batch is moved, the nearest-neighbour search of validation runs on the CPU
-    device: str = "cpu"
-    model: NCSConfig = field(default_factory=NCSConfig)
+    model: NCSConfig = field(default_factory=lambda: NCSConfig(hidden=128, joint_features=16, dynamic=48))
     edge: L.EdgeConfig = field(default_factory=lambda: _FABRIC.edge)
     bend: L.BendConfig = field(default_factory=lambda: _FABRIC.bend)
     collision: L.CollisionConfig = field(default_factory=lambda: _FABRIC.collision)
@@ -107,100 +112,219 @@ class NCSTrainConfig:
     inertia: InertiaConfig = field(default_factory=lambda: InertiaConfig(weight=_FABRIC.gravity.weight / 9.81))
 
 
-class MotionWindows:
-    """Windows of ``frames`` frames of a mocap split, ending at ``n`` random frames: per frame the
-    NCS descriptors; per window the body transforms of its last three frames and the posed body
-    (vertices, normals) at its last frame, all moved horizontally so that the mocap's root
-    translation is above the origin at that frame (inertia only sees differences; float32 keeps
-    its precision). ``smooth``: Gaussian sigma (frames) applied to the clips' motion."""
+class Chunk(NamedTuple):
+    """``frames`` frames of clip ``clip`` of a split from its frame ``start`` (within the clip);
+    with ``stop`` > 0 the body stops dead at the chunk's frame ``stop``, its pose held after it."""
+    split: str
+    clip: int
+    start: int
+    frames: int
+    stop: int = 0
 
-    def __init__(self, body, split: str, shape: torch.Tensor, frames: int, n: int, seed: int, chunk: int = 256,
-                 smooth: float = 0.0, fps: float = FPS):
-        m = MocapPoses.load(split)
-        step = max(1, int(round(FPS / fps)))  # the pose set is at 30 fps
-        rots, trs, static, dynamic, trans = [], [], [], [], []
-        ends = []
-        start = 0
-        for c in np.unique(m.clip):  # clips are contiguous runs of frames
-            idx = np.nonzero(m.clip == c)[0]
+
+def chunks_of(split: str, frames: int, n: int, seed: int, stops: float = 0.0, lead: int = 0) -> list[Chunk]:
+    """``n`` non-overlapping chunks of a split's clips, in a random order (clips shorter than a
+    chunk give none); a share ``stops`` of them stop dead at a random frame between ``lead`` + 10
+    and 30 frames before their end."""
+    m = MocapPoses.load(split)
+    all_chunks = [Chunk(split, int(c), s, frames) for c in np.unique(m.clip)
+                  for s in range(0, int((m.clip == c).sum()) - frames + 1, frames)]
+    order = np.random.default_rng(seed).permutation(len(all_chunks))[:n]
+    lo = min(lead + 10, frames // 2)  # short chunks (tests) stop halfway
+    out = []
+    for k, i in enumerate(order):  # each chunk's own draw: the first n chunks of n + 1 are the n's
+        rng = np.random.default_rng([seed, k])
+        stop = int(rng.integers(lo, max(lo, frames - 30) + 1)) if rng.random() < stops else 0
+        out.append(all_chunks[i]._replace(stop=stop))
+    return out
+
+
+class Motions:
+    """The smoothed motion of each clip a list of chunks cuts (rotations, translation) and the
+    chunks' NCS descriptors, taken of the whole clip (the first frames of a chunk have a past)."""
+
+    def __init__(self, body, shape: torch.Tensor, smooth: float):
+        self.body, self.shape, self.smooth = body, shape.reshape(1, -1), smooth
+        self._clips: dict[tuple[str, int, bool], tuple] = {}
+
+    def clip(self, split: str, clip: int, mirror: bool = False):
+        key = (split, clip, mirror)
+        if key not in self._clips:
+            m = MocapPoses.load(split)
+            idx = np.nonzero(m.clip == clip)[0]
             rot = roma.rotvec_to_rotmat(torch.from_numpy(m.rotvec[idx]).float())
             transl = torch.from_numpy(m.transl[idx]).float()
-            if smooth > 0:
-                rot = roma.special_procrustes(smooth_time(rot[None], smooth)[0])
-                transl = smooth_time(transl[None], smooth)[0]
-            rot, transl = rot[::step], transl[::step]
-            f = len(rot)
+            if self.smooth > 0:
+                rot = roma.special_procrustes(smooth_time(rot[None], self.smooth)[0])
+                transl = smooth_time(transl[None], self.smooth)[0]
+            if mirror:
+                rot, transl = mirror_rotmats(rot, skeleton.JOINT_MIRROR), transl * torch.tensor([-1.0, 1.0, 1.0])
             with torch.no_grad():
-                outs = [body(rot[i:i + chunk], shape.expand(len(rot[i:i + chunk]), -1), transl=transl[i:i + chunk],
-                             points_only=True) for i in range(0, f, chunk)]
-                glob = torch.cat([o.global_rotmats for o in outs])
-                joints = torch.cat([o.joints for o in outs])
-                s, d = descriptors(rot[None], glob[None], joints[None], FPS / step)
-            rots.append(rot)
-            trs.append(transl)
-            static.append(s[0])
-            dynamic.append(d[0])
-            trans.append(torch.cat([o.transforms for o in outs]))
-            ends.extend(range(start + frames - 1, start + f))
-            start += f
-        rot, transl = torch.cat(rots), torch.cat(trs)
-        self.static, self.dynamic = torch.cat(static), torch.cat(dynamic)
-        self.rot, self.transl = rot, transl
-        transforms = torch.cat(trans)
-        rng = np.random.default_rng(seed)
-        self.ends = torch.from_numpy(np.sort(rng.choice(np.array(ends), min(n, len(ends)), replace=False)))
-        self.offsets = torch.arange(-frames + 1, 1)
-        e = self.ends
-        off = transl[e] * torch.tensor([1.0, 0.0, 1.0])
-        t3 = transforms[e[:, None] + torch.arange(-2, 1)].clone()  # (n, 3, 24, 3, 4)
-        t3[..., 3] -= off[:, None, None]
-        self.transforms = t3
-        self.body_v, self.body_n, _ = posed_bodies(body, rot[e], shape, transl=transl[e] - off)
+                o = self.body(rot, self.shape.expand(len(rot), -1), transl=transl, points_only=True)
+                s, d = descriptors(rot[None], o.global_rotmats[None], o.joints[None])
+            self._clips[key] = (rot, transl, s[0], d[0])
+        return self._clips[key]
 
-    def __len__(self) -> int:
-        return len(self.ends)
+    def motion(self, c: Chunk, mirror: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
+        """The chunk's rotations (T, 24, 3, 3) and translation (T, 3), its first frame's pelvis
+        above the origin."""
+        rot, transl, _, _ = self.clip(c.split, c.clip, mirror)
+        f = self._frames(c)
+        r, t = rot[f], transl[f]
+        return r, t - t[:1] * torch.tensor([1.0, 0.0, 1.0])
 
-    def window(self, i: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Descriptors (B, frames, K, 9) and (B, frames, K, 12) of windows ``i``."""
-        f = self.ends[i][:, None] + self.offsets
-        return self.static[f], self.dynamic[f]
+    def inputs(self, c: Chunk, mirror: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
+        """The chunk's static (T, K, 9) and dynamic (T, K, 12) descriptors."""
+        rot, transl, s, d = self.clip(c.split, c.clip, mirror)
+        if not c.stop:
+            return s[c.start:c.start + c.frames], d[c.start:c.start + c.frames]
+        f = torch.cat([torch.arange(c.start), self._frames(c)])  # the clip's past, then the chunk
+        with torch.no_grad():
+            o = self.body(rot[f], self.shape.expand(len(f), -1), transl=transl[f], points_only=True)
+            s, d = descriptors(rot[f][None], o.global_rotmats[None], o.joints[None])
+        return s[0, c.start:], d[0, c.start:]
+
+    @staticmethod
+    def _frames(c: Chunk) -> torch.Tensor:
+        """The clip's frame at each frame of the chunk (held after a stop)."""
+        t = torch.arange(c.frames)
+        return c.start + (t if not c.stop else t.clamp(max=c.stop))
 
 
-def distil_static(model: NCS, pbns: PBNS, data: MotionWindows, steps: int, seed: int, batch: int = 512) -> float:
-    """Fit the static encoder to PBNS's codes on every frame of ``data``: NCS starts as PBNS for
-    motionless input. Returns the mean rest-pose displacement error (mm) left on 512 frames."""
+class Teacher:
+    """The integrated cloth of one outfit's hanging part: ``Teacher(body, outfit_name, cfg)(rot,
+    transl)`` -> its rest-pose displacement from PBNS (T, n, 3) over a motion, after ``cfg.settle``
+    frames on the motion's first pose."""
+
+    def __init__(self, body, outfit_name: str, cfg: NCSTrainConfig):
+        self.body, self.cfg = body, cfg
+        self.pbns, ck = PBNS.load(store.pbns_path(outfit_name))
+        self.shape = ck["shape"][None]
+        outfit, _, _ = trained_outfit(body, store.pbns_path(outfit_name))
+        hanging, held = hanging_part(outfit)
+        self.idx = torch.from_numpy(np.nonzero(hanging)[0])
+        cloth = part_outfit(outfit, self.idx.numpy())
+        self.crit = L.Criterion(cloth, self.pbns.rest[self.idx], cfg)
+        self.inertia = InertiaLoss(torch.from_numpy(vertex_masses(cloth.vertices, cloth.faces)), FPS, cfg.inertia)
+        self.held = torch.from_numpy(held[hanging])
+        self.precond = Preconditioner(self.crit, self.inertia, self.held.numpy(), cfg.integrate.across)
+
+    @torch.no_grad()
+    def drapes(self, rot: torch.Tensor, transl: torch.Tensor):
+        """PBNS's drape and the skinned outfit of the hanging part, the posed body, the blended
+        skinning rotations and the joint transforms, per frame."""
+        bv, bn, transforms = posed_bodies(self.body, rot, self.shape, transl=transl)
+        static = self.pbns.pose(rot, transforms)[:, self.idx]
+        carried = self.pbns.skin(self.pbns.rest, transforms)[:, self.idx]
+        w = self.pbns.weights[self.idx]
+        blend = (w @ transforms.reshape(len(rot), 24, 12)).view(len(rot), -1, 3, 4)[..., :3]
+        return static, carried, bv, bn, blend, transforms
+
+    def __call__(self, rot: torch.Tensor, transl: torch.Tensor) -> torch.Tensor:
+        static, carried, bv, bn, blend, _ = self.drapes(rot, transl)
+        args = (self.crit, self.inertia, self.held)
+        x0 = settle(*args, static[0], carried[0], bv[0], bn[0], self.cfg.settle, self.cfg.integrate, self.precond)
+        x = integrate(*args, static, carried, bv, bn, self.cfg.integrate, self.precond, start=x0)
+        return unpose(blend, x - static)
+
+
+_WORKER: dict = {}
+
+
+def _worker_init(outfit_name: str, cfg: NCSTrainConfig) -> None:
+    torch.set_num_threads(1)
+    _WORKER["teacher"] = Teacher(default_body(), outfit_name, cfg)
+
+
+def _worker_run(rot: torch.Tensor, transl: torch.Tensor) -> np.ndarray:
+    return _WORKER["teacher"](rot, transl).numpy().astype(np.float16)
+
+
+def chunk_folder(pbns_path: Path, cfg: NCSTrainConfig) -> Path:
+    """Where the integrated chunks of an outfit live (``<cache>/ncs-chunks/``), one folder per
+    set of everything they depend on (the PBNS file, the fabric, the solver, the motions'
+    smoothing, the settling): another fitting of the same chunks integrates nothing again."""
+    key = json.dumps({"pbns": hashlib.sha256(Path(pbns_path).read_bytes()).hexdigest(),
+                      **{k: asdict(cfg)[k] for k in ("edge", "bend", "collision", "gravity", "pin", "inertia",
+                                                     "integrate", "smooth_motion", "settle")}}, sort_keys=True)
+    return paths.cache_dir() / "ncs-chunks" / f"{Path(pbns_path).stem}-{hashlib.sha256(key.encode()).hexdigest()[:12]}"
+
+
+def integrate_chunks(outfit_name: str, chunks: list[Chunk], motions: Motions, cfg: NCSTrainConfig, folder: Path,
+                     log=print) -> np.ndarray:
+    """The teacher displacements (C, T, n, 3) float16 of ``chunks``, each kept in ``folder`` as it
+    is done (a rerun takes them from there)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    files = [folder / f"{c.split}-{c.clip}-{c.start}-{c.frames}-{c.stop}.npy" for c in chunks]
+    todo = [i for i, f in enumerate(files) if not f.exists()]
+    t0 = time.time()
+    if todo:
+        ctx = mp.get_context("spawn")  # fresh interpreters: no forked torch state
+        with ProcessPoolExecutor(cfg.workers, mp_context=ctx, initializer=_worker_init,
+                                 initargs=(outfit_name, cfg)) as pool:
+            futures = {i: pool.submit(_worker_run, *motions.motion(chunks[i])) for i in todo}
+            for k, (i, fut) in enumerate(futures.items()):
+                du = fut.result()
+                paths.atomic_write(files[i], lambda t, du=du: _save_npy(t, du))
+                log(f"integrated {chunks[i].split} chunk {k + 1}/{len(todo)} ({time.time() - t0:.0f} s)")
+    return np.stack([np.load(f) for f in files])
+
+
+def _save_npy(path, array: np.ndarray) -> None:
+    with open(path, "wb") as f:  # a file object: np.save would append ".npy" to a temporary name
+        np.save(f, array)
+
+
+def mirror_map(vertices: np.ndarray) -> np.ndarray:
+    """For each vertex, the vertex nearest its mirror image in x (the templates are cut from a
+    symmetric body: 0.1-1 mm apart on average)."""
+    return cKDTree(vertices).query(vertices * np.array([-1.0, 1.0, 1.0]))[1]
+
+
+def principal_fields(du: torch.Tensor, masses: torch.Tensor, k: int, seed: int = 0) -> torch.Tensor:
+    """The ``k`` principal components (k, n, 3) of displacements (..., n, 3) under the mass metric
+    (``masses`` (n,)), each scaled so that its coefficients stay within +-0.5 on ``du`` (the GRU's
+    codes are bounded by 1)."""
+    w = (masses / masses.mean()).sqrt()[:, None]
+    x = (du * w).reshape(-1, du.shape[-2] * 3)
+    torch.manual_seed(seed)
+    _, _, v = torch.svd_lowrank(x, q=k + 16, niter=4)
+    fields = v.T[:k].reshape(k, -1, 3) / w
+    scale = project(du, fields, masses).reshape(-1, k).abs().amax(0) / 0.5
+    return fields * scale[:, None, None]
+
+
+def project(du: torch.Tensor, fields: torch.Tensor, masses: torch.Tensor) -> torch.Tensor:
+    """Least-squares coefficients (..., k) of displacements (..., n, 3) on ``fields`` (k, n, 3) in
+    the mass metric."""
+    m = masses / masses.mean()
+    rhs = torch.einsum("...nj,knj,n->...k", du, fields, m) / len(m)
+    return torch.linalg.solve(gram(fields.reshape(len(fields), -1), masses), rhs.unsqueeze(-1)).squeeze(-1)
+
+
+def distil_static(model: NCS, pbns: PBNS, x: torch.Tensor, rot: torch.Tensor, steps: int, seed: int,
+                  batch: int = 512) -> float:
+    """Fit the static encoder's PBNS rows to PBNS's codes on frames (flat static descriptors
+    (F, K * 9), rotations (F, 24, 3, 3)). Returns the mean rest-pose displacement error (mm) on
+    512 frames."""
     g = torch.Generator().manual_seed(seed)
-    device = model.D.device
-    x = data.static.flatten(1).to(device)
+    e = model.cfg.embedding
     with torch.no_grad():
-        target = torch.cat([pbns.mlp(pose_features(data.rot[i:i + 4096])) for i in range(0, len(x), 4096)])
-    target = target.to(device)
+        target = torch.cat([pbns.mlp(pose_features(rot[i:i + 4096])) for i in range(0, len(x), 4096)])
     opt = torch.optim.Adam(model.static.parameters(), lr=1e-3)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, steps)
     for _ in range(steps):
-        j = torch.randint(len(x), (batch,), generator=g).to(device)
-        loss = ((model.static(x[j]) - target[j]) ** 2).mean()
+        j = torch.randint(len(x), (batch,), generator=g)
+        loss = ((model.static(x[j])[:, :e] - target[j]) ** 2).mean()
         opt.zero_grad()
         loss.backward()
         opt.step()
         sched.step()
     with torch.no_grad():
-        j = torch.randperm(len(x), generator=g)[:512].to(device)
-        miss = model.static(x[j]) - target[j]
-        err = (miss @ model.D[:miss.shape[-1]]).view(len(j), -1, 3).norm(dim=-1).mean()  # PBNS's rows
+        j = torch.randperm(len(x), generator=g)[:512]
+        miss = model.static(x[j])[:, :e] - target[j]
+        err = (miss @ model.D[:e]).view(len(j), -1, 3).norm(dim=-1).mean()
     return float(err) * 1000
-
-
-def hanging_part_to_train(model: NCS, outfit, cfg: NCSTrainConfig) -> np.ndarray | None:
-    """The vertices training can move, when that is the hanging part alone (``cfg.hanging_only``:
-    the static part frozen, the dynamic code on the swing rows only) and less than the outfit;
-    else None."""
-    m = model.cfg
-    if not (cfg.hanging_only and cfg.freeze_static and m.swing_modes and not m.dynamic_in_static_rows
-            and not m.dynamic_modes):
-        return None
-    hanging, _ = hanging_part(outfit)
-    return np.nonzero(hanging)[0] if not hanging.all() else None
 
 
 def part_outfit(outfit: Outfit, vertices: np.ndarray) -> Outfit:
@@ -212,173 +336,212 @@ def part_outfit(outfit: Outfit, vertices: np.ndarray) -> Outfit:
     return part
 
 
-def param_groups(model: NCS, cfg: NCSTrainConfig) -> list[dict]:
-    """The optimiser's groups: the dynamic branch, D, the rest (static encoder, blend weights),
-    each at its rate; with ``cfg.freeze_static`` the dynamic branch alone and the dynamic-only rows
-    of D (``NCSConfig.dynamic_modes``, ``swing_modes``; not with ``cfg.train_dynamic_rows`` False),
-    the rest frozen."""
-    branch = {n: n.split(".")[0] in DYNAMIC_BRANCH for n, _ in model.named_parameters()}
-    dynamic = [p for n, p in model.named_parameters() if branch[n]]
-    rest = [p for n, p in model.named_parameters() if n != "D" and not branch[n]]
-    if cfg.freeze_static:
-        for p in rest:
-            p.requires_grad_(False)
-        e = model.cfg.embedding
-        if len(model.D) == e or not cfg.train_dynamic_rows:
-            model.D.requires_grad_(False)
-            return [{"params": dynamic, "lr": cfg.lr_dynamic}]
-        model.D.register_hook(lambda g: torch.cat([torch.zeros_like(g[:e]), g[e:]]))  # PBNS's rows stay
-        return [{"params": dynamic, "lr": cfg.lr_dynamic}, {"params": [model.D], "lr": cfg.lr_psd}]
-    return [{"params": dynamic, "lr": cfg.lr_dynamic}, {"params": [model.D], "lr": cfg.lr_psd},
-            {"params": rest, "lr": cfg.lr}]
+class Fit:
+    """The fitting loss on a batch of chunks: the mass-weighted mean squared rest-pose displacement
+    (m^2) between NCS's codes on the new rows (static + dynamic) and the teacher's, after the lead,
+    plus the static code's miss of PBNS's codes on PBNS's rows over a batch of frames."""
+
+    def __init__(self, model: NCS, static, dynamic, coef, gram_new, gram_pbns, frames_static, frames_code,
+                 lead: int, distil_frames: int):
+        self.model, self.static, self.dynamic, self.coef = model, static, dynamic, coef
+        self.gram_new, self.gram_pbns = gram_new, gram_pbns
+        self.frames_static, self.frames_code = frames_static, frames_code
+        self.lead, self.distil_frames = lead, distil_frames
+
+    def teacher_error(self, i: torch.Tensor) -> torch.Tensor:
+        """(B,) mean squared displacement error on the new rows, per chunk."""
+        e = self.model.cfg.embedding
+        zs, zd, _ = self.model.codes(self.static[i], self.dynamic[i])
+        miss = (zs + zd)[:, self.lead:, e:] - self.coef[i][:, self.lead:]
+        return torch.einsum("btk,kl,btl->bt", miss, self.gram_new, miss).mean(1)
+
+    def distil_error(self, j: torch.Tensor) -> torch.Tensor:
+        e = self.model.cfg.embedding
+        miss = self.model.static(self.frames_static[j])[:, :e] - self.frames_code[j]
+        return torch.einsum("bk,kl,bl->b", miss, self.gram_pbns, miss).mean()
+
+    def __call__(self, batch):
+        i, j = batch
+        teacher, distil = self.teacher_error(i).mean(), self.distil_error(j)
+        return teacher + distil, {"teacher_mm": teacher.sqrt() * 1000, "distil_mm": distil.sqrt() * 1000}
 
 
-class Step:
-    """One training step's loss on windows ``i``: static energies on x_t, inertia on x_t against
-    the detached x_{t-1}, x_{t-2}; the last ``augmented`` windows of the batch get another
-    window's dynamic code, static energies only and no gradient to the encoders."""
+class Physics:
+    """The thesis' loss (eq. 6.8) on NCS's predictions at sampled frames of the chunks, with the
+    previous states the solved ones: the PBNS energies of the predicted hanging part plus the
+    inertia term against the projection of the teacher's two previous states. In units of a mean
+    squared displacement (divided by the inertia term's factor), so that it adds to ``Fit``'s."""
 
-    def __init__(self, model: NCS, crit: L.Criterion, inertia: InertiaLoss, data: MotionWindows,
-                 body_c=None, cloth_c=None, augmentation: float = 0.0, remove_static_force: bool = False):
-        self.model, self.crit, self.inertia, self.data = model, crit, inertia, data
-        self.body_c, self.cloth_c, self.augmentation = body_c, cloth_c, augmentation
-        self.remove_static_force = remove_static_force
+    def __init__(self, model: NCS, teacher: Teacher, motions: list[tuple[torch.Tensor, torch.Tensor]],
+                 du: torch.Tensor, static: torch.Tensor, dynamic: torch.Tensor):
+        self.model, self.teacher, self.motions, self.du = model, teacher, motions, du
+        self.static, self.dynamic = static, dynamic
+        ic = teacher.inertia
+        self.unit = ic.cfg.weight * 0.5 * ic.fps ** 2
 
-    @property
-    def device(self) -> torch.device:
-        return self.model.D.device
+    def __call__(self, i: torch.Tensor, t: torch.Tensor):
+        """Chunks ``i`` (B,) and frames ``t`` (B, F), each >= 2 -> (loss, terms)."""
+        zs, zd, _ = self.model.codes(self.static[i], self.dynamic[i])
+        z = torch.gather(zs + zd, 1, t[..., None].expand(-1, -1, zs.shape[-1])).flatten(0, 1)  # (n, E)
+        return self.energy(i[:, None].expand_as(t).reshape(-1), t.reshape(-1), z)
 
-    def body(self, i: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """The posed body's vertices and normals at the last frame of windows ``i``."""
-        return self.data.body_v[i].to(self.device), self.data.body_n[i].to(self.device)
-
-    def predict(self, i: torch.Tensor, augmented: int = 0, motion: float = 1.0):
-        """Posed last three frames (B, 3, N, 3) and their dT."""
-        s, d = (x.to(self.device) for x in self.data.window(i))
-        zs, zd, _ = self.model.codes(s, d)
-        zs, zd = zs[:, -3:], zd[:, -3:]
-        if augmented:
-            k = len(i) - augmented
-            swap = torch.randperm(len(i))[:augmented].to(self.device)
-            zs = torch.cat([zs[:k], zs[k:].detach()])
-            zd = torch.cat([zd[:k], zd[swap].detach()])
-        dt = self.model.decode(zs + motion * zd)
-        return self.model.skin_frames(self.model.rest + dt, self.data.transforms[i].to(self.device)), dt
-
-    def __call__(self, i: torch.Tensor):
-        b = len(i)
-        augmented = int(round(self.augmentation * b))
-        x, dt = self.predict(i, augmented)
-        bc = None if self.body_c is None else self.body_c[i].to(self.device)
-        cc = None if self.cloth_c is None else [c[i].to(self.device) for c in self.cloth_c]
-        body = self.body(i)
-        if self.remove_static_force:
-            static = self._about_static(i, augmented, x[:, 2], dt[:, 2], body, bc, cc)
-        else:
-            static = self.crit(x[:, 2], dt[:, 2], *body, bc, cc)
-        inertia = self.inertia(x[:, 2], x[:, 1], x[:, 0])
-        keep = torch.arange(b, device=self.device) < b - augmented  # augmented windows: static energies only
-        loss = (static + torch.where(keep, inertia, torch.zeros_like(inertia))).mean()
-        return loss, {**self.crit.terms, "inertia": inertia[keep]}
-
-    def _about_static(self, i, augmented, x, dt, body, bc, cc):
-        """E(x_s) for the static branch plus, for the dynamic part u = x - x_s (decoding and
-        skinning are linear: u depends on the dynamic code and D only), E(x_s + u) - E(x_s) -
-        F_s . u with F_s = dE/dx(x_s) held constant. ``crit.terms`` are those of x."""
-        xs, dts = self.predict(i, augmented, motion=0.0)
-        xs, dts = xs[:, 2], dts[:, 2]
-        if not xs.requires_grad:  # a frozen static part
-            xs = xs.detach().requires_grad_(True)
-        e_static = self.crit(xs, dts, *body, bc, cc)
-        force = torch.autograd.grad(e_static.sum(), xs, retain_graph=True)[0]
-        u = x - xs  # no gradient to the static branch through u: the two cancel
-        e = self.crit(xs.detach() + u, dt, *body, bc, cc)
-        return e_static + e - e_static.detach() - (force * u).sum((1, 2))
+    def energy(self, c: torch.Tensor, f: torch.Tensor, z: torch.Tensor):
+        """The loss of codes ``z`` (n, E) at frames ``f`` (n,) of chunks ``c`` (n,): (mean, terms)."""
+        tch = self.teacher
+        n = len(f)
+        frames = torch.stack([f - 2, f - 1, f], 1)  # (n, 3): the two solved frames, then the predicted one
+        rot = torch.stack([self.motions[cc][0][ff] for cc, ff in zip(c.tolist(), frames)])
+        tr = torch.stack([self.motions[cc][1][ff] for cc, ff in zip(c.tolist(), frames)])
+        static, carried, bv, bn, blend, transforms = (x.view(n, 3, *x.shape[1:]) for x in
+                                                      tch.drapes(rot.flatten(0, 1), tr.flatten(0, 1)))
+        past = self.du[c[:, None], frames[:, :2]]  # (n, 2, nh, 3) rest-pose displacements
+        solved = static[:, :2] + torch.einsum("fknij,fknj->fkni", blend[:, :2], past)
+        proj = tch.inertia.projection(solved[:, 1], solved[:, 0], carried[:, 2] - carried[:, 1])
+        dt = self.model.decode(z)
+        x = self.model.skin(self.model.rest + dt, transforms[:, 2])[:, tch.idx]
+        cand = nearest(bv[:, 2], x, 8)
+        e = tch.crit(x, dt[:, tch.idx], bv[:, 2], bn[:, 2], cand) + tch.inertia.to_projection(x, proj)
+        with torch.no_grad():
+            terms = {"physics_edge_mm": tch.crit.edge.strain(x).abs().mean() * 1000,
+                     "physics_collision_pct": collision_pct(x, bv[:, 2], bn[:, 2]).mean()}
+        return e.mean() / self.unit, terms
 
 
-@torch.no_grad()
-def validate(step: Step, chunk: int = 32) -> dict:
-    """Held-out windows: energies, inertia, collision % and edge error (mm) at the last frame, and
-    how far the dynamics move the cloth (mm, mean over vertices: NCS against motion control 0)."""
-    step.model.eval()
-    data, crit = step.data, step.crit
-    agg: dict[str, list] = {"loss": [], "inertia": [], "collision_pct": [], "edge_mm": [], "dynamic_mm": []}
-    for a in range(0, len(data), chunk):
-        i = torch.arange(a, min(len(data), a + chunk))
-        x, dt = step.predict(i)
-        still, _ = step.predict(i, motion=0.0)
-        v, (bv, bn) = x[:, 2], step.body(i)
-        inertia = step.inertia(v, x[:, 1], x[:, 0])
-        agg["loss"].append(crit(v, dt[:, 2], bv, bn) + inertia)
-        agg["inertia"].append(inertia)
-        agg["edge_mm"].append(crit.edge.strain(v).abs().mean(1) * 1000)
-        agg["collision_pct"].append(collision_pct(v, bv, bn))
-        agg["dynamic_mm"].append((v - still[:, 2]).norm(dim=-1).mean(1) * 1000)
-    step.model.train()
-    return {k: float(torch.cat(x).mean()) for k, x in agg.items()}
+def gram(rows: torch.Tensor, masses: torch.Tensor) -> torch.Tensor:
+    """(E, E) mass-weighted Gram matrix of rest-pose fields (E, n * 3): code^T G code is the mean
+    squared displacement."""
+    w = (masses / masses.mean()).repeat_interleave(3)
+    return (rows * w) @ rows.T / len(masses)
 
 
 def train(body, cfg: NCSTrainConfig | None = None, out: Path | None = None, log=print, progress: bool = True) -> dict:
-    """Train the NCS of ``cfg.outfit`` from its PBNS; writes ``out`` (default
-    ``store.ncs_path``) with the training record inside and returns that record."""
+    """Train the NCS of ``cfg.outfit`` from its PBNS; writes ``out`` (default ``store.ncs_path``)
+    with the training record inside and returns that record."""
     cfg = cfg or NCSTrainConfig()
     torch.manual_seed(cfg.seed)
     t0 = time.time()
     pbns_path = store.pbns_path(cfg.outfit)
     outfit, shape, name = trained_outfit(body, pbns_path)
     out = Path(out or store.ncs_path(name))
+    run_dir = run_dir_for(out)
     pbns, _ = PBNS.load(pbns_path)
-    model = NCS.from_pbns(pbns, NCSConfig(**{**asdict(cfg.model), "fps": cfg.fps}), outfit)
+    model = NCS.from_pbns(pbns, NCSConfig(**{**asdict(cfg.model), "embedding": pbns.D.shape[0]}))
+    hanging, _ = hanging_part(outfit)
+    idx = torch.from_numpy(np.nonzero(hanging)[0])
+    masses = torch.from_numpy(vertex_masses(outfit.vertices, outfit.faces))
+
+    motions = Motions(body, shape, cfg.smooth_motion)
+    train_chunks = chunks_of("train", cfg.chunk, cfg.chunks, cfg.seed, cfg.stops, cfg.lead)
+    val_chunks = chunks_of("val", cfg.chunk, cfg.val_chunks, cfg.seed, cfg.stops, cfg.lead)
+    du = integrate_chunks(name, train_chunks + val_chunks, motions, cfg, chunk_folder(pbns_path, cfg), log)
+    t_integrate = time.time() - t0
+    du = torch.from_numpy(du).float()
+    n_train = len(train_chunks)
+    inputs = [motions.inputs(c) for c in train_chunks + val_chunks]
+    if cfg.mirror:  # the train chunks' mirror images: the cloth's displacement mirrored in x
+        mp_ = torch.from_numpy(mirror_map(outfit.vertices[hanging]))
+        du = torch.cat([du[:n_train, :, mp_] * torch.tensor([-1.0, 1.0, 1.0]), du])
+        inputs = [motions.inputs(c, mirror=True) for c in train_chunks] + inputs
+        n_train *= 2
+    static = torch.stack([s for s, _ in inputs])
+    dynamic = torch.stack([d for _, d in inputs])
+
+    # the new rows of D: principal fields of the train chunks' displacement, zero off the hanging part
+    k = cfg.model.dynamic
+    fields = principal_fields(du[:n_train, 5:], masses[idx], k, cfg.seed)
+    coef = project(du, fields, masses[idx])
+    full = torch.zeros(k, len(outfit.vertices), 3)
+    full[:, idx] = fields
+    e = pbns.D.shape[0]
     with torch.no_grad():
-        model.dynamic[-1].weight.mul_(cfg.dynamic_init)  # start near PBNS: a small dynamic code
-    frames = int(round(cfg.window * cfg.fps))
-    train_w = MotionWindows(body, "train", shape[None], frames, cfg.samples, cfg.seed, smooth=cfg.smooth_motion,
-                            fps=cfg.fps)
-    val_w = MotionWindows(body, "val", shape[None], frames, cfg.val_samples, cfg.seed + 1, smooth=cfg.smooth_motion,
-                          fps=cfg.fps)
-    model = model.to(cfg.device)
-    distil_mm = distil_static(model, pbns, train_w, cfg.distil_steps, cfg.seed)
-    part = hanging_part_to_train(model, outfit, cfg)
-    cloth = outfit if part is None else part_outfit(outfit, part)  # what the energies see
-    trained = model if part is None else model.part(part, cloth.faces)
+        model.D[e:] = full.reshape(k, -1)
 
-    def criteria(o, rest):
-        masses = torch.from_numpy(vertex_masses(o.vertices, o.faces))
-        return L.Criterion(o, rest, cfg).to(cfg.device), InertiaLoss(masses, cfg.fps, cfg.inertia).to(cfg.device)
+    # PBNS's codes on the train split's frames: the static encoder keeps PBNS's rows
+    train_m = MocapPoses.load("train")
+    frames = torch.from_numpy(np.random.default_rng(cfg.seed).choice(len(train_m.clip), 8192, replace=False))
+    rot_f = roma.rotvec_to_rotmat(torch.from_numpy(train_m.rotvec[frames.numpy()]).float())
+    with torch.no_grad():
+        o = body(rot_f, shape[None].expand(len(rot_f), -1), points_only=True)
+        static_f = static_descriptors(rot_f, o.global_rotmats).flatten(1)
+        code_f = pbns.mlp(pose_features(rot_f))
+    distil_mm = distil_static(model, pbns, static_f, rot_f, cfg.distil_steps, cfg.seed)
 
-    crit, inertia = criteria(cloth, trained.rest)
-    body_c, cloth_c = candidates(trained, crit, train_w.ends, train_w.transforms[:, 2], train_w.body_v,
-                                 cfg.candidates)
-    step = Step(trained, crit, inertia, train_w, body_c, cloth_c, cfg.motion_augmentation, cfg.remove_static_force)
-    val_step = Step(model, *criteria(outfit, model.rest), val_w)  # the whole outfit, the part written back first
-    log(f"ncs {name}: {len(cloth.vertices)} of {len(outfit.vertices)} vertices trained; windows of {frames} frames, "
-        f"{len(train_w)} train / {len(val_w)} val; static encoder distilled from PBNS to {distil_mm:.2f} mm; "
-        f"set-up {time.time() - t0:.1f} s")
+    fit = Fit(model, static, dynamic, coef, gram(fields.reshape(k, -1), masses[idx]),
+              gram(model.D[:e].detach(), masses), static_f, code_f, cfg.lead, cfg.distil_frames)
+    for p in (model.D, model.weight_logits):
+        p.requires_grad_(False)
+    params = [p for p in model.parameters() if p.requires_grad]
+    opt = torch.optim.AdamW(params, lr=cfg.lr, weight_decay=cfg.weight_decay)
+    g = torch.Generator().manual_seed(cfg.seed)
+    val_i = torch.arange(n_train, len(du))
 
-    def val():
-        if part is not None:
-            model.set_part(part, trained)
-        return validate(val_step)
+    def batches():
+        while True:
+            yield (torch.randint(n_train, (cfg.batch,), generator=g),
+                   torch.randint(len(static_f), (cfg.distil_frames,), generator=g))
 
-    start = val()
-    opt = torch.optim.Adam(param_groups(trained, cfg))
-    per_epoch = len(train_w) // cfg.batch
-    trainer = Trainer({"ncs": trained}, opt, cfg.epochs * per_epoch, eval_every=per_epoch, out_dir=run_dir_for(out),
-                      config=asdict(cfg), desc=f"ncs {name}", steps_per_epoch=per_epoch, progress=progress)
-    def train_step(i):
-        crit.edge.scale = edge_scale(cfg.edge_warmup, trainer.step, trainer.steps)
-        return step(i)
+    @torch.no_grad()
+    def validate():
+        model.eval()
+        v = {"val_teacher_mm": float(fit.teacher_error(val_i).mean().sqrt() * 1000),
+             "train_teacher_mm": float(fit.teacher_error(torch.arange(min(n_train, 32))).mean().sqrt() * 1000),
+             "val_zero_mm": float(torch.einsum("btk,kl,btl->bt", coef[val_i][:, cfg.lead:], fit.gram_new,
+                                               coef[val_i][:, cfg.lead:]).mean().sqrt() * 1000)}
+        model.train()
+        return v
 
-    curve = trainer.fit(epoch_batches(len(train_w), cfg.batch, trainer.step), train_step,
-                        lambda: {f"val_{k}": v for k, v in val().items()})
-    if part is not None:
-        model.set_part(part, trained)
+    trainer = Trainer({"ncs": model}, opt, cfg.steps, eval_every=max(1, cfg.steps // 12), out_dir=run_dir / "fit",
+                      select="val_teacher_mm", config=asdict(cfg), desc=f"ncs {name}", generators=[g],
+                      progress=progress)
+    log(f"ncs {name}: {len(idx)} of {len(outfit.vertices)} vertices move; {len(train_chunks)} train "
+        f"(+ mirrored: {cfg.mirror}) / {len(val_chunks)} val chunks of {cfg.chunk} frames integrated in "
+        f"{t_integrate:.0f} s (chunks cached in {chunk_folder(pbns_path, cfg)}); static encoder distilled from PBNS "
+        f"to {distil_mm:.2f} mm")
+    curve = trainer.fit(batches(), fit, validate)
+    trainer.load_best()
+
+    teacher = Teacher(body, name, cfg)
+    chunk_motions = [motions.motion(c, mirror=True) for c in train_chunks] if cfg.mirror else []
+    chunk_motions += [motions.motion(c) for c in train_chunks + val_chunks]
+    physics = Physics(model, teacher, chunk_motions, du, static, dynamic)
+    lo = max(cfg.lead, 2)
+    val_t = torch.linspace(lo, cfg.chunk - 1, cfg.physics_frames).long().expand(len(val_i), -1)
+
+    def physics_batches():
+        for i, j in batches():
+            p = torch.randint(n_train, (cfg.physics_chunks,), generator=g)
+            yield i, j, p, torch.randint(lo, cfg.chunk, (cfg.physics_chunks, cfg.physics_frames), generator=g)
+
+    def physics_step(batch):
+        i, j, p, t = batch
+        loss, terms = fit((i, j))
+        e, more = physics(p, t)
+        return loss + e, {**terms, **more, "physics": e}
+
+    @torch.no_grad()
+    def physics_validate():
+        model.eval()
+        v = validate()
+        e, more = physics(val_i, val_t)
+        model.train()
+        return {**v, "val_physics": float(e), **{f"val_{k}": float(x) for k, x in more.items()}}
+
+    opt2 = torch.optim.AdamW(params, lr=cfg.physics_lr, weight_decay=cfg.weight_decay)
+    trainer2 = Trainer({"ncs": model}, opt2, cfg.physics_steps, eval_every=max(1, cfg.physics_steps // 4),
+                       out_dir=run_dir / "physics", config=asdict(cfg), desc=f"ncs {name} physics", generators=[g],
+                       progress=progress)
+    if not trainer2.resumed:
+        trainer2.validate_now(physics_validate, "start")
+    curve2 = trainer2.fit(physics_batches(), physics_step, physics_validate)
+    model.eval()
     meta = {"outfit": name, "pbns": pbns_path.name, "config": asdict(cfg), "model": asdict(model.cfg),
-            "vertices": int(len(outfit.vertices)), "trained_vertices": int(len(cloth.vertices)),
-            "window_frames": frames, "distil_mm": round(distil_mm, 3),
-            "val_start": start, "train_seconds": round(time.time() - t0, 1), "threads": torch.get_num_threads(),
-            "garments": [g.name for g in outfit.garments], "curve": curve["history"]}
-    model.cpu().save(out, {"meta_json": json.dumps(meta), "layer": torch.from_numpy(outfit.layer),
+            "vertices": int(len(outfit.vertices)), "moving_vertices": int(len(idx)),
+            "chunks": [list(c) for c in train_chunks], "val_chunks": [list(c) for c in val_chunks],
+            "distil_mm": round(distil_mm, 3), "integrate_seconds": round(t_integrate, 1),
+            "train_seconds": round(time.time() - t0, 1), "workers": cfg.workers, "threads": torch.get_num_threads(),
+            "best": curve["best"], "garments": [gg.name for gg in outfit.garments], "curve": curve["history"],
+            "physics_curve": curve2["history"]}
+    model.save(out, {"meta_json": json.dumps(meta), "layer": torch.from_numpy(outfit.layer),
                      "garment_id": torch.from_numpy(outfit.garment_id), "shape": shape})
-    shutil.rmtree(run_dir_for(out), ignore_errors=True)
+    shutil.rmtree(run_dir, ignore_errors=True)
     return meta
