@@ -73,7 +73,9 @@ def main() -> None:
         f"`benchmarks/bench_ncs.py --threads {args.threads}`; {where}. Frames per second given the body's "
         "joint transforms; ratio = NCS time / PBNS time. Batch 1: one frame (NCS streamed with its recurrent "
         "state); batch 64: 64 poses (PBNS) or 64 frames of one sequence (NCS). \"+ descriptors\": NCS with the "
-        f"frame's motion descriptors computed (forward kinematics of the last {history} frames).", "",
+        f"frame's motion descriptors computed (forward kinematics of the last {history} frames)."
+        + "".join(f" {o}: `{name}`, not shipped (speed depends on the outfit's size, not on the training)."
+                  for o, name in data["ncs_files"].items()), "",
         report.table(rows, ["outfit", "vertices", "PBNS b=1", "NCS b=1", "ratio", "NCS + descriptors b=1",
                             "PBNS b=64", "NCS b=64", "ratio"],
                      ["", "", ".0f", ".0f", ".2f", ".0f", ".0f", ".0f", ".2f"])])

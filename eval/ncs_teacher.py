@@ -112,9 +112,9 @@ def render(data: dict) -> str:
              "learns (recon.garment.integrate): per frame, the hanging part's state minimising the PBNS energies "
              "plus the inertia term against the two previous states, from PBNS's drape at the start of each "
              "val clip's lead-in, scored after it as garment-ncs-val.md scores the models (mean per-vertex "
-             "error, the hem's swing error and peak swing; in brackets the simulation's). Plain L-BFGS stopped "
-             "early is no harmless approximation: a cloth flung up by the stop then hangs in the air for lack of "
-             "iterations.", ""]
+             "error, the hem's swing error and peak swing; in brackets the simulation's). Seconds per frame "
+             "are of runs sharing the machine's 2 cores with other jobs: compare them within this table only.",
+             ""]
     settings_ = list(dict.fromkeys(r["setting"] for r in data["rows"]))
     table = []
     for r in data["rows"]:

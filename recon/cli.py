@@ -300,7 +300,8 @@ def cmd_garment_train(a) -> None:
         if a.model == "ncs":
             if a.epochs:
                 raise ReconError("--epochs is PBNS's: NCS takes --chunks and --steps")
-            more = {k: v for k, v in (("chunks", a.chunks), ("steps", a.steps), ("workers", a.workers)) if v}
+            more = {k: v for k, v in (("chunks", a.chunks), ("val_chunks", a.val_chunks), ("steps", a.steps),
+                                      ("physics_steps", a.physics_steps), ("workers", a.workers)) if v is not None}
             meta = ncs_train.train(default_body(), ncs_train.NCSTrainConfig(outfit=o, **more))
             weights = store.ncs_path(o)
         else:
@@ -327,7 +328,8 @@ def cmd_garment_eval(a) -> None:
         if weights and len(weights) != len(outfits):
             raise ReconError("--ncs-weights takes one file per outfit")
         print(Path(garment_eval_ncs.evaluate_and_report(body, outfits, Path(a.out), dynamic=not a.no_simulation,
-                                                         ncs_weights=weights, log=print, val=a.val)).read_text())
+                                                         ncs_weights=weights, log=print, val=a.val,
+                                                         update=a.update)).read_text())
         return
     print(Path(garment_eval.evaluate_and_report(body, outfits, a.n, Path(a.out))).read_text())
     for o in outfits:  # the resizing table, for outfits with a trained resizer
@@ -559,6 +561,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--poses", type=int, default=default(garment_train.GarmentTrainConfig, "poses"))
     p.add_argument("--chunks", type=int, default=None,
                    help=f"NCS: train chunks to integrate (default {default(ncs_train.NCSTrainConfig, 'chunks')})")
+    p.add_argument("--val-chunks", type=int, default=None,
+                   help=f"NCS: val chunks (default {default(ncs_train.NCSTrainConfig, 'val_chunks')})")
+    p.add_argument("--physics-steps", type=int, default=None,
+                   help=f"NCS: physics-loss steps (default {default(ncs_train.NCSTrainConfig, 'physics_steps')})")
     p.add_argument("--steps", type=int, default=None,
                    help=f"NCS: fitting steps (default {default(ncs_train.NCSTrainConfig, 'steps')})")
     p.add_argument("--workers", type=int, default=None,
@@ -574,6 +580,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="--model ncs: skip the newton simulations (minutes a clip; cached once run)")
     p.add_argument("--ncs-weights", nargs="+", default=None,
                    help="--model ncs: NCS files to evaluate instead of the shipped ones (one per outfit)")
+    p.add_argument("--update", action="store_true",
+                   help="--model ncs: keep the other outfits' rows of the existing table")
     p.add_argument("--val", action="store_true",
                    help="--model ncs: against the val performers' simulations (what the recipe is tuned on)")
     p.add_argument("--n", type=int, default=default(garment_eval.evaluate_and_report, "n_poses"),

@@ -298,19 +298,26 @@ SIMULATED = ("tshirt-skirt", "dress")
 
 
 def evaluate_and_report(body, outfits: list[str], out_dir: Path = report.RESULTS, dynamic: bool = True,
-                        ncs_weights: list[Path] | None = None, log=None, val: bool = False) -> Path:
+                        ncs_weights: list[Path] | None = None, log=None, val: bool = False,
+                        update: bool = False) -> Path:
     """garment-ncs.{json,md} (``val``: garment-ncs-val, against the val performers' simulations,
     what the recipe is tuned on); the dynamic simulations for the outfits in ``SIMULATED``.
-    ``ncs_weights``: one NCS file per outfit instead of the shipped ones."""
+    ``ncs_weights``: one NCS file per outfit instead of the shipped ones. ``update``: keep the
+    other outfits' rows of the existing file (one outfit re-evaluated after retraining)."""
     weights = ncs_weights or [None] * len(outfits)
     clips = VAL_CLIPS if val else DYNAMIC_CLIPS
     results = [evaluate(body, o, dynamic and o in SIMULATED, w, log, clips)
                for o, w in zip(outfits, weights, strict=True)]
+    path = Path(out_dir) / ("garment-ncs-val" if val else "garment-ncs")
+    if update and path.with_suffix(".json").exists():
+        mine = {r["outfit"] for r in results}
+        old = json.loads(path.with_suffix(".json").read_text())["outfits"]
+        results = [r for r in old if r["outfit"] not in mine] + results
     names = [r["outfit"] for r in results]
     data = {"outfits": results, "clips": "val" if val else "test",
             "check": {"function": "recon.garment.evaluate_ncs:ncs_check", "kwargs": {"outfits": names},
                       "values": ncs_check(names)}}
-    return report.write(Path(out_dir) / ("garment-ncs-val" if val else "garment-ncs"), data, render(data))
+    return report.write(path, data, render(data))
 
 
 def render(data: dict) -> str:

@@ -13,8 +13,8 @@ Solver: L-BFGS whose initial inverse Hessian is the factorised quadratic part of
 inertia's mass term plus the edge springs as a graph Laplacian, as projective dynamics builds it),
 the quasi-Newton scheme of Liu et al. 2017 ("Quasi-Newton methods for real-time simulation of
 hyperelastic materials"); a backtracking line search. The stiff springs make plain L-BFGS slow to
-converge, and stopping it early is not harmless: a skirt flung up by a stop then hangs in the air
-for lack of iterations (eval/results/ncs-teacher-tshirt-skirt.md).
+converge, and stopping it early is not harmless: at 30 iterations a frame a stop flings the hem
+too far (eval/results/ncs-teacher-tshirt-skirt.md).
 """
 from __future__ import annotations
 

@@ -80,7 +80,7 @@ class NCSTrainConfig:
     chunk: int = 120  # frames of motion per integrated trajectory (4 s at 30 fps)
     settle: int = 20  # frames on a chunk's first pose held still, before it
     lead: int = 20  # a chunk's first frames, not learnt from: its swing builds up from rest
-    chunks: int = 40  # train chunks (x2 with their mirror images)
+    chunks: int = 50  # train chunks (x2 with their mirror images)
     # the share of train chunks whose body stops dead (its pose held) halfway: the train split
     # (dance, climbing, walks) has few stops, and a stop is where the cloth swings on most
     stops: float = 0.3
@@ -298,7 +298,8 @@ def project(du: torch.Tensor, fields: torch.Tensor, masses: torch.Tensor) -> tor
     """Least-squares coefficients (..., k) of displacements (..., n, 3) on ``fields`` (k, n, 3) in
     the mass metric."""
     m = masses / masses.mean()
-    rhs = torch.einsum("...nj,knj,n->...k", du, fields, m) / len(m)
+    weighted = (fields * m[:, None]).reshape(len(fields), -1)  # a matmul: einsum would broadcast (..., k, n, 3)
+    rhs = (du.reshape(*du.shape[:-2], -1) @ weighted.T) / len(m)
     return torch.linalg.solve(gram(fields.reshape(len(fields), -1), masses), rhs.unsqueeze(-1)).squeeze(-1)
 
 
