@@ -24,37 +24,27 @@ from recon import report
 from recon.body import default_body
 from recon.garment import evaluate_ncs as E
 from recon.garment.integrate import IntegrateConfig, integrate
-from recon.garment.mesh import nearest
 from recon.garment.ncs import InertiaLoss
 from recon.garment.ncs_train import NCSTrainConfig, Teacher
 
 
-def plain_lbfgs(teacher: Teacher, inertia: InertiaLoss, static, carried, bv, bn, iterations: int) -> torch.Tensor:
-    """``integrate`` with torch's L-BFGS (no preconditioner) instead of the recipe's solver."""
-    crit, held = teacher.crit, teacher.held
-    free = (~held).float()[:, None]
-    v0 = carried[1] - carried[0]
-    prev, out, zero = (static[0] - 2 * v0, static[0] - v0), [], torch.zeros_like(static[:1])
-    for t in range(len(static)):
-        proj = inertia.projection(prev[1], prev[0], carried[t] - carried[t - 1] if t else v0)
-        cand = nearest(bv[t:t + 1], proj[None], 16)
-        u = ((proj - static[t]) * free).requires_grad_(True)
+def plain_lbfgs(iterations: int):
+    """A frame minimiser for ``integrate``: torch's L-BFGS (no preconditioner, strong Wolfe line
+    search) stopped after ``iterations``."""
+    def solve(energy, u0: torch.Tensor) -> torch.Tensor:
+        u = u0.clone().requires_grad_(True)
         opt = torch.optim.LBFGS([u], lr=1, max_iter=iterations, history_size=20, line_search_fn="strong_wolfe",
                                 tolerance_change=1e-12)
 
-        def closure(t=t, cand=cand, proj=proj, u=u, opt=opt):
+        def closure():
             opt.zero_grad()
-            x = (static[t] + u * free)[None]
-            e = (crit(x, zero, bv[t:t + 1], bn[t:t + 1], cand) + inertia.to_projection(x, proj[None])).sum()
+            e = energy(u)
             e.backward()
             return e
 
         opt.step(closure)
-        with torch.no_grad():
-            x = static[t] + u * free
-        out.append(x)
-        prev = (prev[1], x)
-    return torch.stack(out)
+        return u.detach()
+    return solve
 
 
 def settings(cfg: NCSTrainConfig) -> dict:
@@ -95,11 +85,8 @@ def run(outfit: str) -> dict:
         for name, (solver, keep) in settings(cfg).items():
             inertia = InertiaLoss(teacher.inertia.m, teacher.inertia.fps, replace(cfg.inertia, keep_velocity=keep))
             t0 = time.time()
-            if solver == "recipe":
-                x = integrate(teacher.crit, inertia, teacher.held, static, carried, bv, bn, cfg.integrate,
-                              teacher.precond)
-            else:
-                x = plain_lbfgs(teacher, inertia, static, carried, bv, bn, solver)
+            x = integrate(teacher.crit, inertia, teacher.held, static, carried, bv, bn, cfg.integrate,
+                          teacher.precond, solve=None if solver == "recipe" else plain_lbfgs(solver))
             rows.append({"clip": clip.name, "motion": clip.motion, "setting": name, **score(x),
                          "seconds_per_frame": (time.time() - t0) / len(x)})
             print(rows[-1], flush=True)

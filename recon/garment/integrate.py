@@ -18,6 +18,7 @@ too far (eval/results/ncs-teacher-tshirt-skirt.md).
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -139,13 +140,16 @@ def minimise(energy, u: torch.Tensor, precond: Preconditioner, cfg: IntegrateCon
 def integrate(crit: Criterion, inertia: InertiaLoss, held: torch.Tensor, static: torch.Tensor,
               carried: torch.Tensor, body_v: torch.Tensor, body_n: torch.Tensor,
               cfg: IntegrateConfig | None = None, precond: Preconditioner | None = None,
-              start: torch.Tensor | None = None) -> torch.Tensor:
+              start: torch.Tensor | None = None,
+              solve: Callable[[Callable, torch.Tensor], torch.Tensor] | None = None) -> torch.Tensor:
     """The cloth trajectory (T, n, 3) of a motion of ``T`` frames: ``static`` (T, n, 3), the
     static model's drape; ``carried`` (T, n, 3), the skinned outfit (where the body carries the
     cloth); the posed body ``body_v``, ``body_n`` (T, V, 3); ``held`` (n,) bool. The cloth starts
-    at ``start`` (n, 3; default the static drape), moving as ``carried`` moves."""
+    at ``start`` (n, 3; default the static drape), moving as ``carried`` moves. ``solve(energy,
+    u0) -> u``: another minimiser of each frame's energy than ``minimise`` (a comparison's)."""
     cfg = cfg or IntegrateConfig()
-    precond = precond or Preconditioner(crit, inertia, held.numpy(), cfg.across)
+    if solve is None:
+        precond = precond or Preconditioner(crit, inertia, held.numpy(), cfg.across)
     free = (~held).to(static.dtype)[:, None]
     v0 = carried[1] - carried[0] if len(carried) > 1 else torch.zeros_like(carried[0])
     x0 = static[0] if start is None else start
@@ -163,7 +167,7 @@ def integrate(crit: Criterion, inertia: InertiaLoss, held: torch.Tensor, static:
             return (crit(x, zero, bv, bn, cand) + inertia.to_projection(x, proj[None])).sum()
 
         u0 = (proj - s_t) * free
-        u = minimise(energy, u0, precond.at(s_t + u0), cfg)
+        u = solve(energy, u0) if solve is not None else minimise(energy, u0, precond.at(s_t + u0), cfg)
         x = s_t + u * free
         out.append(x)
         prev = (prev[1], x)

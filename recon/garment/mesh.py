@@ -94,20 +94,6 @@ def neighbour_mean(faces: np.ndarray, n: int):
     return (sp.diags(1.0 / deg) @ a).tocsr()
 
 
-def cotan_laplacian(vertices: np.ndarray, faces: np.ndarray) -> sp.csr_matrix:
-    """(n, n) cotangent Laplacian (positive semi-definite: sum_j w_ij (x_i - x_j) per row)."""
-    n, rows, cols, w = len(vertices), [], [], []
-    for k in range(3):  # the angle at corner o weighs the opposite edge (i, j)
-        i, j, o = faces[:, k], faces[:, (k + 1) % 3], faces[:, (k + 2) % 3]
-        a, b = vertices[i] - vertices[o], vertices[j] - vertices[o]
-        cot = 0.5 * (a * b).sum(1) / np.maximum(np.linalg.norm(np.cross(a, b), axis=1), 1e-12)
-        rows += [i, j]
-        cols += [j, i]
-        w += [cot, cot]
-    off = sp.coo_matrix((np.concatenate(w), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n)).tocsr()
-    return (sp.diags(np.asarray(off.sum(1)).ravel()) - off).tocsr()
-
-
 def smooth_vertex_values(x: np.ndarray, faces: np.ndarray, iterations: int) -> np.ndarray:
     """Laplacian smoothing of per-vertex values (N, C): x <- (x + mean of the neighbours) / 2."""
     avg = neighbour_mean(faces, len(x))

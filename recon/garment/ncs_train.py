@@ -12,7 +12,7 @@ fixed point, the cloth trajectory the thesis' training converges to, and the net
 
 1. chunks: ``chunk`` frames of the train split's clips (smoothed by ``smooth_motion``); the cloth
    settles ``settle`` frames on each chunk's first pose, then is integrated through the chunk in
-   ``workers`` processes (resumable: each chunk is kept in ``.<weights>.run/``);
+   ``workers`` processes (each chunk kept in ``<cache>/ncs-chunks/`` as it is done: ``chunk_folder``);
 2. fields: the principal components of the cloth's rest-pose displacement from PBNS over every
    frame (mass-weighted), ``NCSConfig.dynamic`` of them, become the rows of D after PBNS's: PBNS
    is not the energies' equilibrium (settled on a still body, a skirt's cloth moves 4-7 cm from
@@ -20,7 +20,9 @@ fixed point, the cloth trajectory the thesis' training converges to, and the net
 3. networks: the static encoder is distilled from PBNS's codes on PBNS's rows and, with the bias-free
    dynamic branch, fitted to the chunks' coefficients on the new rows (frames after ``lead``, the
    swing building up), the two codes adding as the thesis' model adds them. The chunks and their
-   left-right mirror images train; chunks of the val performers select the checkpoint.
+   left-right mirror images train; chunks of the val performers select the checkpoint;
+4. physics: ``physics_steps`` more steps add the thesis' loss of the predictions against the
+   solved past (``Physics``) to the fitting.
 
 Motion augmentation (6.4.6) trains the thesis' decoder on swapped dynamic codes under the static
 energies; here the decoder's rows are fixed fields, so it has nothing to train and is not used.
