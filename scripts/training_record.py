@@ -22,7 +22,8 @@ def main() -> None:
         if "meta_json" in ck:  # PBNS, resizers, the keypoint adapter
             record = json.loads(ck["meta_json"])
         elif "curve_json" in ck:  # the backbone
-            record = {k: ck[k] for k in ("config", "train_config", "step", "val_mpjpe_mm") if k in ck}
+            keys = ("config", "train_config", "step", "val_mpjpe_mm", "fine_tuned_from")
+            record = {k: ck[k] for k in keys if k in ck}
             record["history"] = json.loads(ck["curve_json"])
         else:
             raise SystemExit(f"{w} carries no training record")

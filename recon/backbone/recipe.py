@@ -96,8 +96,9 @@ def run_recipe(out_dir: Path, cfg: RecipeConfig | None = None, device: str = "cu
     better = "shipped" not in scores or (scores["candidate"]["crop_search_mpjpe_mm"]
                                           < scores["shipped"]["crop_search_mpjpe_mm"])
     gpu = torch.cuda.get_device_name() if device.startswith("cuda") and torch.cuda.is_available() else None
-    record = {"recipe": asdict(cfg), "device": gpu or device, "machine": report.machine(), "training_minutes":
-              round(log["seconds"] / 60, 1), "steps": log["steps"], "best_val_mpjpe_mm": log["best_val_mpjpe_mm"],
+    record = {"recipe": {**asdict(cfg), "init": _relative(cfg.init)}, "device": gpu or device,
+              "machine": report.machine(), "training_minutes": round(log["seconds"] / 60, 1), "steps": log["steps"],
+              "best_val_mpjpe_mm": log["best_val_mpjpe_mm"],
               "synth_val_images": [cfg.calibrate_on, len(samples) + cfg.calibrate_on], "scores": scores,
               "shipped": better}
     if better:
@@ -107,6 +108,13 @@ def run_recipe(out_dir: Path, cfg: RecipeConfig | None = None, device: str = "cu
     if results is not None:
         report.write(Path(results) / "backbone-gpu-recipe", record, render(record))
     return {"phase": "shipped" if better else "kept", **record}
+
+
+def _relative(path: str) -> str:
+    """A path inside the repository as written in records: relative to its root (machine-independent)."""
+    if path and Path(path).resolve().is_relative_to(paths.REPO_ROOT.resolve()):
+        return str(Path(path).resolve().relative_to(paths.REPO_ROOT.resolve()))
+    return path
 
 
 def _stored(name: str) -> int:

@@ -109,7 +109,9 @@ def check(bench: str, methods: list[str], n: int = CHECK_IMAGES) -> dict:
 
 def evaluate(bench: str, methods: list[str], n: int | None = None, out_dir: Path = report.RESULTS) -> Path:
     """``recon eval``: run ``methods`` on the benchmark (its first ``n`` images) and merge them into
-    ``<out_dir>/<bench>.{json,md}`` (re-run methods replaced in place)."""
+    ``<out_dir>/<bench>.{json,md}`` (re-run methods replaced in place). The check slice is computed
+    with this process' kernels: re-record it with the tests' pinned ones (``eval/record_checks.py``)
+    before committing."""
     if bench not in BENCHMARKS:
         raise ReconError(f"unknown benchmark {bench!r}; known: {', '.join(BENCHMARKS)}")
     unknown = [m for m in methods if m not in METHODS]
@@ -126,9 +128,13 @@ def evaluate(bench: str, methods: list[str], n: int | None = None, out_dir: Path
     values = old.get("check", {}).get("values", {})
     values = {m: values[m] for m in names if m in values and m not in methods}
     values |= check(bench, [m for m in names if m not in values], CHECK_IMAGES)
+    by_cpu = {v: {m: x[m] for m in names if m in x and m not in methods}
+              for v, x in old.get("check", {}).get("values_by_cpu", {}).items()}  # other vendors' values kept
     data = {"benchmark": bench, "images": len(ds), "rows": rows,
             "check": {"function": "recon.bench.runner:check", "kwargs": {"bench": bench, "methods": names,
                                                                           "n": CHECK_IMAGES}, "values": values}}
+    if any(by_cpu.values()):
+        data["check"]["values_by_cpu"] = {v: x for v, x in by_cpu.items() if x}
     return report.write(stem, data, render(data))
 
 

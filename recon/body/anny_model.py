@@ -94,6 +94,7 @@ class AnnyBody(BodyModel):
         self.anny = anny.Anny.from_model_data(
             ModelData.load_safetensors(path), pose_parameterization="local-ref",
             bone_orientation="cached", root_identity_orientation=False,
+            skinning_method="lbs",  # we skin with recon.body.lbs; anny's default (warp) would start warp's runtime
         ).to(torch.float32)
         bones, parents = list(self.anny.bone_labels), list(self.anny.bone_parents)
         self.bone_ids = [bones.index(JOINT_TO_BONE[j]) for j in skeleton.JOINT_NAMES]

@@ -43,7 +43,7 @@ from recon.garment.metrics import physical_metrics
 from recon.garment.ncs import NCS, hanging_part, motion_inputs
 from recon.garment.pbns import PBNS
 from recon.garment.self_intersection import SkinSelfIntersection
-from recon.poses.mocap import MocapPoses
+from recon.poses.mocap import SPLIT_SUBJECTS, MocapPoses
 
 MODELS = ("skinning only (dT = 0)", "PBNS", "NCS")
 STATIC_PART = "NCS at motion control 0 (its static part)"
@@ -109,15 +109,16 @@ def run_models(pbns: PBNS, ncs: NCS | None, body, shape: torch.Tensor, rot: torc
     return out
 
 
-def clip_rows(body, pbns: PBNS, ncs: NCS | None, shape: torch.Tensor, clips: list[tuple], stride: int = STRIDE) -> dict:
+def clip_rows(body, pbns: PBNS, ncs: NCS | None, shape: torch.Tensor, clips: list[tuple], stride: int = STRIDE,
+              split: str = "test") -> dict:
     """Physical metrics of the three models over the scored frames of ``clips`` [(name, start,
-    frames, hold)] of the test split."""
-    test = MocapPoses.load("test")
+    frames, hold)] of the ``split``."""
+    poses = MocapPoses.load(split)
     models = MODELS if ncs is not None else MODELS[:2]
     posed: dict[str, list] = {m: [] for m in models}
     rots, trs = [], []
     for clip in clips:
-        rot, tr = _clip(test, *clip[:4])
+        rot, tr = _clip(poses, *clip[:4])
         out = run_models(pbns, ncs, body, shape, rot, tr)
         keep = torch.arange(0, len(rot), stride)
         for m in models:
@@ -130,10 +131,10 @@ def clip_rows(body, pbns: PBNS, ncs: NCS | None, shape: torch.Tensor, clips: lis
     return {m: physical_metrics(torch.cat(posed[m]), faces, pbns.rest, bv, bn, self_pct) for m in models}
 
 
-def test_clips() -> list[tuple]:
-    """Every clip of the test split, whole: [(name, 0, None, 0)]."""
-    test = MocapPoses.load("test")
-    return [(test.clips[c]["name"], 0, None, 0) for c in np.unique(test.clip)]
+def split_clips(split: str = "test") -> list[tuple]:
+    """Every clip of a mocap split, whole: [(name, 0, None, 0)]."""
+    poses = MocapPoses.load(split)
+    return [(poses.clips[c]["name"], 0, None, 0) for c in np.unique(poses.clip)]
 
 
 def hem_vertices(rest: np.ndarray, faces: np.ndarray, band: float = 0.02) -> np.ndarray:
@@ -269,10 +270,12 @@ def ncs_check(outfits: list[str]) -> dict:
 
 def evaluate(body, outfit: str, dynamic: bool = True, ncs_weights: Path | None = None, log=None,
              clips: tuple[DynamicClip, ...] = DYNAMIC_CLIPS) -> dict:
-    """Every row of the table for one outfit; ``dynamic``: against the simulations of ``clips``."""
+    """Every row of the table for one outfit; ``dynamic``: against the simulations of ``clips``.
+    Collisions and strain over every clip of the split ``clips`` come from (val clips: the val split)."""
     pbns, ncs, nck, shape = _load(outfit, ncs_weights)
     meta = json.loads(nck["meta_json"])
-    rows = clip_rows(body, pbns, ncs, shape, test_clips())
+    split = clips[0].split
+    rows = clip_rows(body, pbns, ncs, shape, split_clips(split), split=split)
     for m, r in speed(pbns, ncs, body, shape).items():
         rows[m] |= r
     dyn = [dynamic_rows(body, outfit, pbns, ncs, shape, c, log) for c in clips] if dynamic else []
@@ -325,7 +328,8 @@ def render(data: dict) -> str:
     lines = ["# NCS (dynamic) vs PBNS (quasi-static) vs skinning on held-out clips"
              + (" (val: the clips the recipe is tuned on)" if val else ""), "",
              "`recon garment eval --model ncs` (recon/garment/evaluate_ncs.py). Collision % / edge error: "
-             f"every {STRIDE}th frame of every test-split clip (performers 3, 9, 12, 14), the models run on "
+             f"every {STRIDE}th frame of every {'val' if val else 'test'}-split clip (performers "
+             f"{', '.join(sorted(SPLIT_SUBJECTS['val' if val else 'test'], key=int))}), the models run on "
              "every frame at 30 fps. Against the simulation: newton VBD with velocities (recon.garment.reference."
              "simulate) on the clips below; hem swing = the hem centroid's horizontal offset from where "
              "skinning puts it. Simulated: pinned garments on their own (a skirt); an outfit without pins (a "
