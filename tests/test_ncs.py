@@ -29,6 +29,7 @@ from recon.garment.ncs_train import (
     mirror_map,
     principal_fields,
     project,
+    sound_chunks,
     train,
 )
 from recon.garment.pbns import PBNS, initial_weights, pose_features
@@ -525,3 +526,13 @@ def test_update_keeps_the_other_outfits_rows(tmp_path, monkeypatch):
     assert sorted(data["check"]["values"]) == ["dress", "tshirt-skirt"]
     E.evaluate_and_report(None, ["tshirt-skirt"], tmp_path)
     assert [r["outfit"] for r in json.loads((tmp_path / "garment-ncs.json").read_text())["outfits"]] == ["tshirt-skirt"]
+
+
+def test_a_diverged_solved_chunk_is_told_apart():
+    """Training drops a solved chunk with a vertex farther than the limit from PBNS's drape, or NaN
+    (the teacher's solver blew up on some frames of a few skirt chunks: 1 m to 1.6 km)."""
+    du = torch.zeros(3, 4, 5, 3)
+    du[1, 2, 3] = torch.tensor([0.0, -0.7, 0.0])
+    du[2, 0, 0, 0] = float("nan")
+    assert sound_chunks(du, 0.6) == [True, False, False]
+    assert sound_chunks(du, 0.8)[:2] == [True, True]
