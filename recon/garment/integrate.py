@@ -184,7 +184,14 @@ def settle(crit: Criterion, inertia: InertiaLoss, held: torch.Tensor, static: to
     return integrate(crit, inertia, held, rep(static), rep(carried), rep(body_v), rep(body_n), cfg, precond)[-1]
 
 
-def unpose(blend: torch.Tensor, offset: torch.Tensor) -> torch.Tensor:
+def unpose(blend: torch.Tensor, offset: torch.Tensor, min_singular: float = 0.0) -> torch.Tensor:
     """Posed offsets (..., n, 3) -> rest-pose displacements under the blended skinning rotations
-    ``blend`` (..., n, 3, 3): the inverse of ``BlendShapeGarment.skin``'s linear part."""
-    return torch.linalg.solve(blend, offset[..., None])[..., 0]
+    ``blend`` (..., n, 3, 3): the inverse of ``BlendShapeGarment.skin``'s linear part. Blends
+    between far-apart joint rotations (a skirt's cloth between the legs) are near singular and
+    their inverse flings a few centimetres of posed offset kilometres away in the rest pose;
+    ``min_singular`` > 0 clamps the blend's singular values from below, so that such offsets
+    stay within 1 / ``min_singular`` of their size (the rest inverts exactly)."""
+    if min_singular <= 0:
+        return torch.linalg.solve(blend, offset[..., None])[..., 0]
+    u, s, vh = torch.linalg.svd(blend)
+    return torch.einsum("...ji,...j,...kj,...k->...i", vh, 1.0 / s.clamp_min(min_singular), u, offset)

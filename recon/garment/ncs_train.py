@@ -12,7 +12,9 @@ fixed point, the cloth trajectory the thesis' training converges to, and the net
 
 1. chunks: ``chunk`` frames of the train split's clips (smoothed by ``smooth_motion``); the cloth
    settles ``settle`` frames on each chunk's first pose, then is integrated through the chunk in
-   ``workers`` processes (each chunk kept in ``<cache>/ncs-chunks/`` as it is done: ``chunk_folder``);
+   ``workers`` processes (each chunk's posed offsets from PBNS's drape kept in ``<cache>/ncs-chunks/``
+   as it is done: ``chunk_folder``); a chunk with an edge strained past ``max_strain`` is dropped,
+   the others unposed into rest-pose displacements (``min_singular``);
 2. fields: the principal components of the cloth's rest-pose displacement from PBNS over every
    frame (mass-weighted), ``NCSConfig.dynamic`` of them, become the rows of D after PBNS's: PBNS
    is not the energies' equilibrium (settled on a still body, a skirt's cloth moves 4-7 cm from
@@ -104,10 +106,15 @@ class NCSTrainConfig:
     physics_chunks: int = 4  # chunks per step
     physics_frames: int = 8  # frames per chunk
     physics_lr: float = 1e-3
-    # a solved chunk with a vertex this far (m) from PBNS's drape diverged (the solver blew up on some
-    # frames): dropped from training. Set on the skirt (sound chunks under 0.55 m, diverged ones 0.7 m
-    # to 1.6 km); a longer outfit may swing farther (6 of the dress's 10 cached chunks exceed it)
-    max_displacement: float = 0.6
+    # a solved chunk with an edge this much longer or shorter (m) than at rest, in any frame, went
+    # wrong (the cloth caught between the legs, or the solver lost it): dropped from training. Sound
+    # chunks of the skirt and the dress stay under 30 mm (most under 17), failed ones reach 38 mm to
+    # metres
+    max_strain: float = 0.035
+    # the solved offsets are unposed with the blended skinning rotations' singular values clamped
+    # from below at this (integrate.unpose): blends between the legs are near singular, and their
+    # exact inverse put 20 cm of a skirt's posed swing kilometres away in the rest pose
+    min_singular: float = 0.2
     seed: int = 0
     model: NCSConfig = field(default_factory=lambda: NCSConfig(hidden=128, joint_features=16, dynamic=48))
     edge: L.EdgeConfig = field(default_factory=lambda: _FABRIC.edge)
@@ -199,7 +206,7 @@ class Motions:
 
 class Teacher:
     """The integrated cloth of one outfit's hanging part: ``Teacher(body, outfit_name, cfg)(rot,
-    transl)`` -> its rest-pose displacement from PBNS (T, n, 3) over a motion, after ``cfg.settle``
+    transl)`` -> its posed offset from PBNS's drape (T, n, 3) over a motion, after ``cfg.settle``
     frames on the motion's first pose."""
 
     def __init__(self, body, outfit_name: str, cfg: NCSTrainConfig):
@@ -227,11 +234,20 @@ class Teacher:
         return static, carried, bv, bn, blend, transforms
 
     def __call__(self, rot: torch.Tensor, transl: torch.Tensor) -> torch.Tensor:
-        static, carried, bv, bn, blend, _ = self.drapes(rot, transl)
+        static, carried, bv, bn, _, _ = self.drapes(rot, transl)
         args = (self.crit, self.inertia, self.held)
         x0 = settle(*args, static[0], carried[0], bv[0], bn[0], self.cfg.settle, self.cfg.integrate, self.precond)
         x = integrate(*args, static, carried, bv, bn, self.cfg.integrate, self.precond, start=x0)
-        return unpose(blend, x - static)
+        return x - static
+
+    @torch.no_grad()
+    def rest_displacement(self, rot: torch.Tensor, transl: torch.Tensor, offset: torch.Tensor
+                          ) -> tuple[torch.Tensor, float]:
+        """A solved chunk's posed offsets (T, n, 3) -> its rest-pose displacements from PBNS (T, n,
+        3; ``unpose`` with ``cfg.min_singular``) and its largest edge strain (m)."""
+        static, _, _, _, blend, _ = self.drapes(rot, transl)
+        strain = float(self.crit.edge.strain(static + offset).abs().max())
+        return unpose(blend, offset, self.cfg.min_singular), strain
 
 
 _WORKER: dict = {}
@@ -250,7 +266,7 @@ def chunk_folder(pbns_path: Path, cfg: NCSTrainConfig) -> Path:
     """Where the integrated chunks of an outfit live (``<cache>/ncs-chunks/``), one folder per
     set of everything they depend on (the PBNS file, the fabric, the solver, the motions'
     smoothing, the settling): another fitting of the same chunks integrates nothing again."""
-    key = json.dumps({"pbns": hashlib.sha256(Path(pbns_path).read_bytes()).hexdigest(),
+    key = json.dumps({"pbns": hashlib.sha256(Path(pbns_path).read_bytes()).hexdigest(), "offsets": "posed",
                       **{k: asdict(cfg)[k] for k in ("edge", "bend", "collision", "gravity", "pin", "inertia",
                                                      "integrate", "smooth_motion", "settle")}}, sort_keys=True)
     return paths.cache_dir() / "ncs-chunks" / f"{Path(pbns_path).stem}-{hashlib.sha256(key.encode()).hexdigest()[:12]}"
@@ -258,8 +274,8 @@ def chunk_folder(pbns_path: Path, cfg: NCSTrainConfig) -> Path:
 
 def integrate_chunks(outfit_name: str, chunks: list[Chunk], motions: Motions, cfg: NCSTrainConfig, folder: Path,
                      log=print) -> np.ndarray:
-    """The teacher displacements (C, T, n, 3) float16 of ``chunks``, each kept in ``folder`` as it
-    is done (a rerun takes them from there)."""
+    """The teacher's posed offsets (C, T, n, 3) float16 of ``chunks``, each kept in ``folder`` as
+    it is done (a rerun takes them from there)."""
     folder.mkdir(parents=True, exist_ok=True)
     files = [folder / f"{c.split}-{c.clip}-{c.start}-{c.frames}-{c.stop}.npy" for c in chunks]
     todo = [i for i, f in enumerate(files) if not f.exists()]
@@ -380,8 +396,8 @@ class Physics:
     squared displacement (divided by the inertia term's factor), so that it adds to ``Fit``'s."""
 
     def __init__(self, model: NCS, teacher: Teacher, motions: list[tuple[torch.Tensor, torch.Tensor]],
-                 du: torch.Tensor, static: torch.Tensor, dynamic: torch.Tensor):
-        self.model, self.teacher, self.motions, self.du = model, teacher, motions, du
+                 offsets: torch.Tensor, static: torch.Tensor, dynamic: torch.Tensor):
+        self.model, self.teacher, self.motions, self.offsets = model, teacher, motions, offsets
         self.static, self.dynamic = static, dynamic
         ic = teacher.inertia
         self.unit = ic.cfg.weight * 0.5 * ic.fps ** 2
@@ -399,10 +415,9 @@ class Physics:
         frames = torch.stack([f - 2, f - 1, f], 1)  # (n, 3): the two solved frames, then the predicted one
         rot = torch.stack([self.motions[cc][0][ff] for cc, ff in zip(c.tolist(), frames)])
         tr = torch.stack([self.motions[cc][1][ff] for cc, ff in zip(c.tolist(), frames)])
-        static, carried, bv, bn, blend, transforms = (x.view(n, 3, *x.shape[1:]) for x in
-                                                      tch.drapes(rot.flatten(0, 1), tr.flatten(0, 1)))
-        past = self.du[c[:, None], frames[:, :2]]  # (n, 2, nh, 3) rest-pose displacements
-        solved = static[:, :2] + torch.einsum("fknij,fknj->fkni", blend[:, :2], past)
+        static, carried, bv, bn, _, transforms = (x.view(n, 3, *x.shape[1:]) for x in
+                                                  tch.drapes(rot.flatten(0, 1), tr.flatten(0, 1)))
+        solved = static[:, :2] + self.offsets[c[:, None], frames[:, :2]]  # (n, 2, nh, 3)
         proj = tch.inertia.projection(solved[:, 1], solved[:, 0], carried[:, 2] - carried[:, 1])
         dt = self.model.decode(z)
         x = self.model.skin(self.model.rest + dt, transforms[:, 2])[:, tch.idx]
@@ -414,11 +429,9 @@ class Physics:
         return e.mean() / self.unit, terms
 
 
-def sound_chunks(du: torch.Tensor, limit: float) -> list[bool]:
-    """Per solved chunk (C, T, n, 3 displacements from PBNS's drape): no vertex farther than ``limit`` m
-    (NaN counts as diverged)."""
-    far = torch.linalg.vector_norm(du, dim=-1).flatten(1).amax(1)
-    return (far <= limit).tolist()
+def sound_chunks(strains: list[float], limit: float) -> list[bool]:
+    """Per solved chunk, its largest edge strain (m) within ``limit`` (NaN counts as failed)."""
+    return [bool(x <= limit) for x in strains]
 
 
 def gram(rows: torch.Tensor, masses: torch.Tensor) -> torch.Tensor:
@@ -447,23 +460,29 @@ def train(body, cfg: NCSTrainConfig | None = None, out: Path | None = None, log=
     motions = Motions(body, shape, cfg.smooth_motion)
     train_chunks = chunks_of("train", cfg.chunk, cfg.chunks, cfg.seed, cfg.stops, cfg.lead)
     val_chunks = chunks_of("val", cfg.chunk, cfg.val_chunks, cfg.seed, cfg.stops, cfg.lead)
-    du = integrate_chunks(name, train_chunks + val_chunks, motions, cfg, chunk_folder(pbns_path, cfg), log)
+    off = integrate_chunks(name, train_chunks + val_chunks, motions, cfg, chunk_folder(pbns_path, cfg), log)
     t_integrate = time.time() - t0
-    du = torch.from_numpy(du).float()
-    sound = sound_chunks(du, cfg.max_displacement)
+    teacher = Teacher(body, name, cfg)
+    solved = [teacher.rest_displacement(*motions.motion(c), torch.from_numpy(o).float())
+              for c, o in zip(train_chunks + val_chunks, off)]
+    sound = sound_chunks([strain for _, strain in solved], cfg.max_strain)
     n_t = len(train_chunks)
     dropped = [list(c) for c, ok in zip(train_chunks + val_chunks, sound) if not ok]
     if dropped:
-        log(f"ncs {name}: {len(dropped)} solved chunks diverged (a vertex > {cfg.max_displacement} m from PBNS), "
+        log(f"ncs {name}: {len(dropped)} solved chunks failed (an edge strained > {cfg.max_strain * 1000:.0f} mm), "
             f"dropped: {dropped}")
     train_chunks = [c for c, ok in zip(train_chunks, sound[:n_t]) if ok]
     val_chunks = [c for c, ok in zip(val_chunks, sound[n_t:]) if ok]
-    du = du[torch.tensor(sound)]
+    du = torch.stack([d for (d, _), ok in zip(solved, sound) if ok])
+    off = torch.from_numpy(off[np.array(sound)]).float()
+    del solved
     n_train = len(train_chunks)
     inputs = [motions.inputs(c) for c in train_chunks + val_chunks]
-    if cfg.mirror:  # the train chunks' mirror images: the cloth's displacement mirrored in x
+    if cfg.mirror:  # the train chunks' mirror images: the cloth's displacement (and offset) mirrored in x
         mp_ = torch.from_numpy(mirror_map(outfit.vertices[hanging]))
-        du = torch.cat([du[:n_train, :, mp_] * torch.tensor([-1.0, 1.0, 1.0]), du])
+        flip = torch.tensor([-1.0, 1.0, 1.0])
+        du = torch.cat([du[:n_train, :, mp_] * flip, du])
+        off = torch.cat([off[:n_train, :, mp_] * flip, off])
         inputs = [motions.inputs(c, mirror=True) for c in train_chunks] + inputs
         n_train *= 2
     static = torch.stack([s for s, _ in inputs])
@@ -523,10 +542,9 @@ def train(body, cfg: NCSTrainConfig | None = None, out: Path | None = None, log=
     curve = trainer.fit(batches(), fit, validate)
     trainer.load_best()
 
-    teacher = Teacher(body, name, cfg)
     chunk_motions = [motions.motion(c, mirror=True) for c in train_chunks] if cfg.mirror else []
     chunk_motions += [motions.motion(c) for c in train_chunks + val_chunks]
-    physics = Physics(model, teacher, chunk_motions, du, static, dynamic)
+    physics = Physics(model, teacher, chunk_motions, off, static, dynamic)
     lo = max(cfg.lead, 2)
     val_t = torch.linspace(lo, cfg.chunk - 1, cfg.physics_frames).long().expand(len(val_i), -1)
 
