@@ -106,6 +106,12 @@ class NCSTrainConfig:
     physics_chunks: int = 4  # chunks per step
     physics_frames: int = 8  # frames per chunk
     physics_lr: float = 1e-3
+    # the fitting also keeps the predicted hanging part out of the body (``Contact``) at
+    # ``contact_frames`` of every 4th frame after the lead of each train chunk a step, the body's
+    # surface taken where the solved cloth's nearest body vertex is; in units of a mean squared
+    # displacement per mean squared penetration past the collision energy's eps. 0: off
+    contact_weight: float = 0.0
+    contact_frames: int = 8
     # a solved chunk with an edge this much longer or shorter (m) than at rest, in any frame, went
     # wrong (the cloth caught between the legs, or the solver lost it): dropped from training. Sound
     # chunks of the skirt and the dress stay under 30 mm (most under 17), failed ones reach 38 mm to
@@ -359,23 +365,61 @@ def part_outfit(outfit: Outfit, vertices: np.ndarray) -> Outfit:
     return part
 
 
+class Contact:
+    """How far the predicted hanging part goes into the body, at frames ``frames`` (F,) of the
+    train chunks: PBNS's posed drape ``static`` and the blended skinning rotations ``blend`` (C,
+    F, n, 3[, 3]), and per cloth vertex the body's surface point ``surface`` and normal ``normal``
+    (C, F, n, 3) nearest the solved cloth there. The new rows' displacement (``fields`` (k, n, 3)
+    of the hanging part) is posed on PBNS's drape; the static code's miss of PBNS's own rows (the
+    distillation's, under a millimetre) is left out."""
+
+    def __init__(self, frames, static, blend, surface, normal, fields, eps: float):
+        self.frames, self.static, self.blend, self.surface, self.normal = frames, static, blend, surface, normal
+        self.fields, self.eps = fields.reshape(len(fields), -1), eps
+
+    @staticmethod
+    @torch.no_grad()
+    def build(teacher: Teacher, chunk_motions, offsets: torch.Tensor, frames: torch.Tensor, fields, eps: float
+              ) -> Contact:
+        parts = []
+        for (rot, tr), off in zip(chunk_motions, offsets):
+            static, _, bv, bn, blend, _ = teacher.drapes(rot[frames], tr[frames])
+            near = nearest(bv, static + off[frames])[..., None].expand(-1, -1, 3)
+            parts.append((static, blend, torch.gather(bv, 1, near), torch.gather(bn, 1, near)))
+        return Contact(frames, *(torch.stack(x) for x in zip(*parts)), fields=fields, eps=eps)
+
+    def __call__(self, i: torch.Tensor, j: torch.Tensor, z_new: torch.Tensor):
+        """Chunks ``i`` (B,), their frame slots ``j`` (B, F') into ``frames``, the new rows' codes
+        at every chunk frame (B, T, k) -> (mean squared penetration past eps (m^2), % inside)."""
+        z = torch.gather(z_new, 1, self.frames[j][..., None].expand(-1, -1, z_new.shape[-1]))
+        u = (z @ self.fields).view(*z.shape[:2], -1, 3)
+        ii = i[:, None].expand_as(j)
+        x = self.static[ii, j] + torch.einsum("bfnij,bfnj->bfni", self.blend[ii, j], u)
+        d = ((x - self.surface[ii, j]) * self.normal[ii, j]).sum(-1)
+        return torch.relu(self.eps - d).pow(2).mean(), (d < 0).float().mean() * 100
+
+
 class Fit:
     """The fitting loss on a batch of chunks: the mass-weighted mean squared rest-pose displacement
     (m^2) between NCS's codes on the new rows (static + dynamic) and the teacher's, after the lead,
     plus the static code's miss of PBNS's codes on PBNS's rows over a batch of frames."""
 
     def __init__(self, model: NCS, static, dynamic, coef, gram_new, gram_pbns, frames_static, frames_code,
-                 lead: int, distil_frames: int):
+                 lead: int, distil_frames: int, contact: Contact | None = None, contact_weight: float = 0.0,
+                 contact_frames: int = 8):
         self.model, self.static, self.dynamic, self.coef = model, static, dynamic, coef
         self.gram_new, self.gram_pbns = gram_new, gram_pbns
         self.frames_static, self.frames_code = frames_static, frames_code
         self.lead, self.distil_frames = lead, distil_frames
+        self.contact, self.contact_weight, self.contact_frames = contact, contact_weight, contact_frames
 
-    def teacher_error(self, i: torch.Tensor) -> torch.Tensor:
+    def teacher_error(self, i: torch.Tensor, codes: torch.Tensor | None = None) -> torch.Tensor:
         """(B,) mean squared displacement error on the new rows, per chunk."""
         e = self.model.cfg.embedding
-        zs, zd, _ = self.model.codes(self.static[i], self.dynamic[i])
-        miss = (zs + zd)[:, self.lead:, e:] - self.coef[i][:, self.lead:]
+        if codes is None:
+            zs, zd, _ = self.model.codes(self.static[i], self.dynamic[i])
+            codes = zs + zd
+        miss = codes[:, self.lead:, e:] - self.coef[i][:, self.lead:]
         return torch.einsum("btk,kl,btl->bt", miss, self.gram_new, miss).mean(1)
 
     def distil_error(self, j: torch.Tensor) -> torch.Tensor:
@@ -384,9 +428,17 @@ class Fit:
         return torch.einsum("bk,kl,bl->b", miss, self.gram_pbns, miss).mean()
 
     def __call__(self, batch):
-        i, j = batch
-        teacher, distil = self.teacher_error(i).mean(), self.distil_error(j)
-        return teacher + distil, {"teacher_mm": teacher.sqrt() * 1000, "distil_mm": distil.sqrt() * 1000}
+        """``batch``: train chunks (B,), distillation frames, and with ``contact`` the chunks'
+        slots into its frames (B, F')."""
+        i, j = batch[:2]
+        zs, zd, _ = self.model.codes(self.static[i], self.dynamic[i])
+        teacher, distil = self.teacher_error(i, zs + zd).mean(), self.distil_error(j)
+        terms = {"teacher_mm": teacher.sqrt() * 1000, "distil_mm": distil.sqrt() * 1000}
+        if self.contact is None or not self.contact_weight:
+            return teacher + distil, terms
+        slots = batch[2]
+        pen, inside = self.contact(i, slots, (zs + zd)[..., self.model.cfg.embedding:])
+        return teacher + distil + self.contact_weight * pen, {**terms, "contact_pct": inside}
 
 
 class Physics:
@@ -508,8 +560,16 @@ def train(body, cfg: NCSTrainConfig | None = None, out: Path | None = None, log=
         code_f = pbns.mlp(pose_features(rot_f))
     distil_mm = distil_static(model, pbns, static_f, rot_f, cfg.distil_steps, cfg.seed)
 
+    chunk_motions = [motions.motion(c, mirror=True) for c in train_chunks] if cfg.mirror else []
+    chunk_motions += [motions.motion(c) for c in train_chunks + val_chunks]
+    contact = contact_val = None
+    if cfg.contact_weight:
+        every4 = torch.arange(cfg.lead, cfg.chunk, 4)
+        contact, contact_val = (Contact.build(teacher, chunk_motions[a:b], off[a:b], every4, fields, cfg.collision.eps)
+                                for a, b in ((0, n_train), (n_train, len(off))))
     fit = Fit(model, static, dynamic, coef, gram(fields.reshape(k, -1), masses[idx]),
-              gram(model.D[:e].detach(), masses), static_f, code_f, cfg.lead, cfg.distil_frames)
+              gram(model.D[:e].detach(), masses), static_f, code_f, cfg.lead, cfg.distil_frames,
+              contact, cfg.contact_weight, cfg.contact_frames)
     for p in (model.D, model.weight_logits):
         p.requires_grad_(False)
     params = [p for p in model.parameters() if p.requires_grad]
@@ -519,8 +579,11 @@ def train(body, cfg: NCSTrainConfig | None = None, out: Path | None = None, log=
 
     def batches():
         while True:
-            yield (torch.randint(n_train, (cfg.batch,), generator=g),
-                   torch.randint(len(static_f), (cfg.distil_frames,), generator=g))
+            b = (torch.randint(n_train, (cfg.batch,), generator=g),
+                 torch.randint(len(static_f), (cfg.distil_frames,), generator=g))
+            if contact is not None:
+                b += (torch.randint(len(contact.frames), (cfg.batch, cfg.contact_frames), generator=g),)
+            yield b
 
     @torch.no_grad()
     def validate():
@@ -529,6 +592,10 @@ def train(body, cfg: NCSTrainConfig | None = None, out: Path | None = None, log=
              "train_teacher_mm": float(fit.teacher_error(torch.arange(min(n_train, 32))).mean().sqrt() * 1000),
              "val_zero_mm": float(torch.einsum("btk,kl,btl->bt", coef[val_i][:, cfg.lead:], fit.gram_new,
                                                coef[val_i][:, cfg.lead:]).mean().sqrt() * 1000)}
+        if contact_val is not None:
+            zs, zd, _ = model.codes(static[val_i], dynamic[val_i])
+            slots = torch.arange(len(contact_val.frames)).expand(len(val_i), -1)
+            v["val_contact_pct"] = float(contact_val(torch.arange(len(val_i)), slots, (zs + zd)[..., e:])[1])
         model.train()
         return v
 
@@ -542,20 +609,18 @@ def train(body, cfg: NCSTrainConfig | None = None, out: Path | None = None, log=
     curve = trainer.fit(batches(), fit, validate)
     trainer.load_best()
 
-    chunk_motions = [motions.motion(c, mirror=True) for c in train_chunks] if cfg.mirror else []
-    chunk_motions += [motions.motion(c) for c in train_chunks + val_chunks]
     physics = Physics(model, teacher, chunk_motions, off, static, dynamic)
     lo = max(cfg.lead, 2)
     val_t = torch.linspace(lo, cfg.chunk - 1, cfg.physics_frames).long().expand(len(val_i), -1)
 
     def physics_batches():
-        for i, j in batches():
+        for b in batches():
             p = torch.randint(n_train, (cfg.physics_chunks,), generator=g)
-            yield i, j, p, torch.randint(lo, cfg.chunk, (cfg.physics_chunks, cfg.physics_frames), generator=g)
+            yield b, p, torch.randint(lo, cfg.chunk, (cfg.physics_chunks, cfg.physics_frames), generator=g)
 
     def physics_step(batch):
-        i, j, p, t = batch
-        loss, terms = fit((i, j))
+        b, p, t = batch
+        loss, terms = fit(b)
         e, more = physics(p, t)
         return loss + e, {**terms, **more, "physics": e}
 
