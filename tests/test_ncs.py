@@ -563,17 +563,18 @@ def test_a_failed_solved_chunk_is_told_apart(body):
 
 
 def test_contact_measures_how_far_the_new_rows_push_the_cloth_into_the_body():
-    """``Contact``: the new rows' displacement posed on PBNS's drape, against the body's surface
-    and normal stored per cloth vertex. A drape 1 cm out costs nothing; a code pushing one of two
+    """``Contact``: the new rows' displacement posed on PBNS's drape, against the nearest of the
+    body vertices given per cloth vertex (their normal). A drape 1 cm out costs nothing; a code pushing one of two
     vertices 2 cm in (through a blend that turns rest x into posed y) costs (eps + 1 cm)^2 / 2 and counts
     50 % inside, with a gradient that pulls the code back."""
     static = torch.tensor([[0.0, 0.01, 0.0], [0.0, 0.01, 0.0]]).expand(1, 1, 2, 3)
     turn = torch.tensor([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # rest x -> posed y
     blend = turn.expand(1, 1, 2, 3, 3)
-    surface = torch.zeros(1, 1, 2, 3)
-    normal = torch.tensor([0.0, 1.0, 0.0]).expand(1, 1, 2, 3)
+    body_v = torch.tensor([[0.0, 0.0, 0.0], [5.0, 0.0, 0.0]]).expand(1, 1, 2, 3)  # the second far away
+    body_n = torch.tensor([0.0, 1.0, 0.0]).expand(1, 1, 2, 3)
+    candidates = torch.tensor([0, 1]).expand(1, 1, 2, 2)
     field = torch.tensor([[[-0.02, 0.0, 0.0], [0.0, 0.0, 0.0]]])  # rest -x: posed -y, into the body
-    contact = Contact(torch.tensor([3]), static, blend, surface, normal, field, eps=0.004)
+    contact = Contact(torch.tensor([3]), static, blend, body_v, body_n, candidates, field, eps=0.004)
     i, slots = torch.zeros(1, dtype=torch.long), torch.zeros(1, 1, dtype=torch.long)
     z = torch.zeros(1, 5, 1)
     pen, inside = contact(i, slots, z)

@@ -54,7 +54,7 @@ from recon.garment import losses as L
 from recon.garment import store
 from recon.garment.data import posed_bodies, trained_outfit
 from recon.garment.integrate import IntegrateConfig, Preconditioner, integrate, settle, unpose
-from recon.garment.mesh import nearest
+from recon.garment.mesh import nearest, nearest_among
 from recon.garment.metrics import collision_pct
 from recon.garment.ncs import (
     FPS,
@@ -368,24 +368,25 @@ def part_outfit(outfit: Outfit, vertices: np.ndarray) -> Outfit:
 class Contact:
     """How far the predicted hanging part goes into the body, at frames ``frames`` (F,) of the
     train chunks: PBNS's posed drape ``static`` and the blended skinning rotations ``blend`` (C,
-    F, n, 3[, 3]), and per cloth vertex the body's surface point ``surface`` and normal ``normal``
-    (C, F, n, 3) nearest the solved cloth there. The new rows' displacement (``fields`` (k, n, 3)
-    of the hanging part) is posed on PBNS's drape; the static code's miss of PBNS's own rows (the
-    distillation's, under a millimetre) is left out."""
+    F, n, 3[, 3]), the posed body ``body_v``, ``body_n`` (C, F, V, 3) and per cloth vertex the
+    indices of the body vertices nearest the solved cloth, ``candidates`` (C, F, n, K): the
+    prediction's nearest body vertex is searched among them, as the solver searches its own. The
+    new rows' displacement (``fields`` (k, n, 3) of the hanging part) is posed on PBNS's drape;
+    the static code's miss of PBNS's own rows (the distillation's, under a millimetre) is left out."""
 
-    def __init__(self, frames, static, blend, surface, normal, fields, eps: float):
-        self.frames, self.static, self.blend, self.surface, self.normal = frames, static, blend, surface, normal
+    def __init__(self, frames, static, blend, body_v, body_n, candidates, fields, eps: float):
+        self.frames, self.static, self.blend = frames, static, blend
+        self.body_v, self.body_n, self.candidates = body_v, body_n, candidates
         self.fields, self.eps = fields.reshape(len(fields), -1), eps
 
     @staticmethod
     @torch.no_grad()
-    def build(teacher: Teacher, chunk_motions, offsets: torch.Tensor, frames: torch.Tensor, fields, eps: float
-              ) -> Contact:
+    def build(teacher: Teacher, chunk_motions, offsets: torch.Tensor, frames: torch.Tensor, fields, eps: float,
+              k: int = 16) -> Contact:
         parts = []
         for (rot, tr), off in zip(chunk_motions, offsets):
             static, _, bv, bn, blend, _ = teacher.drapes(rot[frames], tr[frames])
-            near = nearest(bv, static + off[frames])[..., None].expand(-1, -1, 3)
-            parts.append((static, blend, torch.gather(bv, 1, near), torch.gather(bn, 1, near)))
+            parts.append((static, blend, bv, bn, nearest(bv, static + off[frames], k).int()))
         return Contact(frames, *(torch.stack(x) for x in zip(*parts)), fields=fields, eps=eps)
 
     def __call__(self, i: torch.Tensor, j: torch.Tensor, z_new: torch.Tensor):
@@ -394,8 +395,10 @@ class Contact:
         z = torch.gather(z_new, 1, self.frames[j][..., None].expand(-1, -1, z_new.shape[-1]))
         u = (z @ self.fields).view(*z.shape[:2], -1, 3)
         ii = i[:, None].expand_as(j)
-        x = self.static[ii, j] + torch.einsum("bfnij,bfnj->bfni", self.blend[ii, j], u)
-        d = ((x - self.surface[ii, j]) * self.normal[ii, j]).sum(-1)
+        x = (self.static[ii, j] + torch.einsum("bfnij,bfnj->bfni", self.blend[ii, j], u)).flatten(0, 1)
+        bv, bn = self.body_v[ii, j].flatten(0, 1), self.body_n[ii, j].flatten(0, 1)
+        near = nearest_among(bv, x, self.candidates[ii, j].flatten(0, 1))[..., None].expand(-1, -1, 3)
+        d = ((x - torch.gather(bv, 1, near)) * torch.gather(bn, 1, near)).sum(-1)
         return torch.relu(self.eps - d).pow(2).mean(), (d < 0).float().mean() * 100
 
 
