@@ -13,7 +13,7 @@ from recon.body import lbs, skeleton
 from recon.body.lbs import forward_kinematics
 from recon.garment import losses as L
 from recon.garment import ncs, store
-from recon.garment.data import trained_outfit
+from recon.garment.data import pose_set, posed_bodies, trained_outfit
 from recon.garment.dress import Dresser
 from recon.garment.evaluate_ncs import _clip, hem_vertices
 from recon.garment.gltf import write_glb
@@ -21,9 +21,11 @@ from recon.garment.integrate import IntegrateConfig, Preconditioner, integrate, 
 from recon.garment.ncs_train import (
     Contact,
     Fit,
+    FreeMotion,
     Motions,
     NCSTrainConfig,
     Physics,
+    StaticPoses,
     Teacher,
     chunks_of,
     gram,
@@ -513,10 +515,12 @@ def test_training_writes_a_model_whose_new_rows_move_the_hanging_part(body, tmp_
     """``train`` on the shipped tshirt-skirt with a tiny budget: chunks integrated in two worker
     processes, kept for a rerun; the saved model decodes PBNS's D on PBNS's rows, its new rows
     move the skirt's free vertices and nothing else, and the fitting (with the contact term on)
-    beat coding nothing on the val chunks."""
+    beat coding nothing on the val chunks; the physics steps score the static poses and the free
+    windows."""
     cfg = NCSTrainConfig(chunk=12, settle=2, lead=2, chunks=2, val_chunks=1, integrate=IntegrateConfig(iterations=3),
                          steps=24, distil_steps=5, model=ncs.NCSConfig(hidden=32, joint_features=8, dynamic=4),
-                         contact_weight=100.0)
+                         contact_weight=100.0, physics_steps=8, static_poses=8, static_batch=2, free_windows=1,
+                         free_batch=1, free_frames=2)
     meta = train(body, cfg, out=tmp_path / "n.pt", log=lambda *_: None, progress=False)
     model, _ = ncs.NCS.load(tmp_path / "n.pt")
     pbns, _ = PBNS.load(store.pbns_path("tshirt-skirt"))
@@ -527,6 +531,8 @@ def test_training_writes_a_model_whose_new_rows_move_the_hanging_part(body, tmp_
     assert not moved[~hanging].any() and moved[hanging & ~held].all()  # held (pinned) vertices follow skinning
     last = meta["curve"][-1]
     assert last["val_teacher_mm"] < last["val_zero_mm"] and 0 <= last["val_contact_pct"] <= 100
+    physics = meta["physics_curve"][-1]
+    assert 0 <= physics["val_static_collision_pct"] <= 100 and 0 <= physics["val_free_collision_pct"] <= 100
     assert not (tmp_path / ".n.run").exists()
 
 
@@ -586,3 +592,88 @@ def test_contact_measures_how_far_the_new_rows_push_the_cloth_into_the_body():
     assert torch.isclose(pen, torch.tensor((0.004 + 0.01) ** 2 / 2)) and inside == 50
     pen.backward()
     assert z.grad[0, 3, 0] > 0 and z.grad[0, :3].abs().sum() == 0
+
+
+def _inward_row(model, teacher, depth=0.03):
+    """A new row of D that shrinks the skirt's free vertices ``depth`` m towards the vertical axis
+    through its waist's centre, in the rest pose: a code of 1 on it pushes the skirt into the legs."""
+    e = model.cfg.embedding
+    rest = model.rest[teacher.idx]
+    radial = rest - rest.mean(0)
+    radial[:, 1] = 0
+    row = torch.zeros_like(model.rest)
+    row[teacher.idx] = -depth * radial / radial.norm(dim=1, keepdim=True).clamp_min(1e-6)
+    row[teacher.idx[teacher.held]] = 0
+    with torch.no_grad():
+        model.D[e] = row.reshape(-1)
+    return e
+
+
+def test_static_poses_score_the_static_part_by_pbns_loss(body):
+    """``StaticPoses``: PBNS's loss (the whole outfit's energies) of NCS's static prediction, exact
+    nearest contacts up to the candidates' search; a static code pushing the skirt into the legs
+    raises the loss and the collision %, and the loss reaches the static encoder only."""
+    torch.manual_seed(0)
+    cfg = NCSTrainConfig()
+    teacher = Teacher(body, "tshirt-skirt", cfg)
+    outfit, _, _ = trained_outfit(body, store.pbns_path("tshirt-skirt"))
+    pbns, _ = PBNS.load(store.pbns_path("tshirt-skirt"))
+    model = ncs.NCS.from_pbns(pbns, ncs.NCSConfig(hidden=16, joint_features=4, dynamic=1))
+    rot = pose_set("train", 4, 0.5, 0)
+    still = StaticPoses(model, outfit, cfg, body, teacher.shape, rot, unit=2.0)
+    i = torch.arange(4)
+    loss, terms = still(i)
+    with torch.no_grad():
+        dt = model.decode(model.static(still.static))
+        v = model.skin(model.rest + dt, still.bt)
+        expected = still.crit(v, dt, still.bv, still.bn, still.body_c, still.cloth_c).mean() / 2.0
+        exact = still.crit(v, dt, still.bv, still.bn).mean() / 2.0
+    assert torch.isclose(loss, expected, rtol=1e-4) and torch.isclose(loss, exact, rtol=0.02)
+    loss.backward()
+    assert model.static[0].weight.grad.abs().sum() > 0 and model.gru.weight_ih_l0.grad is None
+    row = _inward_row(model, teacher)
+    with torch.no_grad():  # the skinned template, then the row's code 1
+        model.static[-1].weight.zero_()  # the skinned template
+        model.static[-1].bias.zero_()
+        loss, terms = still(i)
+        model.static[-1].bias[row] = 1.0
+        pushed, pushed_terms = still(i)
+    assert pushed > loss and pushed_terms["static_collision_pct"] > terms["static_collision_pct"] + 1
+
+
+def test_free_motion_holds_any_motion_to_collision_edge_and_pins(body):
+    """``FreeMotion`` on a window no teacher solved: the collision, edge and pin energies of the
+    whole prediction (no gravity: lowering the cloth rigidly changes nothing but the contacts); a
+    code pushing the skirt into the legs raises it, and it trains the dynamic branch."""
+    torch.manual_seed(0)
+    cfg = NCSTrainConfig()
+    teacher = Teacher(body, "tshirt-skirt", cfg)
+    pbns, _ = PBNS.load(store.pbns_path("tshirt-skirt"))
+    model = ncs.NCS.from_pbns(pbns, ncs.NCSConfig(hidden=16, joint_features=4, dynamic=1))
+    chunk = chunks_of("train", 8, 1, seed=3)[0]
+    motions = Motions(body, teacher.shape, cfg.smooth_motion)
+    s, d = motions.inputs(chunk)
+    free = FreeMotion(model, teacher, s[None], d[None], [motions.motion(chunk)], unit=2.0)
+    row = _inward_row(model, teacher)  # the new row, before the loss: the dynamic code moves the cloth
+    one, frames = torch.zeros(1, dtype=torch.long), torch.tensor([[4, 7]])
+    loss, terms = free(one, frames)
+    with torch.no_grad():
+        zs, zd, _ = model.codes(s[None], d[None])
+        dt = model.decode((zs + zd)[0, [4, 7]])
+        rot, tr = motions.motion(chunk)
+        bv, bn, transforms = posed_bodies(body, rot[[4, 7]], teacher.shape, transl=tr[[4, 7]])
+        x = model.skin(model.rest + dt, transforms)[:, teacher.idx]
+        crit = teacher.crit
+        expected = (crit.edge(x) + crit.collision(x, bv, bn, crit.faces) + crit.pin(dt[:, teacher.idx])).mean() / 2
+    assert torch.isclose(loss, expected, rtol=1e-3)
+    assert 0 <= terms["free_collision_pct"] <= 100 and terms["free_edge_mm"] > 0
+    loss.backward()
+    assert model.gru.weight_ih_l0.grad.abs().sum() > 0
+    with torch.no_grad():  # the skinned template, then the row's code 1
+        model.dynamic[-1].weight.zero_()
+        model.static[-1].weight.zero_()  # the skinned template
+        model.static[-1].bias.zero_()
+        loss, terms = free(one, frames)
+        model.static[-1].bias[row] = 1.0
+        pushed, pushed_terms = free(one, frames)
+    assert pushed > loss and pushed_terms["free_collision_pct"] > terms["free_collision_pct"] + 1

@@ -52,7 +52,7 @@ from recon.body import default_body, skeleton
 from recon.body.lbs import mirror_rotmats
 from recon.garment import losses as L
 from recon.garment import store
-from recon.garment.data import posed_bodies, trained_outfit
+from recon.garment.data import pose_set, posed_bodies, trained_outfit
 from recon.garment.integrate import IntegrateConfig, Preconditioner, integrate, settle, unpose
 from recon.garment.mesh import nearest, nearest_among
 from recon.garment.metrics import collision_pct, penetration
@@ -71,6 +71,7 @@ from recon.garment.ncs import (
 from recon.garment.pbns import PBNS, pose_features
 from recon.garment.templates import Outfit
 from recon.garment.train import GarmentTrainConfig, run_dir_for
+from recon.garment.train import candidates as pose_candidates
 from recon.poses.mocap import MocapPoses
 from recon.training import Trainer
 
@@ -102,7 +103,7 @@ class NCSTrainConfig:
     # then the thesis' loss on the predictions (``Physics``: the energies, the inertia against the
     # solved past) joins the fitting: the principal fields, a linear space, stretch and push into
     # the body what the solver's cloth does not (edge error 0.3 mm solved, 0.9 mm in 48 fields)
-    physics_steps: int = 300
+    physics_steps: int = 200
     physics_chunks: int = 4  # chunks per step
     physics_frames: int = 8  # frames per chunk
     physics_lr: float = 1e-3
@@ -112,6 +113,22 @@ class NCSTrainConfig:
     # displacement per mean squared penetration past the collision energy's eps. 0: off
     contact_weight: float = 0.0
     contact_frames: int = 8
+    # the physics steps also score NCS's static part (motion control 0) by PBNS's own loss, the whole
+    # outfit's energies, at ``static_poses`` poses of the train split (``StaticPoses``), ``static_batch``
+    # a step: the chunks hold few poses, and the static part alone put the skirt inside the body on
+    # the val clips 1.6x as often as PBNS (1.68 % of its vertices against 1.04). 0: off
+    static_poses: int = 1000
+    static_batch: int = 8
+    static_weight: float = 1.0
+    # and they hold NCS's whole prediction to what any cloth state meets, no vertex inside the body
+    # and no edge stretched (``FreeMotion``: the collision, edge and pin energies), at
+    # ``free_frames`` frames of ``free_batch`` of ``free_windows`` chunks of the train split's motion
+    # that no teacher solved (besides its own): the dynamic branch pushed the skirt into the body on
+    # the val clips where its static part did not. 0: off
+    free_windows: int = 200
+    free_batch: int = 4
+    free_frames: int = 8
+    free_weight: float = 3.0
     # a solved chunk with an edge this much longer or shorter (m) than at rest, in any frame, went
     # wrong (the cloth caught between the legs, or the solver lost it): dropped from training. Sound
     # chunks of the skirt and the dress stay under 30 mm (most under 17), failed ones reach 38 mm to
@@ -483,6 +500,59 @@ class Physics:
         return e.mean() / self.unit, terms
 
 
+class StaticPoses:
+    """PBNS's loss (eq. 5.3: the whole outfit's energies, its fabric) on NCS's static part, the
+    prediction at motion control 0, at poses of the train split, in the units of ``Physics``: what
+    PBNS minimised over thousands of poses, kept true of the static encoder fitted to a few chunks."""
+
+    def __init__(self, model: NCS, outfit: Outfit, cfg: NCSTrainConfig, body, shape: torch.Tensor,
+                 rotmats: torch.Tensor, unit: float, candidates: int = 8):
+        self.model, self.unit = model, unit
+        self.crit = L.Criterion(outfit, model.rest, cfg)
+        self.bv, self.bn, self.bt = posed_bodies(body, rotmats, shape)
+        with torch.no_grad():
+            o = body(rotmats, shape.expand(len(rotmats), -1), points_only=True)
+            self.static = static_descriptors(rotmats, o.global_rotmats).flatten(1)
+        self.body_c, self.cloth_c = pose_candidates(model, self.crit, rotmats, self.bt, self.bv, candidates)
+
+    def __call__(self, i: torch.Tensor):
+        """Poses ``i`` (B,) -> (loss, terms)."""
+        dt = self.model.decode(self.model.static(self.static[i]))
+        v = self.model.skin(self.model.rest + dt, self.bt[i])
+        e = self.crit(v, dt, self.bv[i], self.bn[i], self.body_c[i], [c[i] for c in self.cloth_c]).mean()
+        with torch.no_grad():
+            terms = {"static_edge_mm": self.crit.edge.strain(v).abs().mean() * 1000,
+                     "static_collision_pct": collision_pct(v, self.bv[i], self.bn[i]).mean()}
+        return e / self.unit, terms
+
+
+class FreeMotion:
+    """The energies every state of the cloth keeps low whatever its motion, collision, edge and
+    pin (not gravity, which only inertia balances), on NCS's whole prediction of the hanging part at
+    frames of motions no teacher solved, in the units of ``Physics``."""
+
+    def __init__(self, model: NCS, teacher: Teacher, static: torch.Tensor, dynamic: torch.Tensor,
+                 motions: list[tuple[torch.Tensor, torch.Tensor]], unit: float):
+        self.model, self.teacher, self.static, self.dynamic = model, teacher, static, dynamic
+        self.motions, self.unit = motions, unit
+
+    def __call__(self, i: torch.Tensor, t: torch.Tensor):
+        """Windows ``i`` (B,) and frames ``t`` (B, F) -> (loss, terms)."""
+        tch, crit = self.teacher, self.teacher.crit
+        zs, zd, _ = self.model.codes(self.static[i], self.dynamic[i])
+        z = torch.gather(zs + zd, 1, t[..., None].expand(-1, -1, zs.shape[-1])).flatten(0, 1)
+        rot = torch.cat([self.motions[w][0][f] for w, f in zip(i.tolist(), t)])
+        tr = torch.cat([self.motions[w][1][f] for w, f in zip(i.tolist(), t)])
+        bv, bn, transforms = posed_bodies(tch.body, rot, tch.shape, transl=tr)
+        dt = self.model.decode(z)
+        x = self.model.skin(self.model.rest + dt, transforms)[:, tch.idx]
+        loss = crit.edge(x) + crit.collision(x, bv, bn, crit.faces, nearest(bv, x, 8)) + crit.pin(dt[:, tch.idx])
+        with torch.no_grad():
+            terms = {"free_edge_mm": crit.edge.strain(x).abs().mean() * 1000,
+                     "free_collision_pct": collision_pct(x, bv, bn).mean()}
+        return loss.mean() / self.unit, terms
+
+
 def sound_chunks(strains: list[float], limit: float) -> list[bool]:
     """Per solved chunk, its largest edge strain (m) within ``limit`` (NaN counts as failed)."""
     return [bool(x <= limit) for x in strains]
@@ -615,24 +685,61 @@ def train(body, cfg: NCSTrainConfig | None = None, out: Path | None = None, log=
     lo = max(cfg.lead, 2)
     val_t = torch.linspace(lo, cfg.chunk - 1, cfg.physics_frames).long().expand(len(val_i), -1)
 
+    still = val_still = None
+    if cfg.static_poses:
+        rot_s = pose_set("train", cfg.static_poses, _FABRIC.min_pose_distance, cfg.seed)
+        still = StaticPoses(model, outfit, cfg, body, shape, rot_s, physics.unit)
+        val_still = StaticPoses(model, outfit, cfg, body, shape,
+                                pose_set("val", max(16, cfg.static_poses // 8), _FABRIC.min_pose_distance, cfg.seed),
+                                physics.unit)
+
+    free = val_free = None
+    if cfg.free_windows:
+        windows = chunks_of("train", cfg.chunk, cfg.chunks + cfg.free_windows, cfg.seed, cfg.stops,
+                            cfg.lead)[cfg.chunks:]  # after the teacher's own
+        w_in = [motions.inputs(c) for c in windows]
+        free = FreeMotion(model, teacher, torch.stack([a for a, _ in w_in]), torch.stack([b for _, b in w_in]),
+                          [motions.motion(c) for c in windows], physics.unit)
+        val_free = FreeMotion(model, teacher, static[val_i], dynamic[val_i], chunk_motions[n_train:], physics.unit)
+
     def physics_batches():
         for b in batches():
             p = torch.randint(n_train, (cfg.physics_chunks,), generator=g)
-            yield b, p, torch.randint(lo, cfg.chunk, (cfg.physics_chunks, cfg.physics_frames), generator=g)
+            t = torch.randint(lo, cfg.chunk, (cfg.physics_chunks, cfg.physics_frames), generator=g)
+            s = torch.randint(cfg.static_poses, (cfg.static_batch,), generator=g) if still is not None else None
+            w = None
+            if free is not None:
+                w = (torch.randint(len(free.static), (cfg.free_batch,), generator=g),
+                     torch.randint(cfg.lead, cfg.chunk, (cfg.free_batch, cfg.free_frames), generator=g))
+            yield b, p, t, s, w
 
     def physics_step(batch):
-        b, p, t = batch
+        b, p, t, s, w = batch
         loss, terms = fit(b)
         e, more = physics(p, t)
-        return loss + e, {**terms, **more, "physics": e}
+        loss, terms = loss + e, {**terms, **more, "physics": e}
+        if still is not None:
+            es, more = still(s)
+            loss, terms = loss + cfg.static_weight * es, {**terms, **more, "static": es}
+        if free is not None:
+            ef, more = free(*w)
+            loss, terms = loss + cfg.free_weight * ef, {**terms, **more, "free": ef}
+        return loss, terms
 
     @torch.no_grad()
     def physics_validate():
         model.eval()
         v = validate()
         e, more = physics(val_i, val_t)
+        v = {**v, "val_physics": float(e), **{f"val_{k}": float(x) for k, x in more.items()}}
+        if val_still is not None:
+            es, more = val_still(torch.arange(len(val_still.bt)))
+            v = {**v, "val_static": float(es), **{f"val_{k}": float(x) for k, x in more.items()}}
+        if val_free is not None:
+            ef, more = val_free(torch.arange(len(val_i)), val_t)
+            v = {**v, "val_free": float(ef), **{f"val_{k}": float(x) for k, x in more.items()}}
         model.train()
-        return {**v, "val_physics": float(e), **{f"val_{k}": float(x) for k, x in more.items()}}
+        return v
 
     opt2 = torch.optim.AdamW(params, lr=cfg.physics_lr, weight_decay=cfg.weight_decay)
     trainer2 = Trainer({"ncs": model}, opt2, cfg.physics_steps, eval_every=max(1, cfg.physics_steps // 4),
