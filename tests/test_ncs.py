@@ -532,7 +532,7 @@ def test_training_writes_a_model_whose_new_rows_move_the_hanging_part(body, tmp_
     last = meta["curve"][-1]
     assert last["val_teacher_mm"] < last["val_zero_mm"] and 0 <= last["val_contact_pct"] <= 100
     physics = meta["physics_curve"][-1]
-    assert 0 <= physics["val_static_collision_pct"] <= 100 and 0 <= physics["val_free_collision_pct"] <= 100
+    assert 0 <= physics["val_static_collision_pct"] <= 100 and 0 <= physics["free_collision_pct"] <= 100
     assert not (tmp_path / ".n.run").exists()
 
 

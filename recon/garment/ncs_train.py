@@ -460,6 +460,13 @@ class Fit:
         return teacher + distil + self.contact_weight * pen, {**terms, "contact_pct": inside}
 
 
+def frame_codes(model: NCS, static: torch.Tensor, dynamic: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+    """NCS's codes (static + dynamic, (B * F, E)) of sequences ``static``, ``dynamic`` (B, T, ...)
+    at their frames ``t`` (B, F): the network runs through every frame, the GRU needs the past."""
+    zs, zd, _ = model.codes(static, dynamic)
+    return torch.gather(zs + zd, 1, t[..., None].expand(-1, -1, zs.shape[-1])).flatten(0, 1)
+
+
 class Physics:
     """The thesis' loss (eq. 6.8) on NCS's predictions at sampled frames of the chunks, with the
     previous states the solved ones: the PBNS energies of the predicted hanging part plus the
@@ -475,8 +482,7 @@ class Physics:
 
     def __call__(self, i: torch.Tensor, t: torch.Tensor):
         """Chunks ``i`` (B,) and frames ``t`` (B, F), each >= 2 -> (loss, terms)."""
-        zs, zd, _ = self.model.codes(self.static[i], self.dynamic[i])
-        z = torch.gather(zs + zd, 1, t[..., None].expand(-1, -1, zs.shape[-1])).flatten(0, 1)  # (n, E)
+        z = frame_codes(self.model, self.static[i], self.dynamic[i], t)
         return self.energy(i[:, None].expand_as(t).reshape(-1), t.reshape(-1), z)
 
     def energy(self, c: torch.Tensor, f: torch.Tensor, z: torch.Tensor):
@@ -510,9 +516,8 @@ class StaticPoses:
         self.model, self.unit = model, unit
         self.crit = L.Criterion(outfit, model.rest, cfg)
         self.bv, self.bn, self.bt = posed_bodies(body, rotmats, shape)
-        with torch.no_grad():
-            o = body(rotmats, shape.expand(len(rotmats), -1), points_only=True)
-            self.static = static_descriptors(rotmats, o.global_rotmats).flatten(1)
+        # the joint transforms' rotations are the joints' global rotations
+        self.static = static_descriptors(rotmats, self.bt[..., :3]).flatten(1)
         self.body_c, self.cloth_c = pose_candidates(model, self.crit, rotmats, self.bt, self.bv, candidates)
 
     def __call__(self, i: torch.Tensor):
@@ -539,8 +544,7 @@ class FreeMotion:
     def __call__(self, i: torch.Tensor, t: torch.Tensor):
         """Windows ``i`` (B,) and frames ``t`` (B, F) -> (loss, terms)."""
         tch, crit = self.teacher, self.teacher.crit
-        zs, zd, _ = self.model.codes(self.static[i], self.dynamic[i])
-        z = torch.gather(zs + zd, 1, t[..., None].expand(-1, -1, zs.shape[-1])).flatten(0, 1)
+        z = frame_codes(self.model, self.static[i], self.dynamic[i], t)
         rot = torch.cat([self.motions[w][0][f] for w, f in zip(i.tolist(), t)])
         tr = torch.cat([self.motions[w][1][f] for w, f in zip(i.tolist(), t)])
         bv, bn, transforms = posed_bodies(tch.body, rot, tch.shape, transl=tr)
@@ -693,14 +697,13 @@ def train(body, cfg: NCSTrainConfig | None = None, out: Path | None = None, log=
                                 pose_set("val", max(16, cfg.static_poses // 8), _FABRIC.min_pose_distance, cfg.seed),
                                 physics.unit)
 
-    free = val_free = None
+    free = None
     if cfg.free_windows:
         windows = chunks_of("train", cfg.chunk, cfg.chunks + cfg.free_windows, cfg.seed, cfg.stops,
                             cfg.lead)[cfg.chunks:]  # after the teacher's own
         w_in = [motions.inputs(c) for c in windows]
         free = FreeMotion(model, teacher, torch.stack([a for a, _ in w_in]), torch.stack([b for _, b in w_in]),
                           [motions.motion(c) for c in windows], physics.unit)
-        val_free = FreeMotion(model, teacher, static[val_i], dynamic[val_i], chunk_motions[n_train:], physics.unit)
 
     def physics_batches():
         for b in batches():
@@ -735,9 +738,6 @@ def train(body, cfg: NCSTrainConfig | None = None, out: Path | None = None, log=
         if val_still is not None:
             es, more = val_still(torch.arange(len(val_still.bt)))
             v = {**v, "val_static": float(es), **{f"val_{k}": float(x) for k, x in more.items()}}
-        if val_free is not None:
-            ef, more = val_free(torch.arange(len(val_i)), val_t)
-            v = {**v, "val_free": float(ef), **{f"val_{k}": float(x) for k, x in more.items()}}
         model.train()
         return v
 
