@@ -54,15 +54,15 @@ def main() -> None:
         ncs, _ = NCS.load(path)
         shape = ck["shape"]
         with torch.no_grad():
-            static, dynamic, t = motion_inputs(body, rot, shape, tr)
-            _, h = ncs.animate(static[:8], dynamic[:8], t[:8])
+            static, dynamic, pose, t = motion_inputs(body, rot, shape, tr)
+            _, h = ncs.animate(static[:8], dynamic[:8], pose[:8], t[:8])
             one = {"PBNS": lambda: pbns.pose(rot[8:9], t[8:9]),  # noqa: B023
-                   "NCS": lambda: ncs.animate(static[8:9], dynamic[8:9], t[8:9], h=h),  # noqa: B023
+                   "NCS": lambda: ncs.animate(static[8:9], dynamic[8:9], pose[8:9], t[8:9], h=h),  # noqa: B023
                    "NCS + descriptors": lambda: ncs.animate(  # noqa: B023
                        *[x[-1:] for x in motion_inputs(body, rot[:history], shape, tr[:history])], h=h)}  # noqa: B023
             ms1 = compare(one, rounds=args.rounds)
             ms64 = compare({"PBNS": lambda: pbns.pose(rot, t),  # noqa: B023
-                            "NCS": lambda: ncs.animate(static, dynamic, t)}, rounds=args.rounds)  # noqa: B023
+                            "NCS": lambda: ncs.animate(static, dynamic, pose, t)}, rounds=args.rounds)  # noqa: B023
         rows.append([name, int(pbns.rest.shape[0]), 1000 / ms1["PBNS"], 1000 / ms1["NCS"],
                      ms1["NCS"] / ms1["PBNS"], 1000 / ms1["NCS + descriptors"],
                      64000 / ms64["PBNS"], 64000 / ms64["NCS"], ms64["NCS"] / ms64["PBNS"]])

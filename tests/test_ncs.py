@@ -75,6 +75,11 @@ def test_descriptors_do_not_see_the_heading(body):
         assert torch.allclose(x, y, rtol=1e-4, atol=2e-5 * float(x.abs().max()))
 
 
+def _pose(rot: torch.Tensor) -> torch.Tensor:
+    """PBNS's inputs (B, T, 216) of rotations (B, T, 24, 3, 3)."""
+    return pose_features(rot.flatten(0, 1)).view(*rot.shape[:2], -1)
+
+
 def _skirt_model(body, cfg=None, seed=0):
     o = make_outfit(body, [GarmentSpec("skirt", "skirt")])
     torch.manual_seed(seed)
@@ -94,22 +99,26 @@ def test_no_motion_no_dynamic_code(body):
     assert d.abs().max() == 0
     _, model = _skirt_model(body)
     with torch.no_grad():
-        zs, zd, _ = model.codes(s, d)
-        dt, _ = model.deformation(s, d)
+        zs, zd, _ = model.codes(s, d, _pose(rep(rot)))
+        dt, _ = model.deformation(s, d, _pose(rep(rot)))
     assert zd.abs().max() == 0
     assert torch.allclose(dt[:, 0], dt[:, -1])
-    s2, d2 = ncs.descriptors(*_sequence(body))
+    seq = _sequence(body)
+    s2, d2 = ncs.descriptors(*seq)
+    p2 = _pose(seq[0])
     with torch.no_grad():
-        moving, _ = model.deformation(s2, d2)
-        still, _ = model.deformation(s2, d2, motion=0.0)  # motion control 0: the static model
-        zs2, zd2, _ = model.codes(s2, d2)
+        moving, _ = model.deformation(s2, d2, p2)
+        still, _ = model.deformation(s2, d2, p2, motion=0.0)  # motion control 0: the static model
+        zs2, zd2, _ = model.codes(s2, d2, p2)
     assert zd2.abs().max() > 0 and not torch.allclose(moving, still)
     assert torch.allclose(still, (zs2 @ model.D).view_as(still), atol=1e-6)
 
 
 def test_the_dynamic_code_reaches_the_rows_after_pbns_only(body):
     """D = PBNS's rows, then ``NCSConfig.dynamic`` rows: the static code reaches all of them, the
-    dynamic code (the GRU's width) the new ones alone; from_pbns copies PBNS's D and weights."""
+    dynamic code (the GRU's width) the new ones alone; from_pbns copies PBNS's D, weights and MLP,
+    whose code is the static code on PBNS's rows: NCS at motion control 0 with zero new rows is
+    PBNS."""
     o, _ = _skirt_model(body)
     pbns = PBNS(torch.from_numpy(o.vertices), torch.from_numpy(o.faces),
                 torch.from_numpy(initial_weights(RestBody(body), o)))
@@ -119,19 +128,29 @@ def test_the_dynamic_code_reaches_the_rows_after_pbns_only(body):
     assert model.D.shape == (136, pbns.D.shape[1]) and torch.equal(model.D[:128], pbns.D)
     assert model.D[128:].abs().max() == 0 and model.gru.hidden_size == 8
     assert torch.allclose(model.weights, pbns.weights)
-    s, d = ncs.descriptors(*_sequence(body))
-    zs, zd, _ = model.codes(s, d)
+    with torch.no_grad():
+        pbns.mlp[-2].bias.normal_()  # PBNS's codes differ from pose to pose
+    model = ncs.NCS.from_pbns(pbns, ncs.NCSConfig(dynamic=8))
+    seq = _sequence(body)
+    s, d = ncs.descriptors(*seq)
+    zs, zd, _ = model.codes(s, d, _pose(seq[0]))
     assert zs.shape[-1] == zd.shape[-1] == 136 and zd[..., :128].abs().max() == 0 and zd[..., 128:].abs().max() > 0
+    assert torch.equal(zs[0, :, :128], pbns.mlp(pose_features(seq[0][0])))
+    with torch.no_grad():
+        static, _ = model.deformation(s, d, _pose(seq[0]), motion=0.0)
+    assert torch.allclose(static[0], pbns.deformation(seq[0][0]), atol=1e-6)  # D's new rows are zero
     assert all(p.bias is None for m in (model.per_joint, model.dynamic) for p in m if isinstance(p, torch.nn.Linear))
 
 
 def test_gru_state_fades_when_motion_stops(body):
     _, model = _skirt_model(body)
-    s, d = ncs.descriptors(*_sequence(body, t=4))
+    seq = _sequence(body, t=4)
+    s, d = ncs.descriptors(*seq)
+    p = _pose(seq[0])
     with torch.no_grad():
-        _, _, h = model.codes(s, d)
+        _, _, h = model.codes(s, d, p)
         still = torch.zeros(1, 60, len(ncs.KEPT), 12)
-        _, zd, _ = model.codes(s[:, -1:].expand(-1, 60, -1, -1), still, h)
+        _, zd, _ = model.codes(s[:, -1:].expand(-1, 60, -1, -1), still, p[:, -1:].expand(-1, 60, -1), h)
     assert zd[0, -1].norm() < 0.05 * zd[0, 0].norm()
 
 
@@ -348,13 +367,15 @@ def test_chunks_stay_in_their_clips_and_mirror_back(body):
     assert len(starts) == 6 and all(s % 30 == 0 for _, s in starts)  # non-overlapping
     motions = Motions(body, body.mean_shape, smooth=1.5)
     rot, tr = motions.motion(chunks[0])
-    s, d = motions.inputs(chunks[0])
+    s, d, p = motions.inputs(chunks[0])
     assert rot.shape == (30, 24, 3, 3) and tr[0, [0, 2]].abs().max() == 0
     assert s.shape == (30, len(ncs.KEPT), 9) and d.shape == (30, len(ncs.KEPT), 12)
+    assert torch.equal(p, pose_features(rot))  # PBNS's inputs, frame by frame
     stopped = chunks[0]._replace(stop=12)  # the body stops dead at the chunk's frame 12
     rot_s, tr_s = motions.motion(stopped)
-    s_s, d_s = motions.inputs(stopped)
+    s_s, d_s, p_s = motions.inputs(stopped)
     assert torch.equal(rot_s[:13], rot[:13]) and (rot_s[12:] == rot_s[12]).all() and (tr_s[12:] == tr_s[12]).all()
+    assert torch.equal(p_s, pose_features(rot_s))
     assert torch.allclose(s_s[:10], s[:10], atol=1e-5) and d_s[-8:].abs().max() < 1e-4 * d.abs().max()
     assert any(c.stop for c in chunks_of("train", 120, 20, seed=0, stops=0.5, lead=20))
     assert all(30 <= c.stop <= 90 for c in chunks_of("train", 120, 20, seed=0, stops=0.5, lead=20) if c.stop)
@@ -368,19 +389,16 @@ def test_fit_loss_is_zero_at_the_teacher_and_trains_both_branches(body):
     """``Fit``: no miss where the codes on the new rows equal the teacher's coefficients; its
     gradient reaches the static encoder and the dynamic branch."""
     _, model = _skirt_model(body, ncs.NCSConfig(hidden=16, joint_features=4, dynamic=3))
-    s, d = ncs.descriptors(*_sequence(body, t=8))
+    seq = _sequence(body, t=8)
+    inputs = (*ncs.descriptors(*seq), _pose(seq[0]))
     with torch.no_grad():
-        zs, zd, _ = model.codes(s, d)
+        zs, zd, _ = model.codes(*inputs)
     coef = (zs + zd)[..., 128:]
-    eye = torch.eye(3)
-    frames = s[0].flatten(1)
-    with torch.no_grad():
-        codes = model.static(frames)[:, :128]
-    fit = Fit(model, s, d, coef, eye, torch.eye(128), frames, codes, lead=2, distil_frames=4)
-    loss, terms = fit((torch.zeros(1, dtype=torch.long), torch.arange(4)))
+    fit = Fit(model, inputs, coef, torch.eye(3), lead=2)
+    loss, terms = fit((torch.zeros(1, dtype=torch.long),))
     assert loss.item() < 1e-10
     fit.coef = coef + 0.1
-    loss, terms = fit((torch.zeros(1, dtype=torch.long), torch.arange(4)))
+    loss, terms = fit((torch.zeros(1, dtype=torch.long),))
     loss.backward()
     assert terms["teacher_mm"] > 0
     assert model.static[0].weight.grad.abs().sum() > 0 and model.gru.weight_hh_l0.grad.abs().sum() > 0
@@ -490,7 +508,7 @@ def test_physics_is_the_loss_against_the_solved_past_and_trains_the_network(body
     rot, tr = motions.motion(chunk)
     off = teacher(rot, tr)[None]  # (1, 6, n, 3): the solved posed offsets from PBNS's drape
     du, _ = teacher.rest_displacement(rot, tr, off[0])
-    s, d = motions.inputs(chunk)
+    inputs = motions.inputs(chunk)
     pbns, _ = PBNS.load(store.pbns_path("tshirt-skirt"))
     model = ncs.NCS.from_pbns(pbns, ncs.NCSConfig(hidden=16, joint_features=4, dynamic=1))
     field = torch.zeros(len(pbns.rest), 3)
@@ -498,7 +516,7 @@ def test_physics_is_the_loss_against_the_solved_past_and_trains_the_network(body
     with torch.no_grad():
         model.D[128] = field.reshape(-1)  # one new row: the solved displacement at frame 5
         pbns_code = pbns.mlp(pose_features(rot[5:6]))
-    physics = Physics(model, teacher, [(rot, tr)], off, s[None], d[None])
+    physics = Physics(model, teacher, [(rot, tr)], off, [x[None] for x in inputs])
     one = torch.zeros(1, dtype=torch.long)
     with torch.no_grad():
         losses = [float(physics.energy(one, torch.tensor([5]), torch.cat([pbns_code, torch.tensor([[a]])], 1))[0])
@@ -518,7 +536,7 @@ def test_training_writes_a_model_whose_new_rows_move_the_hanging_part(body, tmp_
     beat coding nothing on the val chunks; the physics steps score the static poses and the free
     windows."""
     cfg = NCSTrainConfig(chunk=12, settle=2, lead=2, chunks=2, val_chunks=1, integrate=IntegrateConfig(iterations=3),
-                         steps=24, distil_steps=5, model=ncs.NCSConfig(hidden=32, joint_features=8, dynamic=4),
+                         steps=24, model=ncs.NCSConfig(hidden=32, joint_features=8, dynamic=4),
                          contact_weight=100.0, physics_steps=8, static_poses=8, static_batch=2, free_windows=1,
                          free_batch=1, free_frames=2)
     meta = train(body, cfg, out=tmp_path / "n.pt", log=lambda *_: None, progress=False)
@@ -526,6 +544,7 @@ def test_training_writes_a_model_whose_new_rows_move_the_hanging_part(body, tmp_
     pbns, _ = PBNS.load(store.pbns_path("tshirt-skirt"))
     assert meta["moving_vertices"] < meta["vertices"] == len(model.rest)
     assert torch.equal(model.D[:len(pbns.D)], pbns.D)
+    assert all(torch.equal(a, b) for a, b in zip(model.pbns_mlp.state_dict().values(), pbns.mlp.state_dict().values()))
     moved = model.D[len(pbns.D):].view(4, -1, 3).abs().sum((0, 2)) > 0
     hanging, held = map(torch.from_numpy, ncs.hanging_part(trained_outfit(body, store.pbns_path("tshirt-skirt"))[0]))
     assert not moved[~hanging].any() and moved[hanging & ~held].all()  # held (pinned) vertices follow skinning
@@ -619,21 +638,21 @@ def test_static_poses_score_the_static_part_by_pbns_loss(body):
     outfit, _, _ = trained_outfit(body, store.pbns_path("tshirt-skirt"))
     pbns, _ = PBNS.load(store.pbns_path("tshirt-skirt"))
     model = ncs.NCS.from_pbns(pbns, ncs.NCSConfig(hidden=16, joint_features=4, dynamic=1))
+    row = _inward_row(model, teacher) - model.cfg.embedding  # a new row for the static encoder's code to move
     rot = pose_set("train", 4, 0.5, 0)
     still = StaticPoses(model, outfit, cfg, body, teacher.shape, rot, unit=2.0)
     i = torch.arange(4)
     loss, terms = still(i)
     with torch.no_grad():
-        dt = model.decode(model.static(still.static))
+        dt = model.decode(model.static_code(still.static, still.pose))
         v = model.skin(model.rest + dt, still.bt)
         expected = still.crit(v, dt, still.bv, still.bn, still.body_c, still.cloth_c).mean() / 2.0
         exact = still.crit(v, dt, still.bv, still.bn).mean() / 2.0
     assert torch.isclose(loss, expected, rtol=1e-4) and torch.isclose(loss, exact, rtol=0.02)
     loss.backward()
     assert model.static[0].weight.grad.abs().sum() > 0 and model.gru.weight_ih_l0.grad is None
-    row = _inward_row(model, teacher)
-    with torch.no_grad():  # the skinned template, then the row's code 1
-        model.static[-1].weight.zero_()  # the skinned template
+    with torch.no_grad():  # PBNS's drape, then the row's code 1
+        model.static[-1].weight.zero_()
         model.static[-1].bias.zero_()
         loss, terms = still(i)
         model.static[-1].bias[row] = 1.0
@@ -652,13 +671,13 @@ def test_free_motion_holds_any_motion_to_collision_edge_and_pins(body):
     model = ncs.NCS.from_pbns(pbns, ncs.NCSConfig(hidden=16, joint_features=4, dynamic=1))
     chunk = chunks_of("train", 8, 1, seed=3)[0]
     motions = Motions(body, teacher.shape, cfg.smooth_motion)
-    s, d = motions.inputs(chunk)
-    free = FreeMotion(model, teacher, s[None], d[None], [motions.motion(chunk)], unit=2.0)
-    row = _inward_row(model, teacher)  # the new row, before the loss: the dynamic code moves the cloth
+    inputs = [x[None] for x in motions.inputs(chunk)]
+    free = FreeMotion(model, teacher, inputs, [motions.motion(chunk)], unit=2.0)
+    row = _inward_row(model, teacher) - model.cfg.embedding  # set before the loss: the dynamic code moves the cloth
     one, frames = torch.zeros(1, dtype=torch.long), torch.tensor([[4, 7]])
     loss, terms = free(one, frames)
     with torch.no_grad():
-        zs, zd, _ = model.codes(s[None], d[None])
+        zs, zd, _ = model.codes(*inputs)
         dt = model.decode((zs + zd)[0, [4, 7]])
         rot, tr = motions.motion(chunk)
         bv, bn, transforms = posed_bodies(body, rot[[4, 7]], teacher.shape, transl=tr[[4, 7]])
@@ -669,9 +688,9 @@ def test_free_motion_holds_any_motion_to_collision_edge_and_pins(body):
     assert 0 <= terms["free_collision_pct"] <= 100 and terms["free_edge_mm"] > 0
     loss.backward()
     assert model.gru.weight_ih_l0.grad.abs().sum() > 0
-    with torch.no_grad():  # the skinned template, then the row's code 1
+    with torch.no_grad():  # PBNS's drape, then the row's code 1
         model.dynamic[-1].weight.zero_()
-        model.static[-1].weight.zero_()  # the skinned template
+        model.static[-1].weight.zero_()
         model.static[-1].bias.zero_()
         loss, terms = free(one, frames)
         model.static[-1].bias[row] = 1.0

@@ -239,13 +239,14 @@ def dynamic_rows(body, outfit_name: str, pbns: PBNS, ncs: NCS, shape: torch.Tens
 def speed(pbns: PBNS, ncs: NCS, body, shape: torch.Tensor) -> dict:
     """Frames per second given the transforms: batch 1 and 64 (see the module's docstring)."""
     rot, tr = _clip(MocapPoses.load("test"), CHECK_CLIP[0], 0, 64)
-    static, dynamic, transforms = motion_inputs(body, rot, shape, tr)
-    _, h = ncs.animate(static[:8], dynamic[:8], transforms[:8])
+    static, dynamic, pose, transforms = motion_inputs(body, rot, shape, tr)
+    _, h = ncs.animate(static[:8], dynamic[:8], pose[:8], transforms[:8])
     fps = frames_per_second
     return {MODELS[1]: {"fps_batch1": fps(lambda: pbns.pose(rot[:1], transforms[:1]), 1),
                         "fps_batch64": fps(lambda: pbns.pose(rot, transforms), 64)},
-            MODELS[2]: {"fps_batch1": fps(lambda: ncs.animate(static[8:9], dynamic[8:9], transforms[8:9], h=h), 1),
-                        "fps_batch64": fps(lambda: ncs.animate(static, dynamic, transforms), 64)}}
+            MODELS[2]: {"fps_batch1": fps(lambda: ncs.animate(static[8:9], dynamic[8:9], pose[8:9], transforms[8:9],
+                                                              h=h), 1),
+                        "fps_batch64": fps(lambda: ncs.animate(static, dynamic, pose, transforms), 64)}}
 
 
 def _load(outfit: str, ncs_weights: Path | None = None) -> tuple[PBNS, NCS, dict, torch.Tensor]:

@@ -9,8 +9,12 @@ Model (6.3.3): a static encoder (4 FC layers on the current pose) and a dynamic 
 any bias (2 per-joint FC layers, 2 FC layers, one GRU), so that no motion gives a zero dynamic
 code and the GRU state fades when motion stops; the codes are added and decoded in PBNS's
 blend-shape form (z . D, so the .glb export stays morph targets), then skinned. D holds PBNS's
-rows, which the static code reaches, and ``NCSConfig.dynamic`` rows that both codes reach: the
-principal fields of the cloth's motion found by training (recon.garment.ncs_train).
+rows and ``NCSConfig.dynamic`` rows after them, the principal fields of the cloth's motion found
+by training (recon.garment.ncs_train). The static code on PBNS's rows is PBNS's own (its MLP, on
+PBNS's input ``pbns.pose_features``, kept fixed): the garments that do not hang (a t-shirt above a
+skirt) are PBNS's exactly, and a copy distilled into the static encoder drifted (its miss of
+PBNS's codes grew 2.4 -> 6.9 mm in training, and the t-shirt went into the body more often than
+PBNS's); the static encoder gives the static code on the new rows, both codes reach those.
 Training (6.3.4) minimises the PBNS energies plus ``InertiaLoss`` (eq. 6.9), the previous states
 constants (recon.garment.integrate, recon.garment.ncs_train). Frames: the body frame, +Y up
 (gravity along -Y), metres; the network steps at the frame rate it was trained at
@@ -18,7 +22,7 @@ constants (recon.garment.integrate, recon.garment.ncs_train). Frames: the body f
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -27,7 +31,7 @@ from torch import nn
 
 from recon import paths
 from recon.body import skeleton
-from recon.garment.pbns import BlendShapeGarment, remove_yaw
+from recon.garment.pbns import BlendShapeGarment, pose_features, remove_yaw
 from recon.poses.mocap import resample
 
 DROPPED = ("left_foot", "right_foot", "left_hand", "right_hand")
@@ -95,6 +99,8 @@ class NCSConfig:
     hidden: int = 256  # the static encoder's and the dynamic encoder's FC layers
     joint_features: int = 32  # the dynamic encoder's per-joint layers
     embedding: int = 128  # rows of D that the static code alone reaches: PBNS's
+    pbns_hidden: int = 32  # PBNS's MLP (its code on those rows): PBNSConfig.hidden, .layers
+    pbns_layers: int = 4
     # rows of D after PBNS's that both codes reach, the GRU's width: the principal fields of the
     # cloth's motion about PBNS (its own drape's correction and the swing), set by training
     dynamic: int = 32
@@ -102,17 +108,20 @@ class NCSConfig:
 
 
 class NCS(BlendShapeGarment):
-    """``NCS(rest, faces, weights)``; ``codes(static, dynamic, h) -> (z_static, z_dynamic, h)``
-    per sequence (B, T, ...), ``forward(static, dynamic, transforms) -> (posed, dT)``,
-    ``animate(...)`` for inference. Skinning, D's first rows and the blend weights are PBNS's."""
+    """``NCS(rest, faces, weights)``; ``codes(static, dynamic, pose, h) -> (z_static, z_dynamic,
+    h)`` per sequence (B, T, ...), ``forward(static, dynamic, pose, transforms) -> (posed, dT)``,
+    ``animate(...)`` for inference; ``pose`` is PBNS's input (``pbns.pose_features``, (B, T,
+    216)). Skinning, D's first rows, the blend weights and the static code on them are PBNS's."""
 
     def __init__(self, rest: torch.Tensor, faces: torch.Tensor, weights: torch.Tensor, cfg: NCSConfig | None = None):
         cfg = cfg or NCSConfig()
         super().__init__(rest, faces, weights, cfg.embedding + cfg.dynamic)
         self.cfg = cfg
-        k, e, h = len(KEPT), len(self.D), cfg.hidden
+        k, h = len(KEPT), cfg.hidden
+        dims = [24 * 9] + [cfg.pbns_hidden] * (cfg.pbns_layers - 1) + [cfg.embedding]
+        self.pbns_mlp = nn.Sequential(*[m for a, b in zip(dims[:-1], dims[1:]) for m in (nn.Linear(a, b), nn.ReLU())])
         self.static = nn.Sequential(nn.Linear(9 * k, h), nn.ReLU(), nn.Linear(h, h), nn.ReLU(), nn.Linear(h, h),
-                                    nn.ReLU(), nn.Linear(h, e))
+                                    nn.ReLU(), nn.Linear(h, cfg.dynamic))
         f = cfg.joint_features
         # no bias anywhere in the dynamic branch: zero motion -> zero code (6.3.3). Leaky: without
         # biases a ReLU unit fed by ReLU outputs (all >= 0) dies for good once its weights turn
@@ -124,25 +133,33 @@ class NCS(BlendShapeGarment):
 
     @classmethod
     def from_pbns(cls, pbns: BlendShapeGarment, cfg: NCSConfig | None = None) -> NCS:
-        """An NCS with a trained PBNS's template, blend weights and D (its dynamic rows zero)."""
-        m = cls(pbns.rest, pbns.faces, pbns.weights.detach(), cfg or NCSConfig(embedding=pbns.D.shape[0]))
+        """An NCS with a trained PBNS's template, blend weights, D (its dynamic rows zero) and MLP."""
+        cfg = replace(cfg or NCSConfig(), embedding=pbns.D.shape[0], pbns_hidden=pbns.cfg.hidden,
+                      pbns_layers=pbns.cfg.layers)
+        m = cls(pbns.rest, pbns.faces, pbns.weights.detach(), cfg)
         with torch.no_grad():
             m.D[:len(pbns.D)].copy_(pbns.D)
             m.weight_logits.copy_(pbns.weight_logits)
+        m.pbns_mlp.load_state_dict(pbns.mlp.state_dict())
         return m
 
-    def codes(self, static: torch.Tensor, dynamic: torch.Tensor, h: torch.Tensor | None = None):
-        """(B, T, K, 9), (B, T, K, 12) -> static code, dynamic code (B, T, E) and the GRU state.
-        The dynamic code is zero on PBNS's rows."""
+    def static_code(self, static: torch.Tensor, pose: torch.Tensor) -> torch.Tensor:
+        """(..., K * 9) flat static descriptors and (..., 216) PBNS inputs -> the static code
+        (..., E): PBNS's on its rows, the static encoder's on the new ones."""
+        return torch.cat([self.pbns_mlp(pose), self.static(static)], -1)
+
+    def codes(self, static: torch.Tensor, dynamic: torch.Tensor, pose: torch.Tensor, h: torch.Tensor | None = None):
+        """(B, T, K, 9), (B, T, K, 12), (B, T, 216) -> static code, dynamic code (B, T, E) and the
+        GRU state. The dynamic code is zero on PBNS's rows."""
         b, t = static.shape[:2]
-        zs = self.static(static.reshape(b, t, -1))
+        zs = self.static_code(static.reshape(b, t, -1), pose)
         zd, h = self.gru(self.dynamic(self.per_joint(dynamic).reshape(b, t, -1)), h)
         return zs, nn.functional.pad(zd, (self.cfg.embedding, 0)), h
 
-    def deformation(self, static, dynamic, h=None, motion: float = 1.0):
+    def deformation(self, static, dynamic, pose, h=None, motion: float = 1.0):
         """Rest-pose displacements (B, T, N, 3) and the GRU state. ``motion`` scales the dynamic
         code (the thesis' motion control, 6.4.6: 0 = the static model, > 1 = livelier)."""
-        zs, zd, h = self.codes(static, dynamic, h)
+        zs, zd, h = self.codes(static, dynamic, pose, h)
         return self.decode(zs + motion * zd), h
 
     def skin_frames(self, x: torch.Tensor, transforms: torch.Tensor) -> torch.Tensor:
@@ -150,17 +167,18 @@ class NCS(BlendShapeGarment):
         b, t = transforms.shape[:2]
         return self.skin(x.flatten(0, 1), transforms.flatten(0, 1)).view(b, t, -1, 3)
 
-    def forward(self, static, dynamic, transforms, h=None, motion: float = 1.0):
-        dt, h = self.deformation(static, dynamic, h, motion)
+    def forward(self, static, dynamic, pose, transforms, h=None, motion: float = 1.0):
+        dt, h = self.deformation(static, dynamic, pose, h, motion)
         return self.skin_frames(self.rest + dt, transforms), dt
 
-    def animate(self, static: torch.Tensor, dynamic: torch.Tensor, transforms: torch.Tensor,
+    def animate(self, static: torch.Tensor, dynamic: torch.Tensor, pose: torch.Tensor, transforms: torch.Tensor,
                 rest: torch.Tensor | None = None, motion: float = 1.0, h: torch.Tensor | None = None):
-        """Inference on one sequence: descriptors (T, K, 9), (T, K, 12) and transforms
-        (T, 24, 3, 4) -> posed vertices (T, N, 3) and the GRU state (pass it back with the next
-        frames to stream). ``rest``: the outfit resized to the body (default the template)."""
+        """Inference on one sequence: ``motion_inputs``' descriptors (T, K, 9), (T, K, 12), PBNS
+        inputs (T, 216) and transforms (T, 24, 3, 4) -> posed vertices (T, N, 3) and the GRU state
+        (pass it back with the next frames to stream). ``rest``: the outfit resized to the body
+        (default the template)."""
         with torch.no_grad():
-            zs, zd, h = self.codes(static[None], dynamic[None], h)
+            zs, zd, h = self.codes(static[None], dynamic[None], pose[None], h)
             return self.pose_codes((zs + motion * zd)[0], transforms, rest), h
 
     def motion_codes(self, body, rotmats: torch.Tensor, shape: torch.Tensor, transl: torch.Tensor | None = None,
@@ -176,8 +194,8 @@ class NCS(BlendShapeGarment):
             if resampled:
                 tr0 = torch.zeros(len(rotmats), 3) if transl is None else transl
                 r, tr = (torch.from_numpy(x).float() for x in resample(rotmats.numpy(), tr0.numpy(), fps, rate))
-            static, dynamic, _ = motion_inputs(body, r, shape, tr, rate)
-            zs, zd, _ = self.codes(static[None], dynamic[None])
+            static, dynamic, pose, _ = motion_inputs(body, r, shape, tr, rate)
+            zs, zd, _ = self.codes(static[None], dynamic[None], pose[None])
         zs, zd = zs[0], zd[0]
         if resampled:
             t = np.arange(len(rotmats)) / fps * rate  # each frame's time in network steps
@@ -199,11 +217,12 @@ class NCS(BlendShapeGarment):
 def motion_inputs(body, rotmats: torch.Tensor, shape: torch.Tensor, transl: torch.Tensor | None = None,
                   fps: float = FPS):
     """A body motion (T, 24, 3, 3) local rotations (+Y up), shape (S,), translation (T, 3) ->
-    static (T, K, 9) and dynamic (T, K, 12) descriptors and the joint transforms (T, 24, 3, 4)."""
+    static (T, K, 9) and dynamic (T, K, 12) descriptors, PBNS's inputs (T, 216) and the joint
+    transforms (T, 24, 3, 4)."""
     with torch.no_grad():
         o = body(rotmats, shape.reshape(1, -1).expand(len(rotmats), -1), transl=transl, points_only=True)
         s, d = descriptors(rotmats[None], o.global_rotmats[None], o.joints[None], fps)
-    return s[0], d[0], o.transforms
+    return s[0], d[0], pose_features(rotmats), o.transforms
 
 
 def hanging_part(outfit) -> tuple[np.ndarray, np.ndarray]:

@@ -19,10 +19,11 @@ fixed point, the cloth trajectory the thesis' training converges to, and the net
    frame (mass-weighted), ``NCSConfig.dynamic`` of them, become the rows of D after PBNS's: PBNS
    is not the energies' equilibrium (settled on a still body, a skirt's cloth moves 4-7 cm from
    PBNS's drape), so the displacement holds a static correction as well as the swing;
-3. networks: the static encoder is distilled from PBNS's codes on PBNS's rows and, with the bias-free
-   dynamic branch, fitted to the chunks' coefficients on the new rows (frames after ``lead``, the
-   swing building up), the two codes adding as the thesis' model adds them. The chunks and their
-   left-right mirror images train; chunks of the val performers select the checkpoint;
+3. networks: the static encoder and the bias-free dynamic branch are fitted to the chunks'
+   coefficients on the new rows (frames after ``lead``, the swing building up), the two codes
+   adding as the thesis' model adds them; the static code on PBNS's rows is PBNS's MLP, fixed.
+   The chunks and their left-right mirror images train; chunks of the val performers select the
+   checkpoint;
 4. physics: ``physics_steps`` more steps add the thesis' loss of the predictions against the
    solved past (``Physics``) to the fitting.
 
@@ -98,8 +99,6 @@ class NCSTrainConfig:
     batch: int = 16  # chunks per step
     lr: float = 3e-3
     weight_decay: float = 0.01
-    distil_steps: int = 1500  # the static encoder <- PBNS's codes, before fitting
-    distil_frames: int = 256  # frames of PBNS codes per fitting step, which keep PBNS's rows
     # then the thesis' loss on the predictions (``Physics``: the energies, the inertia against the
     # solved past) joins the fitting: the principal fields, a linear space, stretch and push into
     # the body what the solver's cloth does not (edge error 0.3 mm solved, 0.9 mm in 48 fields)
@@ -198,27 +197,27 @@ class Motions:
             with torch.no_grad():
                 o = self.body(rot, self.shape.expand(len(rot), -1), transl=transl, points_only=True)
                 s, d = descriptors(rot[None], o.global_rotmats[None], o.joints[None])
-            self._clips[key] = (rot, transl, s[0], d[0])
+            self._clips[key] = (rot, transl, s[0], d[0], pose_features(rot))
         return self._clips[key]
 
     def motion(self, c: Chunk, mirror: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
         """The chunk's rotations (T, 24, 3, 3) and translation (T, 3), its first frame's pelvis
         above the origin."""
-        rot, transl, _, _ = self.clip(c.split, c.clip, mirror)
+        rot, transl = self.clip(c.split, c.clip, mirror)[:2]
         f = self._frames(c)
         r, t = rot[f], transl[f]
         return r, t - t[:1] * torch.tensor([1.0, 0.0, 1.0])
 
-    def inputs(self, c: Chunk, mirror: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
-        """The chunk's static (T, K, 9) and dynamic (T, K, 12) descriptors."""
-        rot, transl, s, d = self.clip(c.split, c.clip, mirror)
+    def inputs(self, c: Chunk, mirror: bool = False) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The chunk's static (T, K, 9) and dynamic (T, K, 12) descriptors and PBNS inputs (T, 216)."""
+        rot, transl, s, d, p = self.clip(c.split, c.clip, mirror)
         if not c.stop:
-            return s[c.start:c.start + c.frames], d[c.start:c.start + c.frames]
+            return s[c.start:c.start + c.frames], d[c.start:c.start + c.frames], p[c.start:c.start + c.frames]
         f = torch.cat([torch.arange(c.start), self._frames(c)])  # the clip's past, then the chunk
         with torch.no_grad():
             o = self.body(rot[f], self.shape.expand(len(f), -1), transl=transl[f], points_only=True)
             s, d = descriptors(rot[f][None], o.global_rotmats[None], o.joints[None])
-        return s[0, c.start:], d[0, c.start:]
+        return s[0, c.start:], d[0, c.start:], p[self._frames(c)]
 
     @staticmethod
     def _frames(c: Chunk) -> torch.Tensor:
@@ -348,31 +347,6 @@ def project(du: torch.Tensor, fields: torch.Tensor, masses: torch.Tensor) -> tor
     return torch.linalg.solve(gram(fields.reshape(len(fields), -1), masses), rhs.unsqueeze(-1)).squeeze(-1)
 
 
-def distil_static(model: NCS, pbns: PBNS, x: torch.Tensor, rot: torch.Tensor, steps: int, seed: int,
-                  batch: int = 512) -> float:
-    """Fit the static encoder's PBNS rows to PBNS's codes on frames (flat static descriptors
-    (F, K * 9), rotations (F, 24, 3, 3)). Returns the mean rest-pose displacement error (mm) on
-    512 frames."""
-    g = torch.Generator().manual_seed(seed)
-    e = model.cfg.embedding
-    with torch.no_grad():
-        target = torch.cat([pbns.mlp(pose_features(rot[i:i + 4096])) for i in range(0, len(x), 4096)])
-    opt = torch.optim.Adam(model.static.parameters(), lr=1e-3)
-    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, steps)
-    for _ in range(steps):
-        j = torch.randint(len(x), (batch,), generator=g)
-        loss = ((model.static(x[j])[:, :e] - target[j]) ** 2).mean()
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-        sched.step()
-    with torch.no_grad():
-        j = torch.randperm(len(x), generator=g)[:512]
-        miss = model.static(x[j])[:, :e] - target[j]
-        err = (miss @ model.D[:e]).view(len(j), -1, 3).norm(dim=-1).mean()
-    return float(err) * 1000
-
-
 def part_outfit(outfit: Outfit, vertices: np.ndarray) -> Outfit:
     """The outfit's garments whose vertices are ``vertices`` (whole garments, in order)."""
     ids = np.unique(outfit.garment_id[vertices])
@@ -388,8 +362,8 @@ class Contact:
     F, n, 3[, 3]), the posed body ``body_v``, ``body_n`` (C, F, V, 3) and per cloth vertex the
     indices of the body vertices nearest the solved cloth, ``candidates`` (C, F, n, K): the
     prediction's nearest body vertex is searched among them, as the solver searches its own. The
-    new rows' displacement (``fields`` (k, n, 3) of the hanging part) is posed on PBNS's drape;
-    the static code's miss of PBNS's own rows (the distillation's, under a millimetre) is left out."""
+    new rows' displacement (``fields`` (k, n, 3) of the hanging part) is posed on PBNS's drape (the
+    static code on PBNS's rows is PBNS's)."""
 
     def __init__(self, frames, static, blend, body_v, body_n, candidates, fields, eps: float):
         self.frames, self.static, self.blend = frames, static, blend
@@ -420,50 +394,41 @@ class Contact:
 
 class Fit:
     """The fitting loss on a batch of chunks: the mass-weighted mean squared rest-pose displacement
-    (m^2) between NCS's codes on the new rows (static + dynamic) and the teacher's, after the lead,
-    plus the static code's miss of PBNS's codes on PBNS's rows over a batch of frames."""
+    (m^2) between NCS's codes on the new rows (static + dynamic) and the teacher's, after the lead.
+    ``inputs``: the chunks' static and dynamic descriptors and PBNS inputs (C, T, ...)."""
 
-    def __init__(self, model: NCS, static, dynamic, coef, gram_new, gram_pbns, frames_static, frames_code,
-                 lead: int, distil_frames: int, contact: Contact | None = None, contact_weight: float = 0.0,
-                 contact_frames: int = 8):
-        self.model, self.static, self.dynamic, self.coef = model, static, dynamic, coef
-        self.gram_new, self.gram_pbns = gram_new, gram_pbns
-        self.frames_static, self.frames_code = frames_static, frames_code
-        self.lead, self.distil_frames = lead, distil_frames
+    def __init__(self, model: NCS, inputs, coef, gram_new, lead: int, contact: Contact | None = None,
+                 contact_weight: float = 0.0, contact_frames: int = 8):
+        self.model, self.inputs, self.coef, self.gram_new, self.lead = model, inputs, coef, gram_new, lead
         self.contact, self.contact_weight, self.contact_frames = contact, contact_weight, contact_frames
 
     def teacher_error(self, i: torch.Tensor, codes: torch.Tensor | None = None) -> torch.Tensor:
         """(B,) mean squared displacement error on the new rows, per chunk."""
         e = self.model.cfg.embedding
         if codes is None:
-            zs, zd, _ = self.model.codes(self.static[i], self.dynamic[i])
+            zs, zd, _ = self.model.codes(*(x[i] for x in self.inputs))
             codes = zs + zd
         miss = codes[:, self.lead:, e:] - self.coef[i][:, self.lead:]
         return torch.einsum("btk,kl,btl->bt", miss, self.gram_new, miss).mean(1)
 
-    def distil_error(self, j: torch.Tensor) -> torch.Tensor:
-        e = self.model.cfg.embedding
-        miss = self.model.static(self.frames_static[j])[:, :e] - self.frames_code[j]
-        return torch.einsum("bk,kl,bl->b", miss, self.gram_pbns, miss).mean()
-
     def __call__(self, batch):
-        """``batch``: train chunks (B,), distillation frames, and with ``contact`` the chunks'
-        slots into its frames (B, F')."""
-        i, j = batch[:2]
-        zs, zd, _ = self.model.codes(self.static[i], self.dynamic[i])
-        teacher, distil = self.teacher_error(i, zs + zd).mean(), self.distil_error(j)
-        terms = {"teacher_mm": teacher.sqrt() * 1000, "distil_mm": distil.sqrt() * 1000}
+        """``batch``: train chunks (B,) and with ``contact`` the chunks' slots into its frames (B, F')."""
+        i = batch[0]
+        zs, zd, _ = self.model.codes(*(x[i] for x in self.inputs))
+        teacher = self.teacher_error(i, zs + zd).mean()
+        terms = {"teacher_mm": teacher.sqrt() * 1000}
         if self.contact is None or not self.contact_weight:
-            return teacher + distil, terms
-        slots = batch[2]
+            return teacher, terms
+        slots = batch[1]
         pen, inside = self.contact(i, slots, (zs + zd)[..., self.model.cfg.embedding:])
-        return teacher + distil + self.contact_weight * pen, {**terms, "contact_pct": inside}
+        return teacher + self.contact_weight * pen, {**terms, "contact_pct": inside}
 
 
-def frame_codes(model: NCS, static: torch.Tensor, dynamic: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
-    """NCS's codes (static + dynamic, (B * F, E)) of sequences ``static``, ``dynamic`` (B, T, ...)
-    at their frames ``t`` (B, F): the network runs through every frame, the GRU needs the past."""
-    zs, zd, _ = model.codes(static, dynamic)
+def frame_codes(model: NCS, inputs, t: torch.Tensor) -> torch.Tensor:
+    """NCS's codes (static + dynamic, (B * F, E)) of sequences ``inputs`` (static, dynamic
+    descriptors, PBNS inputs (B, T, ...)) at their frames ``t`` (B, F): the network runs through
+    every frame, the GRU needs the past."""
+    zs, zd, _ = model.codes(*inputs)
     return torch.gather(zs + zd, 1, t[..., None].expand(-1, -1, zs.shape[-1])).flatten(0, 1)
 
 
@@ -474,15 +439,14 @@ class Physics:
     squared displacement (divided by the inertia term's factor), so that it adds to ``Fit``'s."""
 
     def __init__(self, model: NCS, teacher: Teacher, motions: list[tuple[torch.Tensor, torch.Tensor]],
-                 offsets: torch.Tensor, static: torch.Tensor, dynamic: torch.Tensor):
-        self.model, self.teacher, self.motions, self.offsets = model, teacher, motions, offsets
-        self.static, self.dynamic = static, dynamic
+                 offsets: torch.Tensor, inputs):
+        self.model, self.teacher, self.motions, self.offsets, self.inputs = model, teacher, motions, offsets, inputs
         ic = teacher.inertia
         self.unit = ic.cfg.weight * 0.5 * ic.fps ** 2
 
     def __call__(self, i: torch.Tensor, t: torch.Tensor):
         """Chunks ``i`` (B,) and frames ``t`` (B, F), each >= 2 -> (loss, terms)."""
-        z = frame_codes(self.model, self.static[i], self.dynamic[i], t)
+        z = frame_codes(self.model, [x[i] for x in self.inputs], t)
         return self.energy(i[:, None].expand_as(t).reshape(-1), t.reshape(-1), z)
 
     def energy(self, c: torch.Tensor, f: torch.Tensor, z: torch.Tensor):
@@ -518,11 +482,15 @@ class StaticPoses:
         self.bv, self.bn, self.bt = posed_bodies(body, rotmats, shape)
         # the joint transforms' rotations are the joints' global rotations
         self.static = static_descriptors(rotmats, self.bt[..., :3]).flatten(1)
-        self.body_c, self.cloth_c = pose_candidates(model, self.crit, rotmats, self.bt, self.bv, candidates)
+        self.pose = pose_features(rotmats)
+        with torch.no_grad():  # the contacts' candidates around the static part as it is now (PBNS + the fit's)
+            codes = model.static_code(self.static, self.pose)
+        self.body_c, self.cloth_c = pose_candidates(model, self.crit, rotmats, self.bt, self.bv, candidates,
+                                                    codes=codes)
 
     def __call__(self, i: torch.Tensor):
         """Poses ``i`` (B,) -> (loss, terms)."""
-        dt = self.model.decode(self.model.static(self.static[i]))
+        dt = self.model.decode(self.model.static_code(self.static[i], self.pose[i]))
         v = self.model.skin(self.model.rest + dt, self.bt[i])
         e = self.crit(v, dt, self.bv[i], self.bn[i], self.body_c[i], [c[i] for c in self.cloth_c]).mean()
         with torch.no_grad():
@@ -536,15 +504,14 @@ class FreeMotion:
     pin (not gravity, which only inertia balances), on NCS's whole prediction of the hanging part at
     frames of motions no teacher solved, in the units of ``Physics``."""
 
-    def __init__(self, model: NCS, teacher: Teacher, static: torch.Tensor, dynamic: torch.Tensor,
-                 motions: list[tuple[torch.Tensor, torch.Tensor]], unit: float):
-        self.model, self.teacher, self.static, self.dynamic = model, teacher, static, dynamic
-        self.motions, self.unit = motions, unit
+    def __init__(self, model: NCS, teacher: Teacher, inputs, motions: list[tuple[torch.Tensor, torch.Tensor]],
+                 unit: float):
+        self.model, self.teacher, self.inputs, self.motions, self.unit = model, teacher, inputs, motions, unit
 
     def __call__(self, i: torch.Tensor, t: torch.Tensor):
         """Windows ``i`` (B,) and frames ``t`` (B, F) -> (loss, terms)."""
         tch, crit = self.teacher, self.teacher.crit
-        z = frame_codes(self.model, self.static[i], self.dynamic[i], t)
+        z = frame_codes(self.model, [x[i] for x in self.inputs], t)
         rot = torch.cat([self.motions[w][0][f] for w, f in zip(i.tolist(), t)])
         tr = torch.cat([self.motions[w][1][f] for w, f in zip(i.tolist(), t)])
         bv, bn, transforms = posed_bodies(tch.body, rot, tch.shape, transl=tr)
@@ -580,7 +547,7 @@ def train(body, cfg: NCSTrainConfig | None = None, out: Path | None = None, log=
     out = Path(out or store.ncs_path(name))
     run_dir = run_dir_for(out)
     pbns, _ = PBNS.load(pbns_path)
-    model = NCS.from_pbns(pbns, NCSConfig(**{**asdict(cfg.model), "embedding": pbns.D.shape[0]}))
+    model = NCS.from_pbns(pbns, cfg.model)
     hanging, _ = hanging_part(outfit)
     idx = torch.from_numpy(np.nonzero(hanging)[0])
     masses = torch.from_numpy(vertex_masses(outfit.vertices, outfit.faces))
@@ -613,8 +580,7 @@ def train(body, cfg: NCSTrainConfig | None = None, out: Path | None = None, log=
         off = torch.cat([off[:n_train, :, mp_] * flip, off])
         inputs = [motions.inputs(c, mirror=True) for c in train_chunks] + inputs
         n_train *= 2
-    static = torch.stack([s for s, _ in inputs])
-    dynamic = torch.stack([d for _, d in inputs])
+    inputs = [torch.stack(x) for x in zip(*inputs)]  # static, dynamic descriptors, PBNS inputs (C, T, ...)
 
     # the new rows of D: principal fields of the train chunks' displacement, zero off the hanging part
     k = cfg.model.dynamic
@@ -626,16 +592,6 @@ def train(body, cfg: NCSTrainConfig | None = None, out: Path | None = None, log=
     with torch.no_grad():
         model.D[e:] = full.reshape(k, -1)
 
-    # PBNS's codes on the train split's frames: the static encoder keeps PBNS's rows
-    train_m = MocapPoses.load("train")
-    frames = torch.from_numpy(np.random.default_rng(cfg.seed).choice(len(train_m.clip), 8192, replace=False))
-    rot_f = roma.rotvec_to_rotmat(torch.from_numpy(train_m.rotvec[frames.numpy()]).float())
-    with torch.no_grad():
-        o = body(rot_f, shape[None].expand(len(rot_f), -1), points_only=True)
-        static_f = static_descriptors(rot_f, o.global_rotmats).flatten(1)
-        code_f = pbns.mlp(pose_features(rot_f))
-    distil_mm = distil_static(model, pbns, static_f, rot_f, cfg.distil_steps, cfg.seed)
-
     chunk_motions = [motions.motion(c, mirror=True) for c in train_chunks] if cfg.mirror else []
     chunk_motions += [motions.motion(c) for c in train_chunks + val_chunks]
     contact = contact_val = None
@@ -643,10 +599,9 @@ def train(body, cfg: NCSTrainConfig | None = None, out: Path | None = None, log=
         every4 = torch.arange(cfg.lead, cfg.chunk, 4)
         contact, contact_val = (Contact.build(teacher, chunk_motions[a:b], off[a:b], every4, fields, cfg.collision.eps)
                                 for a, b in ((0, n_train), (n_train, len(off))))
-    fit = Fit(model, static, dynamic, coef, gram(fields.reshape(k, -1), masses[idx]),
-              gram(model.D[:e].detach(), masses), static_f, code_f, cfg.lead, cfg.distil_frames,
-              contact, cfg.contact_weight, cfg.contact_frames)
-    for p in (model.D, model.weight_logits):
+    fit = Fit(model, inputs, coef, gram(fields.reshape(k, -1), masses[idx]), cfg.lead, contact, cfg.contact_weight,
+              cfg.contact_frames)
+    for p in (model.D, model.weight_logits, *model.pbns_mlp.parameters()):  # PBNS's, kept
         p.requires_grad_(False)
     params = [p for p in model.parameters() if p.requires_grad]
     opt = torch.optim.AdamW(params, lr=cfg.lr, weight_decay=cfg.weight_decay)
@@ -655,8 +610,7 @@ def train(body, cfg: NCSTrainConfig | None = None, out: Path | None = None, log=
 
     def batches():
         while True:
-            b = (torch.randint(n_train, (cfg.batch,), generator=g),
-                 torch.randint(len(static_f), (cfg.distil_frames,), generator=g))
+            b = (torch.randint(n_train, (cfg.batch,), generator=g),)
             if contact is not None:
                 b += (torch.randint(len(contact.frames), (cfg.batch, cfg.contact_frames), generator=g),)
             yield b
@@ -664,7 +618,7 @@ def train(body, cfg: NCSTrainConfig | None = None, out: Path | None = None, log=
     @torch.no_grad()
     def validate():
         model.eval()
-        zs, zd, _ = model.codes(static[val_i], dynamic[val_i])
+        zs, zd, _ = model.codes(*(x[val_i] for x in inputs))
         v = {"val_teacher_mm": float(fit.teacher_error(val_i, zs + zd).mean().sqrt() * 1000),
              "train_teacher_mm": float(fit.teacher_error(torch.arange(min(n_train, 32))).mean().sqrt() * 1000),
              "val_zero_mm": float(torch.einsum("btk,kl,btl->bt", coef[val_i][:, cfg.lead:], fit.gram_new,
@@ -680,12 +634,11 @@ def train(body, cfg: NCSTrainConfig | None = None, out: Path | None = None, log=
                       progress=progress)
     log(f"ncs {name}: {len(idx)} of {len(outfit.vertices)} vertices move; {len(train_chunks)} train "
         f"(+ mirrored: {cfg.mirror}) / {len(val_chunks)} val chunks of {cfg.chunk} frames integrated in "
-        f"{t_integrate:.0f} s (chunks cached in {chunk_folder(pbns_path, cfg)}); static encoder distilled from PBNS "
-        f"to {distil_mm:.2f} mm")
+        f"{t_integrate:.0f} s (chunks cached in {chunk_folder(pbns_path, cfg)})")
     curve = trainer.fit(batches(), fit, validate)
     trainer.load_best()
 
-    physics = Physics(model, teacher, chunk_motions, off, static, dynamic)
+    physics = Physics(model, teacher, chunk_motions, off, inputs)
     lo = max(cfg.lead, 2)
     val_t = torch.linspace(lo, cfg.chunk - 1, cfg.physics_frames).long().expand(len(val_i), -1)
 
@@ -702,8 +655,8 @@ def train(body, cfg: NCSTrainConfig | None = None, out: Path | None = None, log=
         windows = chunks_of("train", cfg.chunk, cfg.chunks + cfg.free_windows, cfg.seed, cfg.stops,
                             cfg.lead)[cfg.chunks:]  # after the teacher's own
         w_in = [motions.inputs(c) for c in windows]
-        free = FreeMotion(model, teacher, torch.stack([a for a, _ in w_in]), torch.stack([b for _, b in w_in]),
-                          [motions.motion(c) for c in windows], physics.unit)
+        free = FreeMotion(model, teacher, [torch.stack(x) for x in zip(*w_in)], [motions.motion(c) for c in windows],
+                          physics.unit)
 
     def physics_batches():
         for b in batches():
@@ -712,7 +665,7 @@ def train(body, cfg: NCSTrainConfig | None = None, out: Path | None = None, log=
             s = torch.randint(cfg.static_poses, (cfg.static_batch,), generator=g) if still is not None else None
             w = None
             if free is not None:
-                w = (torch.randint(len(free.static), (cfg.free_batch,), generator=g),
+                w = (torch.randint(len(free.motions), (cfg.free_batch,), generator=g),
                      torch.randint(cfg.lead, cfg.chunk, (cfg.free_batch, cfg.free_frames), generator=g))
             yield b, p, t, s, w
 
@@ -753,7 +706,7 @@ def train(body, cfg: NCSTrainConfig | None = None, out: Path | None = None, log=
             "vertices": int(len(outfit.vertices)), "moving_vertices": int(len(idx)),
             "chunks": [list(c) for c in train_chunks], "val_chunks": [list(c) for c in val_chunks],
             "dropped_chunks": dropped,
-            "distil_mm": round(distil_mm, 3), "integrate_seconds": round(t_integrate, 1),
+            "integrate_seconds": round(t_integrate, 1),
             "train_seconds": round(time.time() - t0, 1), "workers": cfg.workers, "threads": torch.get_num_threads(),
             "best": curve["best"], "garments": [gg.name for gg in outfit.garments], "curve": curve["history"],
             "physics_curve": curve2["history"]}

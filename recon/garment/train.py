@@ -101,13 +101,15 @@ def build(body, cfg: GarmentTrainConfig, shape: torch.Tensor | None = None):
 
 
 @torch.no_grad()
-def candidates(model: PBNS, crit: L.Criterion, rot, bt, bv, k: int, chunk: int = 64):
+def candidates(model: PBNS, crit: L.Criterion, rot, bt, bv, k: int, chunk: int = 64, codes=None):
     """Per pose, the k nearest body vertices (and inner-layer vertices) of every vertex of the
-    skinned template (dT = 0): the prediction moves a few cm at most, so its nearest neighbour is
-    almost always among them. int16/int32 to keep 3,000 poses in memory."""
+    skinned template (dT = 0), or of the model's drape at ``codes`` (P, E) where given: the
+    prediction moves a few cm at most, so its nearest neighbour is almost always among them.
+    int16/int32 to keep 3,000 poses in memory."""
     body_c, cloth_c = [], [[] for _ in crit.collision.pairs()]
     for i in range(0, len(rot), chunk):
-        v = model.skin(model.rest, bt[i:i + chunk])
+        rest = model.rest if codes is None else model.rest + model.decode(codes[i:i + chunk])
+        v = model.skin(rest, bt[i:i + chunk])
         body_c.append(nearest(bv[i:i + chunk], v, k).to(torch.int16 if bv.shape[1] < 32767 else torch.int32))
         for j, (inner, outer) in enumerate(crit.collision.pairs()):
             cloth_c[j].append(nearest(v[:, inner], v[:, outer], k).to(torch.int32))
