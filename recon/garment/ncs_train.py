@@ -456,17 +456,21 @@ class Physics:
         frames = torch.stack([f - 2, f - 1, f], 1)  # (n, 3): the two solved frames, then the predicted one
         rot = torch.stack([self.motions[cc][0][ff] for cc, ff in zip(c.tolist(), frames)])
         tr = torch.stack([self.motions[cc][1][ff] for cc, ff in zip(c.tolist(), frames)])
-        static, carried, bv, bn, _, transforms = (x.view(n, 3, *x.shape[1:]) for x in
-                                                  tch.drapes(rot.flatten(0, 1), tr.flatten(0, 1)))
-        solved = static[:, :2] + self.offsets[c[:, None], frames[:, :2]]  # (n, 2, nh, 3)
-        proj = tch.inertia.projection(solved[:, 1], solved[:, 0], carried[:, 2] - carried[:, 1])
+        with torch.no_grad():  # the body's surface at the predicted frame only (a third of the cost)
+            transforms = tch.body(rot.flatten(0, 1), tch.shape.expand(3 * n, -1), transl=tr.flatten(0, 1),
+                                  points_only=True).transforms.view(n, 3, 24, 3, 4)
+            bv, bn, _ = posed_bodies(tch.body, rot[:, 2], tch.shape, transl=tr[:, 2])
+            static = tch.pbns.pose(rot[:, :2].flatten(0, 1), transforms[:, :2].flatten(0, 1))[:, tch.idx]
+            carried = tch.pbns.skin(tch.pbns.rest, transforms[:, 1:].flatten(0, 1))[:, tch.idx]
+        solved = static.view(n, 2, -1, 3) + self.offsets[c[:, None], frames[:, :2]]  # (n, 2, nh, 3)
+        carried = carried.view(n, 2, -1, 3)
+        proj = tch.inertia.projection(solved[:, 1], solved[:, 0], carried[:, 1] - carried[:, 0])
         dt = self.model.decode(z)
         x = self.model.skin(self.model.rest + dt, transforms[:, 2])[:, tch.idx]
-        cand = nearest(bv[:, 2], x, 8)
-        e = tch.crit(x, dt[:, tch.idx], bv[:, 2], bn[:, 2], cand) + tch.inertia.to_projection(x, proj)
+        e = tch.crit(x, dt[:, tch.idx], bv, bn, nearest(bv, x, 8)) + tch.inertia.to_projection(x, proj)
         with torch.no_grad():
             terms = {"physics_edge_mm": tch.crit.edge.strain(x).abs().mean() * 1000,
-                     "physics_collision_pct": collision_pct(x, bv[:, 2], bn[:, 2]).mean()}
+                     "physics_collision_pct": collision_pct(x, bv, bn).mean()}
         return e.mean() / self.unit, terms
 
 
