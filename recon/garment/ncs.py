@@ -31,7 +31,7 @@ from torch import nn
 
 from recon import paths
 from recon.body import skeleton
-from recon.garment.pbns import BlendShapeGarment, pose_features, remove_yaw
+from recon.garment.pbns import BlendShapeGarment, pose_features, pose_mlp, remove_yaw
 from recon.poses.mocap import resample
 
 DROPPED = ("left_foot", "right_foot", "left_hand", "right_hand")
@@ -118,8 +118,7 @@ class NCS(BlendShapeGarment):
         super().__init__(rest, faces, weights, cfg.embedding + cfg.dynamic)
         self.cfg = cfg
         k, h = len(KEPT), cfg.hidden
-        dims = [24 * 9] + [cfg.pbns_hidden] * (cfg.pbns_layers - 1) + [cfg.embedding]
-        self.pbns_mlp = nn.Sequential(*[m for a, b in zip(dims[:-1], dims[1:]) for m in (nn.Linear(a, b), nn.ReLU())])
+        self.pbns_mlp = pose_mlp(cfg.pbns_hidden, cfg.pbns_layers, cfg.embedding)
         self.static = nn.Sequential(nn.Linear(9 * k, h), nn.ReLU(), nn.Linear(h, h), nn.ReLU(), nn.Linear(h, h),
                                     nn.ReLU(), nn.Linear(h, cfg.dynamic))
         f = cfg.joint_features

@@ -43,6 +43,16 @@ def pose_features(rotmats: torch.Tensor) -> torch.Tensor:
     return (r - eye).flatten(1)
 
 
+def pose_mlp(hidden: int, layers: int, embedding: int) -> nn.Sequential:
+    """PBNS's network: ``layers`` FC layers, each followed by a ReLU, from ``pose_features`` to the
+    code X."""
+    dims = [24 * 9] + [hidden] * (layers - 1) + [embedding]
+    mods: list[nn.Module] = []
+    for a, b in zip(dims[:-1], dims[1:]):
+        mods += [nn.Linear(a, b), nn.ReLU()]
+    return nn.Sequential(*mods)
+
+
 def remove_yaw(r: torch.Tensor) -> torch.Tensor:
     """Left-multiply by the inverse heading so the body's forward axis (+Z) has no X component."""
     f = r[..., :, 2]  # body +Z in the parent (world) frame
@@ -159,11 +169,7 @@ class PBNS(BlendShapeGarment):
         cfg = cfg or PBNSConfig()
         super().__init__(rest, faces, weights, cfg.embedding, cfg.optimise_weights)
         self.cfg = cfg
-        dims = [24 * 9] + [cfg.hidden] * (cfg.layers - 1) + [cfg.embedding]
-        mods: list[nn.Module] = []
-        for a, b in zip(dims[:-1], dims[1:]):
-            mods += [nn.Linear(a, b), nn.ReLU()]
-        self.mlp = nn.Sequential(*mods)
+        self.mlp = pose_mlp(cfg.hidden, cfg.layers, cfg.embedding)
 
     def deformation(self, rotmats: torch.Tensor) -> torch.Tensor:
         """(B, 24, 3, 3) -> rest-pose displacements dT (B, N, 3)."""
