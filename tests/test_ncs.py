@@ -142,6 +142,16 @@ def test_the_dynamic_code_reaches_the_rows_after_pbns_only(body):
     assert all(p.bias is None for m in (model.per_joint, model.dynamic) for p in m if isinstance(p, torch.nn.Linear))
 
 
+def test_the_static_encoder_width_defaults_to_the_dynamic_one():
+    """``static_hidden`` None (the files before it) builds the static encoder as wide as ``hidden``."""
+    rest, faces, w = torch.zeros(4, 3), torch.tensor([[0, 1, 2], [0, 2, 3]]), torch.full((4, 24), 1 / 24)
+    same = ncs.NCS(rest, faces, w, ncs.NCSConfig(hidden=16, dynamic=3))
+    wide = ncs.NCS(rest, faces, w, ncs.NCSConfig(hidden=16, static_hidden=24, dynamic=3))
+    assert [m.out_features for m in same.static if isinstance(m, torch.nn.Linear)] == [16, 16, 16, 3]
+    assert [m.out_features for m in wide.static if isinstance(m, torch.nn.Linear)] == [24, 24, 24, 3]
+    assert same.dynamic[0].out_features == wide.dynamic[0].out_features == 16
+
+
 def test_gru_state_fades_when_motion_stops(body):
     _, model = _skirt_model(body)
     seq = _sequence(body, t=4)

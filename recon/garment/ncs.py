@@ -96,7 +96,8 @@ def descriptors(rotmats: torch.Tensor, global_rotmats: torch.Tensor, joints: tor
 
 @dataclass
 class NCSConfig:
-    hidden: int = 256  # the static encoder's and the dynamic encoder's FC layers
+    hidden: int = 256  # the dynamic encoder's FC layers
+    static_hidden: int | None = None  # the static encoder's FC layers (None: ``hidden``, as files before it)
     joint_features: int = 32  # the dynamic encoder's per-joint layers
     embedding: int = 128  # rows of D that the static code alone reaches: PBNS's
     pbns_hidden: int = 32  # PBNS's MLP (its code on those rows): PBNSConfig.hidden, .layers
@@ -118,9 +119,10 @@ class NCS(BlendShapeGarment):
         super().__init__(rest, faces, weights, cfg.embedding + cfg.dynamic)
         self.cfg = cfg
         k, h = len(KEPT), cfg.hidden
+        hs = cfg.static_hidden or h
         self.pbns_mlp = pose_mlp(cfg.pbns_hidden, cfg.pbns_layers, cfg.embedding)
-        self.static = nn.Sequential(nn.Linear(9 * k, h), nn.ReLU(), nn.Linear(h, h), nn.ReLU(), nn.Linear(h, h),
-                                    nn.ReLU(), nn.Linear(h, cfg.dynamic))
+        self.static = nn.Sequential(nn.Linear(9 * k, hs), nn.ReLU(), nn.Linear(hs, hs), nn.ReLU(), nn.Linear(hs, hs),
+                                    nn.ReLU(), nn.Linear(hs, cfg.dynamic))
         f = cfg.joint_features
         # no bias anywhere in the dynamic branch: zero motion -> zero code (6.3.3). Leaky: without
         # biases a ReLU unit fed by ReLU outputs (all >= 0) dies for good once its weights turn
