@@ -220,7 +220,7 @@ class Motions:
         with torch.no_grad():
             o = self.body(rot[f], self.shape.expand(len(f), -1), transl=transl[f], points_only=True)
             s, d = descriptors(rot[f][None], o.global_rotmats[None], o.joints[None])
-        return s[0, c.start:], d[0, c.start:], p[self._frames(c)]
+        return s[0, c.start:], d[0, c.start:], p[f[c.start:]]
 
     @staticmethod
     def _frames(c: Chunk) -> torch.Tensor:
