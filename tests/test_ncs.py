@@ -30,13 +30,14 @@ from recon.garment.ncs_train import (
     chunks_of,
     gram,
     mirror_map,
+    part_outfit,
     principal_fields,
     project,
     sound_chunks,
     train,
 )
 from recon.garment.pbns import PBNS, initial_weights, pose_features
-from recon.garment.templates import GarmentSpec, RestBody, make_outfit
+from recon.garment.templates import Garment, GarmentSpec, Outfit, RestBody, make_outfit
 from recon.poses.mocap import MocapPoses
 
 
@@ -150,6 +151,25 @@ def test_the_static_encoder_width_defaults_to_the_dynamic_one():
     assert [m.out_features for m in same.static if isinstance(m, torch.nn.Linear)] == [16, 16, 16, 3]
     assert [m.out_features for m in wide.static if isinstance(m, torch.nn.Linear)] == [24, 24, 24, 3]
     assert same.dynamic[0].out_features == wide.dynamic[0].out_features == 16
+
+
+def test_decoding_without_gradients_skips_the_columns_the_new_rows_leave_still():
+    """Inference applies D's new rows only where they are non-zero: the same displacements as the
+    full product, and it follows changes to D."""
+    g = torch.Generator().manual_seed(0)
+    rest, faces, w = torch.zeros(6, 3), torch.tensor([[0, 1, 2], [3, 4, 5]]), torch.full((6, 24), 1 / 24)
+    m = ncs.NCS(rest, faces, w, ncs.NCSConfig(embedding=4, dynamic=3))
+    with torch.no_grad():
+        m.D.copy_(torch.randn(7, 18, generator=g))
+        m.D[4:, :9] = 0  # the first three vertices do not hang
+    x = torch.randn(2, 5, 7, generator=g)
+    full = (x @ m.D).view(2, 5, 6, 3)
+    with torch.no_grad():
+        assert torch.allclose(m.decode(x), full, atol=1e-6)
+        assert m._new_rows()[0].tolist() == list(range(9, 18))
+        m.D[4:, 0] = 1.0  # moved: cached columns follow
+        assert torch.allclose(m.decode(x), (x @ m.D).view(2, 5, 6, 3), atol=1e-6)
+    assert torch.allclose(m.decode(x), (x @ m.D).view(2, 5, 6, 3), atol=1e-6)  # with gradients: the full product
 
 
 def test_gru_state_fades_when_motion_stops(body):
@@ -274,6 +294,31 @@ def test_preconditioner_is_the_springs_and_masses_hessian_when_every_edge_is_str
     g = torch.randn(len(o.vertices), 3, dtype=torch.float64)
     g[held] = 0
     expected = torch.linalg.solve(h[free][:, free], g.reshape(-1)[free])
+    assert torch.allclose(pre.solve(g).reshape(-1)[free], expected, rtol=1e-6, atol=1e-12)
+    assert pre.solve(g)[held].abs().max() == 0
+
+
+def test_preconditioner_with_edges_as_stiff_across_is_constant_and_the_zero_length_springs_hessian():
+    """``across`` = 1: every edge's block is k I, the Hessian of springs of rest length zero (float64
+    autograd), at any state, without factorising again."""
+    o, rest, crit, inertia, _ = _strip_energies()
+    held = torch.from_numpy(o.pinned)
+    pre = Preconditioner(crit, inertia, held.numpy(), across=1.0)
+    crit_d, inertia_d = crit.double(), inertia.double()
+    crit_d.edge.rest_len.zero_()
+    x = rest.double() + 0.01 * torch.randn(rest.shape, generator=torch.Generator().manual_seed(1), dtype=torch.float64)
+
+    def energy(flat):
+        v = flat.view(1, -1, 3)
+        return (crit_d.edge(v) + inertia_d.to_projection(v, x[None])).sum()
+
+    h = torch.autograd.functional.hessian(energy, x.reshape(-1))
+    free = np.nonzero(np.repeat(~o.pinned, 3))[0]
+    g = torch.randn(len(o.vertices), 3, dtype=torch.float64)
+    g[held] = 0
+    expected = torch.linalg.solve(h[free][:, free], g.reshape(-1)[free])
+    lu = pre.constant
+    assert pre.at(x) is pre and pre.at(rest * 1.3).constant is lu  # no new factorisation
     assert torch.allclose(pre.solve(g).reshape(-1)[free], expected, rtol=1e-6, atol=1e-12)
     assert pre.solve(g)[held].abs().max() == 0
 
@@ -475,20 +520,37 @@ def test_hem_is_the_lowest_boundary_ring_and_held_clips_stop_dead():
     assert tr[0, [0, 2]].abs().max() == 0  # the first frame's pelvis above the origin
 
 
-def test_the_reference_simulates_pinned_garments_or_holds_an_unpinned_outfit_by_its_top_band():
-    class Outfit:  # two garments stacked in y; what ncs.hanging_part reads of an outfit
+def test_pinned_garments_hang_from_their_pins_an_unpinned_outfit_from_its_top_or_below_its_waist():
+    class Stack:  # two garments stacked in y; what ncs.hanging_part reads of an outfit
         vertices = np.stack([np.zeros(8), np.linspace(0.0, 0.7, 8), np.zeros(8)], 1)
         garment_id = np.array([0, 0, 0, 0, 1, 1, 1, 1])
         pinned = np.zeros(8, bool)
 
-    skirt = Outfit()
+    skirt = Stack()
     skirt.pinned = np.array([0, 0, 0, 1, 0, 0, 0, 0], bool)  # garment 0 hangs from a pin
     sub, held = ncs.hanging_part(skirt)
     assert sub.tolist() == [True] * 4 + [False] * 4 and held.tolist() == skirt.pinned.tolist()
-    sub, held = ncs.hanging_part(Outfit())  # nothing pinned: all of it, held at each garment's top
+    sub, held = ncs.hanging_part(Stack())  # nothing pinned: all of it, held at each garment's top
     top = np.array([3, 7])
     assert sub.all() and np.nonzero(held)[0].tolist() == top.tolist()
-    assert np.diff(Outfit.vertices[:, 1])[0] > ncs.SHOULDER_BAND  # the next vertex down is free
+    assert np.diff(Stack.vertices[:, 1])[0] > ncs.SHOULDER_BAND  # the next vertex down is free
+    sub, held = ncs.hanging_part(Stack(), waist=0.29)  # NCS's: below the waist, held within the band above it
+    assert np.nonzero(sub)[0].tolist() == [0, 1, 2, 3] and np.nonzero(held)[0].tolist() == [3]
+    assert Stack.vertices[3, 1] < 0.29 + ncs.WAIST_BAND < Stack.vertices[4, 1]
+    assert ncs.hanging_part(skirt, waist=0.29)[1].tolist() == skirt.pinned.tolist()  # pins hold what has them
+
+
+def test_part_outfit_cuts_garments_to_the_vertices_with_their_faces():
+    strip = _Strip()  # 4 x 6 vertices, row-major from the top
+    outfit = Outfit([Garment("a", strip.vertices, strip.faces, 0, strip.pinned),
+                     Garment("b", strip.vertices + 1.0, strip.faces, 1, np.zeros(24, bool))])
+    lower = np.arange(8, 24)  # garment a's lowest four rows
+    part = part_outfit(outfit, lower)
+    assert [g.name for g in part.garments] == ["a"] and np.array_equal(part.vertices, strip.vertices[lower])
+    assert len(part.faces) == 3 * 3 * 2 and not part.pinned.any()  # the quads between the rows kept
+    assert np.array_equal(lower[part.faces], strip.faces[(strip.faces >= 8).all(1)])  # same triangles
+    whole = part_outfit(outfit, np.arange(24, 48))
+    assert [g.name for g in whole.garments] == ["b"] and np.array_equal(whole.faces, strip.faces)
 
 
 def test_motion_codes_run_the_network_at_its_own_rate(body):

@@ -40,7 +40,9 @@ class IntegrateConfig:
     candidates: int = 16  # nearest body vertices per cloth vertex, searched once a frame
     # the preconditioner's stiffness across each edge, at least this share of its stiffness along
     # it: the bending and the collisions, left out of it, stiffen those directions (0 makes the
-    # line search halve its steps ~5 times a iteration, 0.5 about once)
+    # line search halve its steps ~5 times a iteration, 0.5 about once). 1: every edge as stiff
+    # across as along, a matrix that depends on no state (projective dynamics' own), factorised once
+    # for all frames, one coordinate at a time (eval/results/ncs-teacher-tshirt-skirt.md)
     across: float = 0.5
 
 
@@ -48,8 +50,9 @@ class Preconditioner:
     """The inverse of the energy's Hessian at a state, for the parts that make the problem stiff: the
     inertia's masses and the edge springs (each edge's exact Hessian, its tension's geometric part
     clamped at zero for compressed edges so that it stays positive definite: a projected Newton
-    step), over the free vertices; factorised once per frame (``at``). ``solve`` applies it to
-    (n, 3) vectors, zero at the held vertices."""
+    step), over the free vertices; factorised once per frame (``at``), or once for good with
+    ``across`` >= 1, where the Hessian is a graph Laplacian in each coordinate alike. ``solve``
+    applies it to (n, 3) vectors, zero at the held vertices."""
 
     def __init__(self, crit: Criterion, inertia: InertiaLoss, held: np.ndarray, across: float = 0.5):
         n = len(held)
@@ -66,9 +69,18 @@ class Preconditioner:
         self._r = np.broadcast_to(rows[:, :, :, None], (4, len(i), 3, 3)).ravel()
         self._c = np.broadcast_to(cols[:, :, None, :], (4, len(i), 3, 3)).ravel()
         self._sign = np.array([1.0, -1.0, -1.0, 1.0])[:, None, None, None]
+        self.lu = self.constant = None
+        if across >= 1.0:  # k (I) per edge whatever its direction: one n x n Laplacian for x, y and z
+            ii, jj = np.concatenate([i, j, i, j]), np.concatenate([i, j, j, i])
+            lap = sp.coo_matrix((np.concatenate([self.k, self.k, -self.k, -self.k]), (ii, jj)), shape=(n, n)).tocsr()
+            self.free_v = np.nonzero(~held)[0]
+            h = (lap + sp.diags(self.m[0::3]))[self.free_v][:, self.free_v]
+            self.constant = splu(h.tocsc(), permc_spec="MMD_AT_PLUS_A", options={"SymmetricMode": True})
 
     def at(self, x: torch.Tensor) -> Preconditioner:
-        """Factorise the Hessian at the state ``x`` (n, 3)."""
+        """Factorise the Hessian at the state ``x`` (n, 3) (nothing to do when it is constant)."""
+        if self.constant is not None:
+            return self
         v = x.detach().double().numpy()
         d = v[self.e[:, 1]] - v[self.e[:, 0]]
         length = np.linalg.norm(d, axis=1)
@@ -85,6 +97,10 @@ class Preconditioner:
         return self
 
     def solve(self, g: torch.Tensor) -> torch.Tensor:
+        if self.constant is not None:
+            out = np.zeros((self.n, 3))
+            out[self.free_v] = self.constant.solve(np.ascontiguousarray(g.detach().double().numpy()[self.free_v]))
+            return torch.from_numpy(out).to(g)
         out = np.zeros(3 * self.n)
         out[self.free] = self.lu.solve(g.detach().double().numpy().ravel()[self.free])
         return torch.from_numpy(out.reshape(-1, 3)).to(g)

@@ -39,6 +39,7 @@ KEPT = tuple(i for i, n in enumerate(skeleton.JOINT_NAMES) if n not in DROPPED)
 GRAVITY = (0.0, -1.0, 0.0)  # unit direction in the body frame
 FPS = 30.0
 SHOULDER_BAND = 0.04  # m: what holds an outfit without pins (a dress) when it swings
+WAIST_BAND = 0.02  # m of cloth above the waist held with it, when NCS holds such an outfit there
 LEAK = 0.1  # negative slope of the dynamic branch's activations
 SMOOTH = 2.0 / FPS  # seconds: Gaussian sigma of the trajectories the dynamic descriptors differentiate
 
@@ -144,6 +145,30 @@ class NCS(BlendShapeGarment):
         m.pbns_mlp.load_state_dict(pbns.mlp.state_dict())
         return m
 
+    def decode(self, x: torch.Tensor) -> torch.Tensor:
+        """Codes (..., E) -> rest-pose displacements (..., N, 3). Without gradients the new rows are
+        applied only where they move anything (the hanging part; training leaves them zero
+        elsewhere): a batch-1 frame reads all of D from memory, and a dress's moves 10,672 of
+        its 17,454 vertices."""
+        if torch.is_grad_enabled():
+            return super().decode(x)
+        e = self.cfg.embedding
+        cols, rows = self._new_rows()
+        out = x[..., :e] @ self.D[:e]
+        out.index_add_(-1, cols, x[..., e:] @ rows)
+        return out.view(*x.shape[:-1], -1, 3)
+
+    def _new_rows(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """The columns of D where its new rows are non-zero and those rows there, cached until D
+        changes (like ``weights``)."""
+        key = (self.D.data_ptr(), self.D._version)
+        if getattr(self, "_new_rows_key", None) != key:
+            d = self.D.detach()[self.cfg.embedding:]
+            cols = torch.nonzero(d.abs().amax(0) > 0)[:, 0]
+            self._new_rows_cache = (cols, d[:, cols].contiguous())
+            self._new_rows_key = key
+        return self._new_rows_cache
+
     def static_code(self, static: torch.Tensor, pose: torch.Tensor) -> torch.Tensor:
         """(..., K * 9) flat static descriptors and (..., 216) PBNS inputs -> the static code
         (..., E): PBNS's on its rows, the static encoder's on the new ones."""
@@ -226,17 +251,23 @@ def motion_inputs(body, rotmats: torch.Tensor, shape: torch.Tensor, transl: torc
     return s[0], d[0], pose_features(rotmats), o.transforms
 
 
-def hanging_part(outfit) -> tuple[np.ndarray, np.ndarray]:
+def hanging_part(outfit, waist: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(hanging, held): the vertices that swing with the body's motion, and those of them that
     move with the skinned outfit. Garments with pinned vertices (a skirt hangs from its waist)
     hang, held by their pins. An outfit with none (a dress) hangs whole, held by a band of
     ``SHOULDER_BAND`` m at the top of each garment (the dynamic reference, VBD without friction,
     lets a dress that only rests on the shoulders slide off: its hem 1.5 m down within 2 s of a
-    turn). Both (N,) bool."""
+    turn); or, given the rest body's ``waist`` height (m), only below it, held along
+    ``WAIST_BAND`` m above it (NCS: a dress's bodice sits on the torso and stays PBNS's, its skirt
+    hangs from the waist as a skirt does). Both (N,) bool."""
     held = np.unique(outfit.garment_id[outfit.pinned])
     if len(held):
         return np.isin(outfit.garment_id, held), outfit.pinned.copy()
-    y, top = outfit.vertices[:, 1], np.zeros(len(outfit.vertices), bool)
+    y = outfit.vertices[:, 1]
+    if waist is not None:
+        hanging = y < waist + WAIST_BAND
+        return hanging, hanging & (y >= waist)
+    top = np.zeros(len(y), bool)
     for g in np.unique(outfit.garment_id):
         mine = outfit.garment_id == g
         top |= mine & (y >= y[mine].max() - SHOULDER_BAND)

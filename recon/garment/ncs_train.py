@@ -39,7 +39,7 @@ import multiprocessing as mp
 import shutil
 import time
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import NamedTuple
 
@@ -70,7 +70,7 @@ from recon.garment.ncs import (
     vertex_masses,
 )
 from recon.garment.pbns import PBNS, pose_features
-from recon.garment.templates import Outfit
+from recon.garment.templates import GarmentSpec, Outfit
 from recon.garment.train import GarmentTrainConfig, run_dir_for
 from recon.garment.train import candidates as pose_candidates
 from recon.poses.mocap import MocapPoses
@@ -92,7 +92,8 @@ class NCSTrainConfig:
     stops: float = 0.3
     val_chunks: int = 4  # chunks of the val performers (as many stopping), to select the checkpoint
     workers: int = 2  # processes integrating chunks
-    integrate: IntegrateConfig = field(default_factory=lambda: IntegrateConfig(iterations=20))
+    # edges as stiff across as along in the solver's preconditioner: factorised once, not each frame
+    integrate: IntegrateConfig = field(default_factory=lambda: IntegrateConfig(iterations=20, across=1.0))
     mirror: bool = True  # the chunks' left-right mirror images train too (pose mirroring, 6.4.4)
     smooth_motion: float = 1.5  # Gaussian sigma (frames) of the motions: mocap jitter is no motion
     steps: int = 3000
@@ -128,6 +129,10 @@ class NCSTrainConfig:
     free_batch: int = 4
     free_frames: int = 8
     free_weight: float = 3.0
+    # an outfit without pins (a dress, a jumpsuit) swings below the waist only, its top held to PBNS
+    # (``hanging_part`` with the waist): a dress's bodice sits on the torso, and its fields, fitted
+    # to few chunks, pushed it into the body (MODEL_CARD's NCS history); a third fewer vertices to solve
+    waist_hold: bool = True
     # a solved chunk with an edge this much longer or shorter (m) than at rest, in any frame, went
     # wrong (the cloth caught between the legs, or the solver lost it): dropped from training. Sound
     # chunks of the skirt and the dress stay under 30 mm (most under 17), failed ones reach 38 mm to
@@ -148,6 +153,17 @@ class NCSTrainConfig:
     gravity: L.GravityConfig = field(default_factory=lambda: _FABRIC.gravity)
     pin: L.PinConfig = field(default_factory=lambda: _FABRIC.pin)
     inertia: InertiaConfig = field(default_factory=lambda: InertiaConfig(weight=_FABRIC.gravity.weight / 9.81))
+
+
+def moving_part(body, outfit: Outfit, shape: torch.Tensor, cfg: NCSTrainConfig) -> tuple[np.ndarray, np.ndarray]:
+    """NCS's (hanging, held) vertices of an outfit (``hanging_part``): an unpinned one held above the
+    rest body's waist (its pelvis joint + ``GarmentSpec.waist``, where a skirt is pinned) with
+    ``cfg.waist_hold``."""
+    if not cfg.waist_hold:
+        return hanging_part(outfit)
+    with torch.no_grad():
+        _, joints = body.rest_geometry(shape.reshape(1, -1).to(body.mean_shape))
+    return hanging_part(outfit, float(joints[0, skeleton.JOINT_NAMES.index("pelvis"), 1]) + GarmentSpec.waist)
 
 
 class Chunk(NamedTuple):
@@ -239,7 +255,7 @@ class Teacher:
         self.pbns, ck = PBNS.load(store.pbns_path(outfit_name))
         self.shape = ck["shape"][None]
         outfit, _, _ = trained_outfit(body, store.pbns_path(outfit_name))
-        hanging, held = hanging_part(outfit)
+        hanging, held = moving_part(body, outfit, self.shape, cfg)
         self.idx = torch.from_numpy(np.nonzero(hanging)[0])
         cloth = part_outfit(outfit, self.idx.numpy())
         self.crit = L.Criterion(cloth, self.pbns.rest[self.idx], cfg)
@@ -293,7 +309,8 @@ def chunk_folder(pbns_path: Path, cfg: NCSTrainConfig) -> Path:
     smoothing, the settling): another fitting of the same chunks integrates nothing again."""
     key = json.dumps({"pbns": hashlib.sha256(Path(pbns_path).read_bytes()).hexdigest(), "offsets": "posed",
                       **{k: asdict(cfg)[k] for k in ("edge", "bend", "collision", "gravity", "pin", "inertia",
-                                                     "integrate", "smooth_motion", "settle")}}, sort_keys=True)
+                                                     "integrate", "smooth_motion", "settle", "waist_hold")}},
+                     sort_keys=True)
     return paths.cache_dir() / "ncs-chunks" / f"{Path(pbns_path).stem}-{hashlib.sha256(key.encode()).hexdigest()[:12]}"
 
 
@@ -351,12 +368,20 @@ def project(du: torch.Tensor, fields: torch.Tensor, masses: torch.Tensor) -> tor
 
 
 def part_outfit(outfit: Outfit, vertices: np.ndarray) -> Outfit:
-    """The outfit's garments whose vertices are ``vertices`` (whole garments, in order)."""
-    ids = np.unique(outfit.garment_id[vertices])
-    part = Outfit([outfit.garments[i] for i in ids])
-    if len(part.vertices) != len(vertices):
-        raise ValueError("a part of an outfit is made of whole garments")
-    return part
+    """The outfit cut to ``vertices`` (sorted indices): each garment's vertices among them, in order,
+    and its faces with all three corners among them (whole garments stay whole)."""
+    keep = np.zeros(len(outfit.vertices), bool)
+    keep[vertices] = True
+    parts, start = [], 0
+    for g in outfit.garments:
+        mine = keep[start:start + len(g.vertices)]
+        start += len(g.vertices)
+        if not mine.any():
+            continue
+        new_id = np.cumsum(mine) - 1
+        faces = g.faces[mine[g.faces].all(1)]
+        parts.append(replace(g, vertices=g.vertices[mine], faces=new_id[faces], pinned=g.pinned[mine]))
+    return Outfit(parts)
 
 
 class Contact:
@@ -555,7 +580,7 @@ def train(body, cfg: NCSTrainConfig | None = None, out: Path | None = None, log=
     run_dir = run_dir_for(out)
     pbns, _ = PBNS.load(pbns_path)
     model = NCS.from_pbns(pbns, cfg.model)
-    hanging, _ = hanging_part(outfit)
+    hanging, _ = moving_part(body, outfit, shape, cfg)
     idx = torch.from_numpy(np.nonzero(hanging)[0])
     masses = torch.from_numpy(vertex_masses(outfit.vertices, outfit.faces))
 
