@@ -276,6 +276,21 @@ def _strip_energies(gravity=5.0):
     return o, rest, crit, inertia, far
 
 
+def _hessian_solve(crit, inertia, x: torch.Tensor, held: torch.Tensor):
+    """A random gradient g (zero at the held vertices), the exact Hessian of the edge and inertia
+    energies at ``x`` (float64 autograd) applied inversely to it over the free coordinates, and
+    those coordinates' indices."""
+    def energy(flat):
+        v = flat.view(1, -1, 3)
+        return (crit.edge(v) + inertia.to_projection(v, x[None])).sum()
+
+    h = torch.autograd.functional.hessian(energy, x.reshape(-1))
+    free = np.nonzero(np.repeat(~held.numpy(), 3))[0]
+    g = torch.randn(len(x), 3, dtype=torch.float64)
+    g[held] = 0
+    return g, torch.linalg.solve(h[free][:, free], g.reshape(-1)[free]), free
+
+
 def test_preconditioner_is_the_springs_and_masses_hessian_when_every_edge_is_stretched():
     """With every edge in tension (and no floor across edges), ``Preconditioner.at`` factorises the
     exact Hessian of the edge and inertia energies (float64 autograd) over the free vertices."""
@@ -284,16 +299,7 @@ def test_preconditioner_is_the_springs_and_masses_hessian_when_every_edge_is_str
     x = (rest * 1.05).double()  # stretched 5 %: every edge longer than its rest length
     pre = Preconditioner(crit, inertia, held.numpy(), across=0.0).at(x)
     crit_d, inertia_d = crit.double(), inertia.double()
-
-    def energy(flat):
-        v = flat.view(1, -1, 3)
-        return (crit_d.edge(v) + inertia_d.to_projection(v, x[None])).sum()
-
-    h = torch.autograd.functional.hessian(energy, x.reshape(-1))
-    free = np.nonzero(np.repeat(~o.pinned, 3))[0]
-    g = torch.randn(len(o.vertices), 3, dtype=torch.float64)
-    g[held] = 0
-    expected = torch.linalg.solve(h[free][:, free], g.reshape(-1)[free])
+    g, expected, free = _hessian_solve(crit_d, inertia_d, x, held)
     assert torch.allclose(pre.solve(g).reshape(-1)[free], expected, rtol=1e-6, atol=1e-12)
     assert pre.solve(g)[held].abs().max() == 0
 
@@ -307,16 +313,7 @@ def test_preconditioner_with_edges_as_stiff_across_is_constant_and_the_zero_leng
     crit_d, inertia_d = crit.double(), inertia.double()
     crit_d.edge.rest_len.zero_()
     x = rest.double() + 0.01 * torch.randn(rest.shape, generator=torch.Generator().manual_seed(1), dtype=torch.float64)
-
-    def energy(flat):
-        v = flat.view(1, -1, 3)
-        return (crit_d.edge(v) + inertia_d.to_projection(v, x[None])).sum()
-
-    h = torch.autograd.functional.hessian(energy, x.reshape(-1))
-    free = np.nonzero(np.repeat(~o.pinned, 3))[0]
-    g = torch.randn(len(o.vertices), 3, dtype=torch.float64)
-    g[held] = 0
-    expected = torch.linalg.solve(h[free][:, free], g.reshape(-1)[free])
+    g, expected, free = _hessian_solve(crit_d, inertia_d, x, held)
     lu = pre.constant
     assert pre.at(x) is pre and pre.at(rest * 1.3).constant is lu  # no new factorisation
     assert torch.allclose(pre.solve(g).reshape(-1)[free], expected, rtol=1e-6, atol=1e-12)

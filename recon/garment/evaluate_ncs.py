@@ -38,7 +38,7 @@ from recon.errors import MissingFile, ReconError
 from recon.garment import reference, store
 from recon.garment.data import posed_bodies, trained_outfit
 from recon.garment.evaluate import frames_per_second
-from recon.garment.mesh import boundary_loops
+from recon.garment.mesh import boundary_loops, faces_within
 from recon.garment.metrics import physical_metrics
 from recon.garment.ncs import NCS, hanging_part, motion_inputs
 from recon.garment.pbns import PBNS
@@ -168,9 +168,7 @@ def dynamic_reference(body, outfit_name: str, pbns: PBNS, shape: torch.Tensor, c
         o = body(rot, shape.expand(len(rot), -1), transl=tr)
         skinned = pbns.skin(pbns.rest, o.transforms).numpy()
     sub, held = hanging_part(outfit)
-    ids = -np.ones(len(sub), np.int64)
-    ids[sub] = np.arange(sub.sum())
-    faces = ids[outfit.faces[sub[outfit.faces].all(1)]]
+    faces = faces_within(outfit.faces, sub)
     pinned = held[sub]
     res = reference.simulate(o.vertices.numpy(), body.faces.numpy(), outfit.vertices[sub], skinned[0][sub], faces,
                              pinned, skinned[:, sub][:, pinned], reference.DynamicConfig(), skinned[:, sub], log)

@@ -52,6 +52,12 @@ def compact(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.nda
     return vertices[used], remap[faces]
 
 
+def faces_within(faces: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """The faces with all three corners among the vertices ``keep`` (N,) bool, renumbered to those
+    vertices in order (isolated ones kept, unlike ``compact``)."""
+    return (np.cumsum(keep) - 1)[faces[keep[faces].all(1)]]
+
+
 def largest_component_faces(faces: np.ndarray) -> np.ndarray:
     """The faces of the largest edge-connected component, vertex ids unchanged."""
     adjacency = trimesh.Trimesh(faces=faces, process=False).face_adjacency

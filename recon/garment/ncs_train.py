@@ -55,7 +55,7 @@ from recon.garment import losses as L
 from recon.garment import store
 from recon.garment.data import pose_set, posed_bodies, trained_outfit
 from recon.garment.integrate import IntegrateConfig, Preconditioner, integrate, settle, unpose
-from recon.garment.mesh import nearest, nearest_among
+from recon.garment.mesh import faces_within, nearest, nearest_among
 from recon.garment.metrics import collision_pct, penetration
 from recon.garment.ncs import (
     FPS,
@@ -378,9 +378,7 @@ def part_outfit(outfit: Outfit, vertices: np.ndarray) -> Outfit:
         start += len(g.vertices)
         if not mine.any():
             continue
-        new_id = np.cumsum(mine) - 1
-        faces = g.faces[mine[g.faces].all(1)]
-        parts.append(replace(g, vertices=g.vertices[mine], faces=new_id[faces], pinned=g.pinned[mine]))
+        parts.append(replace(g, vertices=g.vertices[mine], faces=faces_within(g.faces, mine), pinned=g.pinned[mine]))
     return Outfit(parts)
 
 
@@ -580,8 +578,8 @@ def train(body, cfg: NCSTrainConfig | None = None, out: Path | None = None, log=
     run_dir = run_dir_for(out)
     pbns, _ = PBNS.load(pbns_path)
     model = NCS.from_pbns(pbns, cfg.model)
-    hanging, _ = moving_part(body, outfit, shape, cfg)
-    idx = torch.from_numpy(np.nonzero(hanging)[0])
+    teacher = Teacher(body, name, cfg)
+    idx = teacher.idx  # the moving part (``moving_part``)
     masses = torch.from_numpy(vertex_masses(outfit.vertices, outfit.faces))
 
     motions = Motions(body, shape, cfg.smooth_motion)
@@ -589,7 +587,6 @@ def train(body, cfg: NCSTrainConfig | None = None, out: Path | None = None, log=
     val_chunks = chunks_of("val", cfg.chunk, cfg.val_chunks, cfg.seed, cfg.stops, cfg.lead)
     off = integrate_chunks(name, train_chunks + val_chunks, motions, cfg, chunk_folder(pbns_path, cfg), log)
     t_integrate = time.time() - t0
-    teacher = Teacher(body, name, cfg)
     solved = [teacher.rest_displacement(*motions.motion(c), torch.from_numpy(o).float())
               for c, o in zip(train_chunks + val_chunks, off)]
     sound = sound_chunks([strain for _, strain in solved], cfg.max_strain)
@@ -606,7 +603,7 @@ def train(body, cfg: NCSTrainConfig | None = None, out: Path | None = None, log=
     n_train = len(train_chunks)
     inputs = [motions.inputs(c) for c in train_chunks + val_chunks]
     if cfg.mirror:  # the train chunks' mirror images: the cloth's displacement (and offset) mirrored in x
-        mp_ = torch.from_numpy(mirror_map(outfit.vertices[hanging]))
+        mp_ = torch.from_numpy(mirror_map(outfit.vertices[idx.numpy()]))
         flip = torch.tensor([-1.0, 1.0, 1.0])
         du = torch.cat([du[:n_train, :, mp_] * flip, du])
         off = torch.cat([off[:n_train, :, mp_] * flip, off])
