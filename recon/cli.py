@@ -301,7 +301,8 @@ def cmd_garment_train(a) -> None:
             if a.epochs:
                 raise ReconError("--epochs is PBNS's: NCS takes --chunks and --steps")
             more = {k: v for k, v in (("chunks", a.chunks), ("val_chunks", a.val_chunks), ("steps", a.steps),
-                                      ("physics_steps", a.physics_steps), ("workers", a.workers)) if v is not None}
+                                      ("physics_steps", a.physics_steps), ("static_weight", a.static_weight),
+                                      ("free_weight", a.free_weight), ("workers", a.workers)) if v is not None}
             meta = ncs_train.train(default_body(), ncs_train.NCSTrainConfig(outfit=o, **more))
             weights = store.ncs_path(o)
         else:
@@ -565,6 +566,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"NCS: val chunks (default {default(ncs_train.NCSTrainConfig, 'val_chunks')})")
     p.add_argument("--physics-steps", type=int, default=None,
                    help=f"NCS: physics-loss steps (default {default(ncs_train.NCSTrainConfig, 'physics_steps')})")
+    p.add_argument("--static-weight", type=float, default=None,
+                   help="NCS: weight of PBNS's loss on the static part in the physics steps "
+                        f"(default {default(ncs_train.NCSTrainConfig, 'static_weight')})")
+    p.add_argument("--free-weight", type=float, default=None,
+                   help="NCS: weight of the collision/edge/pin energies on unsolved motions in the physics steps "
+                        f"(default {default(ncs_train.NCSTrainConfig, 'free_weight')})")
     p.add_argument("--steps", type=int, default=None,
                    help=f"NCS: fitting steps (default {default(ncs_train.NCSTrainConfig, 'steps')})")
     p.add_argument("--workers", type=int, default=None,

@@ -12,7 +12,7 @@ from recon import cli
 from recon.backbone.train import BackboneTrainConfig
 from recon.cli import build_parser, main
 from recon.fit import FitConfig
-from recon.garment import store
+from recon.garment import ncs_train, store
 from recon.garment.templates import RestBody
 
 
@@ -71,6 +71,18 @@ def test_threads_flag_sets_torch_threads():
         assert torch.get_num_threads() == 2
     finally:
         torch.set_num_threads(1)
+
+
+def test_ncs_train_flags_reach_its_config(monkeypatch):
+    seen = []
+    monkeypatch.setattr(cli, "default_body", lambda: None)
+    monkeypatch.setattr(cli.ncs_train, "train", lambda body, cfg: seen.append(cfg) or {
+        "outfit": cfg.outfit, "train_seconds": 0.0, "curve": [{"val_teacher_mm": 1.0}]})
+    main(["garment", "train", "--model", "ncs", "--outfit", "top-shorts", "--physics-steps", "400",
+          "--static-weight", "3", "--free-weight", "10"])
+    cfg = seen[0]
+    assert (cfg.outfit, cfg.physics_steps, cfg.static_weight, cfg.free_weight) == ("top-shorts", 400, 3.0, 10.0)
+    assert cfg.chunks == ncs_train.NCSTrainConfig.chunks  # flags not given keep the defaults
 
 
 def test_demo_finds_an_outfit_trained_into_the_cache(monkeypatch, tmp_path):
