@@ -64,11 +64,6 @@ class Preconditioner:
         self.free = np.nonzero(np.repeat(~held, 3))[0]
         self.n = n
         i, j = self.e[:, 0], self.e[:, 1]
-        rows = np.stack([3 * a[:, None] + np.arange(3) for a in (i, i, j, j)])  # (4, E, 3) dof ids per block
-        cols = np.stack([3 * a[:, None] + np.arange(3) for a in (i, j, i, j)])
-        self._r = np.broadcast_to(rows[:, :, :, None], (4, len(i), 3, 3)).ravel()
-        self._c = np.broadcast_to(cols[:, :, None, :], (4, len(i), 3, 3)).ravel()
-        self._sign = np.array([1.0, -1.0, -1.0, 1.0])[:, None, None, None]
         self.lu = self.constant = None
         if across >= 1.0:  # k (I) per edge whatever its direction: one n x n Laplacian for x, y and z
             ii, jj = np.concatenate([i, j, i, j]), np.concatenate([i, j, j, i])
@@ -76,6 +71,13 @@ class Preconditioner:
             self.free_v = np.nonzero(~held)[0]
             h = (lap + sp.diags(self.m[0::3]))[self.free_v][:, self.free_v]
             self.constant = splu(h.tocsc(), permc_spec="MMD_AT_PLUS_A", options={"SymmetricMode": True})
+            return
+        # the per-frame path's (3n x 3n) sparsity pattern, built once
+        rows = np.stack([3 * a[:, None] + np.arange(3) for a in (i, i, j, j)])  # (4, E, 3) dof ids per block
+        cols = np.stack([3 * a[:, None] + np.arange(3) for a in (i, j, i, j)])
+        self._r = np.broadcast_to(rows[:, :, :, None], (4, len(i), 3, 3)).ravel()
+        self._c = np.broadcast_to(cols[:, :, None, :], (4, len(i), 3, 3)).ravel()
+        self._sign = np.array([1.0, -1.0, -1.0, 1.0])[:, None, None, None]
 
     def at(self, x: torch.Tensor) -> Preconditioner:
         """Factorise the Hessian at the state ``x`` (n, 3) (nothing to do when it is constant)."""
