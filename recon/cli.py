@@ -302,7 +302,8 @@ def cmd_garment_train(a) -> None:
                 raise ReconError("--epochs is PBNS's: NCS takes --chunks and --steps")
             more = {k: v for k, v in (("chunks", a.chunks), ("val_chunks", a.val_chunks), ("steps", a.steps),
                                       ("physics_steps", a.physics_steps), ("static_weight", a.static_weight),
-                                      ("free_weight", a.free_weight), ("workers", a.workers)) if v is not None}
+                                      ("free_weight", a.free_weight), ("field_lr", a.field_lr),
+                                      ("workers", a.workers)) if v is not None}
             meta = ncs_train.train(default_body(), ncs_train.NCSTrainConfig(outfit=o, **more))
             weights = store.ncs_path(o)
         else:
@@ -572,6 +573,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--free-weight", type=float, default=None,
                    help="NCS: weight of the collision/edge/pin energies on unsolved motions in the physics steps "
                         f"(default {default(ncs_train.NCSTrainConfig, 'free_weight')})")
+    p.add_argument("--field-lr", type=float, default=None,
+                   help="NCS: learning rate of D's new rows in the physics steps, 0: the principal fields stay "
+                        f"(default {default(ncs_train.NCSTrainConfig, 'field_lr')})")
     p.add_argument("--steps", type=int, default=None,
                    help=f"NCS: fitting steps (default {default(ncs_train.NCSTrainConfig, 'steps')})")
     p.add_argument("--workers", type=int, default=None,

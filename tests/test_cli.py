@@ -79,9 +79,10 @@ def test_ncs_train_flags_reach_its_config(monkeypatch):
     monkeypatch.setattr(cli.ncs_train, "train", lambda body, cfg: seen.append(cfg) or {
         "outfit": cfg.outfit, "train_seconds": 0.0, "curve": [{"val_teacher_mm": 1.0}]})
     main(["garment", "train", "--model", "ncs", "--outfit", "top-shorts", "--physics-steps", "400",
-          "--static-weight", "3", "--free-weight", "10"])
+          "--static-weight", "3", "--free-weight", "10", "--field-lr", "0.001"])
     cfg = seen[0]
-    assert (cfg.outfit, cfg.physics_steps, cfg.static_weight, cfg.free_weight) == ("top-shorts", 400, 3.0, 10.0)
+    assert (cfg.outfit, cfg.physics_steps, cfg.static_weight, cfg.free_weight, cfg.field_lr) == (
+        "top-shorts", 400, 3.0, 10.0, 0.001)
     assert cfg.chunks == ncs_train.NCSTrainConfig.chunks  # flags not given keep the defaults
 
 

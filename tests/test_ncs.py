@@ -27,6 +27,7 @@ from recon.garment.ncs_train import (
     Physics,
     StaticPoses,
     Teacher,
+    ankle_taper,
     chunks_of,
     gram,
     mirror_map,
@@ -517,6 +518,22 @@ def test_hem_is_the_lowest_boundary_ring_and_held_clips_stop_dead():
     assert tr[0, [0, 2]].abs().max() == 0  # the first frame's pelvis above the origin
 
 
+def test_ankle_taper_holds_the_cuffs_of_trousers_and_nothing_of_a_skirt(body):
+    """``ankle_taper``: 0 up to the rest ankles + hold, then linear to 1 over as much again; the
+    shipped trousers' cuffs are held, the skirt's hem (above the knees) is untouched; hold 0: all 1."""
+    shape = body.mean_shape
+    with torch.no_grad():
+        _, joints = body.rest_geometry(shape[None])
+    ankle = float(joints[0, [skeleton.JOINT_NAMES.index(n) for n in ("left_ankle", "right_ankle")], 1].max())
+    points = np.zeros((5, 3), np.float32)
+    points[:, 1] = ankle + np.array([-0.1, 0.05, 0.12, 0.2, 0.5])
+    np.testing.assert_allclose(ankle_taper(body, shape, points, 0.08), [0.0, 0.0, 0.5, 1.0, 1.0], atol=1e-4)
+    assert (ankle_taper(body, shape, points, 0.0) == 1).all()
+    for name, held in (("tshirt-trousers", True), ("tshirt-skirt", False)):
+        outfit, s, _ = trained_outfit(body, store.pbns_path(name))
+        assert ((ankle_taper(body, s, outfit.vertices, 0.08) == 0).any()) == held
+
+
 def test_pinned_garments_hang_from_their_pins_an_unpinned_outfit_from_its_top_or_below_its_waist():
     class Stack:  # two garments stacked in y; what ncs.hanging_part reads of an outfit
         vertices = np.stack([np.zeros(8), np.linspace(0.0, 0.7, 8), np.zeros(8)], 1)
@@ -601,13 +618,13 @@ def test_physics_is_the_loss_against_the_solved_past_and_trains_the_network(body
 def test_training_writes_a_model_whose_new_rows_move_the_hanging_part(body, tmp_path):
     """``train`` on the shipped tshirt-skirt with a tiny budget: chunks integrated in two worker
     processes, kept for a rerun; the saved model decodes PBNS's D on PBNS's rows, its new rows
-    move the skirt's free vertices and nothing else, and the fitting (with the contact term on)
-    beat coding nothing on the val chunks; the physics steps score the static poses and the free
-    windows."""
+    move the skirt's free vertices and nothing else (the physics steps train them, there only),
+    and the fitting (with the contact term on) beat coding nothing on the val chunks; the physics
+    steps score the static poses and the free windows."""
     cfg = NCSTrainConfig(chunk=12, settle=2, lead=2, chunks=2, val_chunks=1, integrate=IntegrateConfig(iterations=3),
                          steps=24, model=ncs.NCSConfig(hidden=32, joint_features=8, dynamic=4),
                          contact_weight=100.0, physics_steps=8, static_poses=8, static_batch=2, free_windows=1,
-                         free_batch=1, free_frames=2)
+                         free_batch=1, free_frames=2, field_lr=1e-3)
     meta = train(body, cfg, out=tmp_path / "n.pt", log=lambda *_: None, progress=False)
     model, _ = ncs.NCS.load(tmp_path / "n.pt")
     pbns, _ = PBNS.load(store.pbns_path("tshirt-skirt"))
@@ -617,6 +634,7 @@ def test_training_writes_a_model_whose_new_rows_move_the_hanging_part(body, tmp_
     moved = model.D[len(pbns.D):].view(4, -1, 3).abs().sum((0, 2)) > 0
     hanging, held = map(torch.from_numpy, ncs.hanging_part(trained_outfit(body, store.pbns_path("tshirt-skirt"))[0]))
     assert not moved[~hanging].any() and moved[hanging & ~held].all()  # held (pinned) vertices follow skinning
+    assert meta["field_change_mm"] > 0  # the physics steps trained the fields, on the hanging part only
     last = meta["curve"][-1]
     assert last["val_teacher_mm"] < last["val_zero_mm"] and 0 <= last["val_contact_pct"] <= 100
     physics = meta["physics_curve"][-1]
