@@ -172,15 +172,20 @@ class NCSTrainConfig:
     inertia: InertiaConfig = field(default_factory=lambda: InertiaConfig(weight=_FABRIC.gravity.weight / 9.81))
 
 
+def rest_joint_height(body, shape: torch.Tensor, *names: str) -> float:
+    """The height (m, +Y) of the highest of the joints ``names`` in the rest body of ``shape``."""
+    with torch.no_grad():
+        _, joints = body.rest_geometry(shape.reshape(1, -1).to(body.mean_shape))
+    return float(joints[0, [skeleton.JOINT_NAMES.index(n) for n in names], 1].max())
+
+
 def moving_part(body, outfit: Outfit, shape: torch.Tensor, cfg: NCSTrainConfig) -> tuple[np.ndarray, np.ndarray]:
     """NCS's (hanging, held) vertices of an outfit (``hanging_part``): an unpinned one held above the
     rest body's waist (its pelvis joint + ``GarmentSpec.waist``, where a skirt is pinned) with
     ``cfg.waist_hold``."""
     if not cfg.waist_hold:
         return hanging_part(outfit)
-    with torch.no_grad():
-        _, joints = body.rest_geometry(shape.reshape(1, -1).to(body.mean_shape))
-    return hanging_part(outfit, float(joints[0, skeleton.JOINT_NAMES.index("pelvis"), 1]) + GarmentSpec.waist)
+    return hanging_part(outfit, rest_joint_height(body, shape, "pelvis") + GarmentSpec.waist)
 
 
 def ankle_taper(body, shape: torch.Tensor, vertices: np.ndarray, hold: float) -> np.ndarray:
@@ -189,10 +194,7 @@ def ankle_taper(body, shape: torch.Tensor, vertices: np.ndarray, hold: float) ->
     it; all 1 with ``hold`` 0."""
     if not hold:
         return np.ones(len(vertices), np.float32)
-    with torch.no_grad():
-        _, joints = body.rest_geometry(shape.reshape(1, -1).to(body.mean_shape))
-    ankles = [skeleton.JOINT_NAMES.index(n) for n in ("left_ankle", "right_ankle")]
-    floor = float(joints[0, ankles, 1].max()) + hold
+    floor = rest_joint_height(body, shape, "left_ankle", "right_ankle") + hold
     return np.clip((vertices[:, 1] - floor) / hold, 0.0, 1.0).astype(np.float32)
 
 
