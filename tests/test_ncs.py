@@ -643,18 +643,20 @@ def test_training_writes_a_model_whose_new_rows_move_the_hanging_part(body, tmp_
 
 
 def test_update_keeps_the_other_outfits_rows(tmp_path, monkeypatch):
-    """``evaluate_and_report(update=True)`` replaces the evaluated outfit's rows and keeps the rest
-    of the existing table; without it the table holds only what was evaluated."""
+    """``evaluate_and_report(update=True)`` replaces the evaluated outfit's rows where they were,
+    keeps the rest of the existing table and adds a new outfit's at its end; without it the table
+    holds only what was evaluated."""
     from recon.garment import evaluate_ncs as E
     monkeypatch.setattr(E, "evaluate", lambda body, o, *a, **k: {"outfit": o, "rows": {"new": True}})
     monkeypatch.setattr(E, "ncs_check", lambda names: {n: {} for n in names})
     monkeypatch.setattr(E, "render", lambda data: "table")
     (tmp_path / "garment-ncs.json").write_text(json.dumps({"outfits": [
-        {"outfit": "dress", "rows": {"new": False}}, {"outfit": "tshirt-skirt", "rows": {"new": False}}]}))
-    E.evaluate_and_report(None, ["tshirt-skirt"], tmp_path, update=True)
+        {"outfit": "tshirt-skirt", "rows": {"new": False}}, {"outfit": "dress", "rows": {"new": False}}]}))
+    E.evaluate_and_report(None, ["top-shorts", "tshirt-skirt"], tmp_path, update=True)
     data = json.loads((tmp_path / "garment-ncs.json").read_text())
-    assert [(r["outfit"], r["rows"]["new"]) for r in data["outfits"]] == [("dress", False), ("tshirt-skirt", True)]
-    assert sorted(data["check"]["values"]) == ["dress", "tshirt-skirt"]
+    assert [(r["outfit"], r["rows"]["new"]) for r in data["outfits"]] == [
+        ("tshirt-skirt", True), ("dress", False), ("top-shorts", True)]
+    assert sorted(data["check"]["values"]) == ["dress", "top-shorts", "tshirt-skirt"]
     E.evaluate_and_report(None, ["tshirt-skirt"], tmp_path)
     assert [r["outfit"] for r in json.loads((tmp_path / "garment-ncs.json").read_text())["outfits"]] == ["tshirt-skirt"]
 

@@ -311,10 +311,11 @@ def evaluate_and_report(body, outfits: list[str], out_dir: Path = report.RESULTS
     results = [evaluate(body, o, dynamic and o in SIMULATED, w, log, clips)
                for o, w in zip(outfits, weights, strict=True)]
     path = Path(out_dir) / ("garment-ncs-val" if val else "garment-ncs")
-    if update and path.with_suffix(".json").exists():
-        mine = {r["outfit"] for r in results}
+    if update and path.with_suffix(".json").exists():  # the re-evaluated outfits' rows where they were
+        mine = {r["outfit"]: r for r in results}
         old = json.loads(path.with_suffix(".json").read_text())["outfits"]
-        results = [r for r in old if r["outfit"] not in mine] + results
+        had = {r["outfit"] for r in old}
+        results = [mine.get(r["outfit"], r) for r in old] + [r for r in results if r["outfit"] not in had]
     names = [r["outfit"] for r in results]
     data = {"outfits": results, "clips": "val" if val else "test",
             "check": {"function": "recon.garment.evaluate_ncs:ncs_check", "kwargs": {"outfits": names},
