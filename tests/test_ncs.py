@@ -34,6 +34,7 @@ from recon.garment.ncs_train import (
     part_outfit,
     principal_fields,
     project,
+    rest_joint_height,
     sound_chunks,
     train,
 )
@@ -522,9 +523,7 @@ def test_ankle_taper_holds_the_cuffs_of_trousers_and_nothing_of_a_skirt(body):
     """``ankle_taper``: 0 up to the rest ankles + hold, then linear to 1 over as much again; the
     shipped trousers' cuffs are held, the skirt's hem (above the knees) is untouched; hold 0: all 1."""
     shape = body.mean_shape
-    with torch.no_grad():
-        _, joints = body.rest_geometry(shape[None])
-    ankle = float(joints[0, [skeleton.JOINT_NAMES.index(n) for n in ("left_ankle", "right_ankle")], 1].max())
+    ankle = rest_joint_height(body, shape, "left_ankle", "right_ankle")
     points = np.zeros((5, 3), np.float32)
     points[:, 1] = ankle + np.array([-0.1, 0.05, 0.12, 0.2, 0.5])
     np.testing.assert_allclose(ankle_taper(body, shape, points, 0.08), [0.0, 0.0, 0.5, 1.0, 1.0], atol=1e-4)

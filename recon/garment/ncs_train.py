@@ -761,10 +761,10 @@ def train(body, cfg: NCSTrainConfig | None = None, out: Path | None = None, log=
     groups = [{"params": params}]
     if cfg.field_lr:
         model.D.requires_grad_(True)
-        keep = torch.zeros(len(outfit.vertices), 3, dtype=torch.bool)
-        keep[idx] = (taper > 0)[:, None]
         rows = (torch.arange(model.D.shape[0]) >= e).float()[:, None]
-        cols = keep.reshape(1, -1).float()
+        cols = torch.zeros(len(outfit.vertices), 3)
+        cols[idx] = (taper > 0).float()[:, None]
+        cols = cols.reshape(1, -1)
         model.D.register_hook(lambda grad: grad * rows * cols)  # PBNS's rows and the part that does not move stay
         groups.append({"params": [model.D], "lr": cfg.field_lr, "weight_decay": 0.0})
     opt2 = torch.optim.AdamW(groups, lr=cfg.physics_lr, weight_decay=cfg.weight_decay)
