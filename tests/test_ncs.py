@@ -679,7 +679,8 @@ def test_contact_measures_how_far_the_new_rows_push_the_cloth_into_the_body():
     """``Contact``: the new rows' displacement posed on PBNS's drape, against the nearest of the
     body vertices given per cloth vertex (their normal). A drape 1 cm out costs nothing; a code pushing one of two
     vertices 2 cm in (through a blend that turns rest x into posed y) costs (eps + 1 cm)^2 / 2 and counts
-    50 % inside, with a gradient that pulls the code back."""
+    50 % inside, with a gradient that pulls the code back; the same code on the field turned outwards costs
+    nothing (the fields are read as they are at each call)."""
     static = torch.tensor([[0.0, 0.01, 0.0], [0.0, 0.01, 0.0]]).expand(1, 1, 2, 3)
     turn = torch.tensor([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # rest x -> posed y
     blend = turn.expand(1, 1, 2, 3, 3)
@@ -687,7 +688,8 @@ def test_contact_measures_how_far_the_new_rows_push_the_cloth_into_the_body():
     body_n = torch.tensor([0.0, 1.0, 0.0]).expand(1, 1, 2, 3)
     candidates = torch.tensor([0, 1]).expand(1, 1, 2, 2)
     field = torch.tensor([[[-0.02, 0.0, 0.0], [0.0, 0.0, 0.0]]])  # rest -x: posed -y, into the body
-    contact = Contact(torch.tensor([3]), static, blend, body_v, body_n, candidates, field, eps=0.004)
+    now = {"fields": field}  # what D's new rows are at the time of the call
+    contact = Contact(torch.tensor([3]), static, blend, body_v, body_n, candidates, lambda: now["fields"], eps=0.004)
     i, slots = torch.zeros(1, dtype=torch.long), torch.zeros(1, 1, dtype=torch.long)
     z = torch.zeros(1, 5, 1)
     pen, inside = contact(i, slots, z)
@@ -699,6 +701,10 @@ def test_contact_measures_how_far_the_new_rows_push_the_cloth_into_the_body():
     assert torch.isclose(pen, torch.tensor((0.004 + 0.01) ** 2 / 2)) and inside == 50
     pen.backward()
     assert z.grad[0, 3, 0] > 0 and z.grad[0, :3].abs().sum() == 0
+    # the fields are read at each call (the physics steps train them): pushed out, nothing inside
+    now["fields"] = -field
+    pen, inside = contact(i, slots, z.detach())
+    assert pen == 0 and inside == 0
 
 
 def _inward_row(model, teacher, depth=0.03):

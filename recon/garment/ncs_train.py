@@ -41,6 +41,7 @@ import json
 import multiprocessing as mp
 import shutil
 import time
+from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
@@ -420,17 +421,19 @@ class Contact:
     F, n, 3[, 3]), the posed body ``body_v``, ``body_n`` (C, F, V, 3) and per cloth vertex the
     indices of the body vertices nearest the solved cloth, ``candidates`` (C, F, n, K): the
     prediction's nearest body vertex is searched among them, as the solver searches its own. The
-    new rows' displacement (``fields`` (k, n, 3) of the hanging part) is posed on PBNS's drape (the
-    static code on PBNS's rows is PBNS's)."""
+    new rows' displacement (``fields()``: (k, n, 3) of the hanging part, read at each call, as the
+    physics steps train them) is posed on PBNS's drape (the static code on PBNS's rows is PBNS's)."""
 
-    def __init__(self, frames, static, blend, body_v, body_n, candidates, fields, eps: float):
+    def __init__(self, frames, static, blend, body_v, body_n, candidates, fields: Callable[[], torch.Tensor],
+                 eps: float):
         self.frames, self.static, self.blend = frames, static, blend
         self.body_v, self.body_n, self.candidates = body_v, body_n, candidates
-        self.fields, self.eps = fields.reshape(len(fields), -1), eps
+        self.fields, self.eps = fields, eps
 
     @staticmethod
     @torch.no_grad()
-    def build(teacher: Teacher, chunk_motions, offsets: torch.Tensor, frames: torch.Tensor, fields, eps: float,
+    def build(teacher: Teacher, chunk_motions, offsets: torch.Tensor, frames: torch.Tensor,
+              fields: Callable[[], torch.Tensor], eps: float,
               k: int = 16) -> Contact:
         parts = []
         for (rot, tr), off in zip(chunk_motions, offsets):
@@ -442,7 +445,8 @@ class Contact:
         """Chunks ``i`` (B,), their frame slots ``j`` (B, F') into ``frames``, the new rows' codes
         at every chunk frame (B, T, k) -> (mean squared penetration past eps (m^2), % inside)."""
         z = torch.gather(z_new, 1, self.frames[j][..., None].expand(-1, -1, z_new.shape[-1]))
-        u = (z @ self.fields).view(*z.shape[:2], -1, 3)
+        fields = self.fields()
+        u = (z @ fields.reshape(len(fields), -1)).view(*z.shape[:2], -1, 3)
         ii = i[:, None].expand_as(j)
         x = (self.static[ii, j] + torch.einsum("bfnij,bfnj->bfni", self.blend[ii, j], u)).flatten(0, 1)
         bv, bn = self.body_v[ii, j].flatten(0, 1), self.body_n[ii, j].flatten(0, 1)
@@ -661,7 +665,10 @@ def train(body, cfg: NCSTrainConfig | None = None, out: Path | None = None, log=
     contact = contact_val = None
     if cfg.contact_weight:
         every4 = torch.arange(cfg.lead, cfg.chunk, 4)
-        contact, contact_val = (Contact.build(teacher, chunk_motions[a:b], off[a:b], every4, fields, cfg.collision.eps)
+        def moving_fields() -> torch.Tensor:  # D's new rows on the hanging part, as they are now
+            return model.D[e:].view(k, -1, 3)[:, idx]
+        contact, contact_val = (Contact.build(teacher, chunk_motions[a:b], off[a:b], every4, moving_fields,
+                                              cfg.collision.eps)
                                 for a, b in ((0, n_train), (n_train, len(off))))
     fit = Fit(model, inputs, coef, gram(fields.reshape(k, -1), masses[idx]), cfg.lead, contact, cfg.contact_weight,
               cfg.contact_frames)
