@@ -18,7 +18,7 @@ from recon.garment import train as T
 from recon.garment.data import pose_set, posed_bodies
 from recon.garment.dress import Dresser
 from recon.garment.gltf import write_glb
-from recon.garment.metrics import penetration, physical_metrics
+from recon.garment.metrics import collision_pct, penetration, physical_metrics
 from recon.garment.pbns import PBNS, PBNSConfig, initial_weights, pose_features, remove_yaw
 from recon.garment.templates import PRESETS, GarmentSpec, RestBody, hangs_free, make_outfit
 
@@ -290,6 +290,20 @@ def test_physical_metrics_count_inside_vertices():
     cloth[0, :5, 2] = -0.01  # five of 25 vertices behind the body surface
     m = physical_metrics(cloth, f, rest, body_v, body_n)
     assert m["collision_pct"] == pytest.approx(20.0) and m["edge_mm"] > 0
+
+
+def test_collision_pct_takes_the_first_of_k_nearest_as_the_nearest():
+    """The training terms reuse their loss's k nearest body vertices (sorted, the first the nearest)
+    for the % inside: the same count as the exact search, and the indices given are the ones used."""
+    g = torch.Generator().manual_seed(0)
+    body_v = torch.rand(2, 200, 3, generator=g)
+    body_n = torch.nn.functional.normalize(torch.randn(2, 200, 3, generator=g), dim=-1)
+    cloth = torch.rand(2, 300, 3, generator=g)
+    exact = collision_pct(cloth, body_v, body_n)
+    assert 5 < float(exact.mean()) < 95
+    assert torch.equal(collision_pct(cloth, body_v, body_n, gm.nearest(body_v, cloth, 8)[..., 0]), exact)
+    far = gm.nearest(body_v, cloth, 8)[..., -1]  # the 8th nearest: another normal, another count
+    assert not torch.equal(collision_pct(cloth, body_v, body_n, far), exact)
 
 
 def test_diffused_blend_weights_stretch_the_skinned_cloth_less(body, outfits):

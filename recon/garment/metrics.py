@@ -26,9 +26,12 @@ def penetration(v: torch.Tensor, surf: torch.Tensor, surf_normals: torch.Tensor,
     return torch.clamp(d - eps, max=0.0)
 
 
-def collision_pct(v: torch.Tensor, body_v: torch.Tensor, body_n: torch.Tensor) -> torch.Tensor:
-    """(B,) % of cloth vertices inside the body (exact nearest body vertex)."""
-    return (penetration(v, body_v, body_n, gm.nearest(body_v, v)) < 0).float().mean(1) * 100
+def collision_pct(v: torch.Tensor, body_v: torch.Tensor, body_n: torch.Tensor,
+                  idx: torch.Tensor | None = None) -> torch.Tensor:
+    """(B,) % of cloth vertices inside the body (exact nearest body vertex; ``idx`` (B, N): those
+    indices already found, e.g. the first of ``mesh.nearest``'s k, which come sorted)."""
+    idx = gm.nearest(body_v, v) if idx is None else idx
+    return (penetration(v, body_v, body_n, idx) < 0).float().mean(1) * 100
 
 
 def strain(v: torch.Tensor, edges: torch.Tensor, rest_len: torch.Tensor) -> torch.Tensor:
