@@ -48,9 +48,9 @@ def main() -> None:
                "backbone, 2 passes": BackboneSource(body, passes=2),
                "backbone, 3 passes, whole network in the first": BackboneSource(body, quick_locate=False),
                "backbone, 3 passes, eager (no TorchScript)": BackboneSource(body, jit=False)}
-    recs = {s: Reconstructor(body, source=src) for s, src in sources.items()}
+    recs = {s: Reconstructor(body=body, source=src) for s, src in sources.items()}
     old = "mediapipe, SMPLR on the adapter's 3D, no lifter (0.2's `recon run`: `--lift source`)"
-    recs = {**dict(list(recs.items())[:1]), old: Reconstructor(body, source=sources[next(iter(sources))],
+    recs = {**dict(list(recs.items())[:1]), old: Reconstructor(body=body, source=sources[next(iter(sources))],
                                                                 lift="source"), **dict(list(recs.items())[1:])}
     sources = {s: r.source for s, r in recs.items()}
     fits = {"none": FitConfig(steps=0), "fit": FitConfig(), "fit, keypoints only": FitConfig(silhouette=0.0)}

@@ -21,7 +21,7 @@ import torch
 from tqdm import tqdm
 
 from recon import camera, paths, report
-from recon.io import list_images, load_image
+from recon.io import load_image, scan_inputs
 from recon.keypoints.sources import MediaPipeSource, box_iou
 from recon.synth.dataset import SynthDataset, bench_dir
 
@@ -75,7 +75,7 @@ def main() -> None:
             single += count(found[:1], truth)[0]
         rows.append([f"{n_people} side by side", a.n, truth_n, 100 * single / truth_n, 100 * matched / truth_n, extra])
         print(rows[-1], flush=True)
-    photos = [load_image(p) for p, _ in list_images([paths.DATA_DIR / "examples"])]
+    photos = [load_image(f.path) for f in scan_inputs([paths.DATA_DIR / "examples"]).files if f.path.suffix != ".md"]
     h = min(p.shape[0] for p in photos)
     strip = np.concatenate([cv2.resize(p, (round(p.shape[1] * h / p.shape[0]), h)) for p in photos], 1)
     found = src.people(strip, camera.default_intrinsics(*strip.shape[:2]), a.max_people)

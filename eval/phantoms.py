@@ -25,7 +25,7 @@ from error_budget import person_free_images  # eval/ sibling
 from tqdm import tqdm
 
 from recon import camera, paths, report
-from recon.io import list_images, load_image
+from recon.io import load_image, scan_inputs
 from recon.keypoints import guard
 from recon.keypoints.mediapipe import MediaPipePose
 from recon.keypoints.sources import RETRIES, MediaPipeSource, _unview, pad_image
@@ -161,7 +161,8 @@ def main() -> None:
     sets = {"30 person-free images (error budget, section 4)": list(person_free_images().items()),
             f"{a.phantom_images} person-free images (generator)":
                 [(str(i), person_free(rng, (256, 512)[i % 2])) for i in range(a.phantom_images)],
-            "bundled photos": [(p.name, load_image(p)) for p, _ in list_images([paths.DATA_DIR / "examples"])]}
+            "bundled photos": [(f.path.name, load_image(f.path))
+                               for f in scan_inputs([paths.DATA_DIR / "examples"]).files if f.path.suffix != ".md"]}
     ds = SynthDataset(bench_dir("synth-val"))
     sets["synth-val (a person in every image)"] = [(str(i), ds[i]["rgb"]) for i in range(len(ds))]
     measured = []

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import importlib
 
-__version__ = "0.4.0"
+from recon.version import __version__ as __version__
 
 _EXPORTS = {
     "Reconstructor": "recon.pipeline", "Reconstruction": "recon.pipeline", "NoPersonFound": "recon.pipeline",

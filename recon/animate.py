@@ -29,13 +29,14 @@ from recon.body import default_body, skeleton
 from recon.errors import MissingFile, ReconError
 from recon.garment.dress import Dresser
 from recon.garment.gltf import write_glb
-from recon.io import list_images
+from recon.io import load_image
+from recon.pipeline import NoPersonFound
 from recon.poses.asfamc import read_asf_amc
 from recon.poses.bvh import read_bvh
 from recon.poses.mocap import FPS, MocapPoses, poses_path, resample
 from recon.poses.motion import SourceMotion, local_rotations
 from recon.poses.retarget import Retargeter
-from recon.run import run
+from recon.run import RunOptions, run
 from recon.viz import SequenceRenderer
 
 BODY_RGBA = (0.85, 0.75, 0.68, 1.0)
@@ -157,11 +158,14 @@ def person_from(source: str | Path, out: Path, outfit: str | None = None, log=pr
         return json.loads(js.read_text())
     if not p.exists():
         raise MissingFile(f"{p} not found")
-    list_images([p])  # refuses what is not an image, with the reason
-    s = run([p], out / "reconstruction", outfit=outfit, progress=False, log=log)
-    if s.failed:
-        raise ReconError(f"{p}: {next(iter(s.failed.values()))}")
-    key = (s.done or s.skipped)[0]
+    load_image(p)  # refuses what is not an image, with the reason
+    s = run([p], out / "reconstruction", RunOptions(outfit=outfit), progress=False, log=lambda m: None)
+    if s.no_person:
+        raise NoPersonFound(f"{p}: no person found")
+    if s.failed or s.skipped:
+        raise ReconError(f"{p}: {next(iter({**s.failed, **s.skipped}.values()))}")
+    key = (s.done or s.unchanged)[0]
+    log(f"reconstructed {p} into {out / 'reconstruction' / key}")
     return json.loads((out / "reconstruction" / key / "result.json").read_text())
 
 

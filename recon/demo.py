@@ -21,7 +21,7 @@ from recon.body import default_body
 from recon.garment.dress import Dresser
 from recon.poses.mocap import MocapPoses
 from recon.poses.sampler import PoseSampler, ShapeSampler
-from recon.run import run
+from recon.run import RunOptions, run
 from recon.smplr import SMPLR
 from recon.smplr.model import WEIGHTS as SMPLR_WEIGHTS
 from recon.smplr.noise import fixed_gaussian
@@ -76,7 +76,7 @@ def example_photos() -> list[Path]:
 def photo_demo(out: Path, outfit: str | None = None) -> list[Path]:
     """``recon run`` on the bundled example photos + one contact sheet (photo | overlay | side)."""
     photos = example_photos()
-    summary = run(photos, out / "photos", outfit=outfit, progress=False, log=lambda m: None)
+    summary = run(photos, out / "photos", RunOptions(outfit=outfit), progress=False, log=lambda m: None)
     rows = []
     for p in photos:
         d = out / "photos" / p.stem
@@ -86,7 +86,7 @@ def photo_demo(out: Path, outfit: str | None = None) -> list[Path]:
         h = 320
         rows.append(np.concatenate([cv2.resize(t, (round(t.shape[1] * h / t.shape[0]), h)) for t in tiles], 1))
     if not rows:
-        raise RuntimeError(f"no example photo was reconstructed: {summary.failed}")  # a bug: they all have a person
+        raise RuntimeError(f"no example photo was reconstructed: {summary.to_json()}")  # a bug: they all have a person
     w = max(r.shape[1] for r in rows)
     sheet = np.concatenate([np.pad(r, ((0, 0), (0, w - r.shape[1]), (0, 0)), constant_values=255) for r in rows], 0)
     path = out / "examples.png"

@@ -13,7 +13,7 @@ image side, principal point at the centre.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 import roma
@@ -23,7 +23,7 @@ from recon import camera
 from recon.body import default_body, skeleton
 from recon.errors import ReconError
 from recon.fit import FitConfig, fit_body
-from recon.keypoints import Keypoints, KeypointSource, make_source
+from recon.keypoints import Keypoints, make_source
 from recon.smplr import SMPLR
 from recon.smplr.lifter import Lifter
 
@@ -89,42 +89,79 @@ class Reconstruction:
         }
 
 
-class Reconstructor:
-    """``Reconstructor()(rgb) -> Reconstruction`` (raises NoPersonFound). The defaults are
-    ``recon run``'s.
+@dataclass
+class ReconstructorConfig:
+    """How ``Reconstructor`` turns an image into bodies; the defaults are ``recon run``'s.
 
-    Args:
-        body: body model (default anny).
-        source: keypoint source object, or "mediapipe" (default) / "backbone".
-        focal_factor: focal length in units of the longer image side when K is not given.
-        device: torch device for SMPLR and the body model.
-        fit: the fit after SMPLR (``recon.fit.FitConfig``; ``FitConfig(steps=0)``: none).
-        flip: test-time mirror averaging of a named source (None: the source's default).
-        lift: where SMPLR's 3D J+ come from: "camera" (the camera-aware lifter on the source's 2D
-            and K), "source" (the source's own 3D, as before 0.3) or "blend" (their mean). The
-            fit's 3D prior follows the same points.
-        denoise: run SMPLR's 3D DAE on the J+ first.
-        retry: a named MediaPipe source asks again on other views when it finds nobody (more
-            people found; on person-free images also more phantoms: eval/results/error-budget.md).
-        guard: a named MediaPipe source refuses answers that ``recon.keypoints.guard`` scores as
-            phantoms (eval/results/phantoms.md).
+    source: keypoint source, "mediapipe" or "backbone". focal_factor: focal length in units of the
+    longer image side when K is not given. device: torch device of SMPLR and the body model.
+    fit: the fit after SMPLR (``FitConfig(steps=0)``: none). flip: test-time mirror averaging of
+    the source (None: the source's default). lift: where SMPLR's 3D J+ come from, "camera" (the
+    camera-aware lifter on the 2D and K), "source" (the source's own 3D) or "blend" (their mean);
+    the fit's 3D prior follows the same points. denoise: SMPLR's 3D DAE on the J+ first.
+    retry: MediaPipe asks again on other views when it finds nobody (more people found, more
+    phantoms on person-free images). guard: MediaPipe's answers scored as phantoms are refused.
+    smplr_path / lifter_path: other weights than the shipped ones.
     """
 
-    def __init__(self, body=None, source: str | KeypointSource = "mediapipe", focal_factor: float = 1.0,
-                 device: str = "cpu", smplr_path=None, fit: FitConfig | None = None, flip: bool | None = None,
-                 lift: str = "blend", denoise: bool = True, lifter_path=None, retry: bool = True,
-                 guard: bool = True):
-        if lift not in LIFTS:
-            raise ReconError(f"lift must be one of {LIFTS}, got {lift!r}")
+    source: str = "mediapipe"
+    focal_factor: float = 1.0
+    device: str = "cpu"
+    fit: FitConfig = field(default_factory=FitConfig)
+    flip: bool | None = None
+    lift: str = "blend"
+    denoise: bool = True
+    retry: bool = True
+    guard: bool = True
+    smplr_path: str | None = None
+    lifter_path: str | None = None
+
+    def to_json(self) -> dict:
+        """What changes the result (not the device), for the record of what a result was made from."""
+        return {k: v for k, v in asdict(self).items() if k != "device"}
+
+
+class Reconstructor:
+    """``Reconstructor()(rgb) -> Reconstruction`` (raises NoPersonFound), configured by a
+    ``ReconstructorConfig`` and/or its fields as keywords (``Reconstructor(source="backbone")``).
+    ``body``: the body model (default anny); ``source`` may also be a ``KeypointSource`` object."""
+
+    def __init__(self, config: ReconstructorConfig | None = None, body=None, **overrides):
+        source = overrides.pop("source", None)
+        if source is not None and not isinstance(source, str):
+            overrides["source"] = getattr(source, "name", type(source).__name__)
+        elif source is not None:
+            overrides["source"] = source
+        cfg = replace(config or ReconstructorConfig(), **overrides)
+        if cfg.lift not in LIFTS:
+            raise ReconError(f"lift must be one of {LIFTS}, got {cfg.lift!r}")
+        self.config = cfg
         self.body = body or default_body()
-        self.device = torch.device(device)
-        self.smplr = SMPLR.load(self.body, smplr_path).to(self.device)
-        self.lift, self.denoise = lift, denoise
-        self.lifter = Lifter.load(lifter_path) if lift != "source" else None
-        self.source = (make_source(source, self.body, device, flip, retry, guard) if isinstance(source, str)
-                       else source)
-        self.focal_factor = focal_factor
-        self.fit = fit or FitConfig()
+        self.device = torch.device(cfg.device)
+        self.smplr = SMPLR.load(self.body, cfg.smplr_path).to(self.device)
+        self.lifter = Lifter.load(cfg.lifter_path) if cfg.lift != "source" else None
+        self.source = (source if source is not None and not isinstance(source, str)
+                       else make_source(cfg.source, self.body, cfg.device, cfg.flip, cfg.retry, cfg.guard))
+
+    @property
+    def fit(self) -> FitConfig:
+        return self.config.fit
+
+    @fit.setter
+    def fit(self, value: FitConfig) -> None:
+        self.config = replace(self.config, fit=value)
+
+    @property
+    def focal_factor(self) -> float:
+        return self.config.focal_factor
+
+    @property
+    def lift(self) -> str:
+        return self.config.lift
+
+    @property
+    def denoise(self) -> bool:
+        return self.config.denoise
 
     @property
     def faces(self) -> np.ndarray:

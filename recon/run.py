@@ -1,25 +1,31 @@
 """``recon run``: reconstruct every image of files/folders into an output folder.
 
-Per image ``<out>/<key>/``: ``result.json`` (2D/3D joints and landmarks, pose, shape, camera,
-confidence), ``body.obj`` (mesh in the camera frame), ``body.glb`` (rigged: skeleton and skinned
-body in the photo's pose, in the view frame, with the photo's camera), ``pose.bvh`` (the pose on
-the body's skeleton, one frame), ``overlay.png`` (mesh over the photo) and ``side.png`` (side
-view); with an outfit also ``outfit.obj`` and ``dressed.glb`` (rigged, with the outfit's blend
-shapes).
-With ``--max-people N`` an image with several people gets ``person_0/``, ``person_1/``, ...
-(the largest first), one ``overlay.png`` with all of them and ``people.json``. Every file is
-written atomically and ``result.json`` (``people.json``) last, so a folder with one is
-complete: a re-run skips it (resume after Ctrl-C or a crash). Images that fail (unreadable, no
-person, ...) are reported with the reason and the batch goes on; ``<out>/summary.json`` lists
-done / skipped / failed.
+Per image ``<out>/<key>/`` (``key``: the path relative to the given folder, without its suffix;
+``recon.io.scan_inputs``): ``result.json`` (2D/3D joints and landmarks, pose, shape, camera,
+confidence, what it was made from), ``body.obj`` (mesh in the camera frame), ``body.glb``
+(rigged: skeleton and skinned body in the photo's pose, in the view frame, with the photo's
+camera), ``pose.bvh`` (the pose on the body's skeleton, one frame), ``overlay.png`` (mesh over the
+photo) and ``side.png`` (side view); with an outfit also ``outfit.obj`` and ``dressed.glb``.
+With ``max_people`` > 1 every image folder holds ``person_0/``, ``person_1/``, ... (each as above,
+the largest person first, however many were found), one ``overlay.png`` and ``people.json``.
+
+An image folder is written in a staging folder and moved into place whole, so a folder is either
+complete or absent (Ctrl-C, kill -9, a full disk). A complete folder made from the same file bytes,
+options and recon version is left as it is (``unchanged``); otherwise it is made again (``--force``:
+always). ``<out>/summary.json`` lists every file seen: done, unchanged, no person found, skipped
+(not an image or unreadable, with the reason) and failed (an error while reconstructing or writing).
 """
 from __future__ import annotations
 
+import contextlib
 import json
+import logging
 import os
+import shutil
 import tempfile
 import time
-from dataclasses import dataclass, field
+import uuid
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import cv2
@@ -33,9 +39,10 @@ from recon.body import skeleton
 from recon.errors import ReconError
 from recon.garment.dress import Dresser
 from recon.garment.gltf import write_glb
-from recon.io import ImageError, exif_focal_factor, list_images, load_image
-from recon.pipeline import Reconstruction, Reconstructor
+from recon.io import ImageError, Input, exif_focal_factor, file_digest, load_image, scan_inputs
+from recon.pipeline import NoPersonFound, Reconstruction, Reconstructor, ReconstructorConfig
 from recon.poses.bvh import write_bvh
+from recon.version import __version__
 from recon.viz import render_meshes, render_overlay
 
 MAX_SIDE = 1920  # longer side used for detection/rendering; results are in original pixels
@@ -44,23 +51,55 @@ DRESSED_BODY_RGBA = (0.85, 0.75, 0.68, 1.0)
 OUTFIT_RGBA = (0.35, 0.45, 0.8, 1.0)
 OVERLAY_COLOURS = (BODY_RGBA, (0.92, 0.55, 0.45, 1.0), (0.5, 0.82, 0.5, 1.0), (0.85, 0.75, 0.4, 1.0),
                    (0.7, 0.5, 0.85, 1.0))
+STAGING = ".recon-staging"  # under the output folder: image folders being written
+log_ = logging.getLogger(__name__)
+
+
+@dataclass
+class RunOptions:
+    """What ``recon run`` makes of each image besides the reconstruction (``ReconstructorConfig``).
+
+    outfit: dress the bodies with a trained outfit, resized to each body; tightness: (2,) looser
+    (> 0) or tighter (< 0), needs the outfit's resizer. max_people: people per image (> 1: the
+    ``person_<i>/`` layout). overlay: write overlay.png and side.png. exif_focal: the focal length
+    from the photo's EXIF where it has one (else the config's ``focal_factor``). batch_size: images
+    per SMPLR/fit batch. force: make every image again, even those already done.
+    """
+
+    outfit: str | None = None
+    tightness: tuple[float, float] | None = None
+    max_people: int = 1
+    overlay: bool = True
+    exif_focal: bool = True
+    batch_size: int = 4
+    force: bool = False
+
+    def to_json(self) -> dict:
+        """The options that change the outputs (not batch size or force)."""
+        d = asdict(self)
+        d["tightness"] = None if self.tightness is None else [float(t) for t in self.tightness]
+        return {k: v for k, v in d.items() if k not in ("batch_size", "force")}
 
 
 @dataclass
 class RunSummary:
-    done: list[str] = field(default_factory=list)
-    skipped: list[str] = field(default_factory=list)  # finished by an earlier run
-    failed: dict[str, str] = field(default_factory=dict)  # key -> reason
+    done: list[str] = field(default_factory=list)  # keys made by this run
+    unchanged: list[str] = field(default_factory=list)  # keys an earlier run made from the same file and options
+    no_person: dict[str, str] = field(default_factory=dict)  # key -> source: nobody found in the image
+    skipped: dict[str, str] = field(default_factory=dict)  # path -> why it is not an image recon can read
+    failed: dict[str, str] = field(default_factory=dict)  # path -> error while reconstructing or writing
     interrupted: bool = False
     seconds: float = 0.0
 
     def to_json(self) -> dict:
-        return {"done": len(self.done), "skipped": len(self.skipped), "failed": len(self.failed),
-                "interrupted": self.interrupted, "seconds": round(self.seconds, 1),
-                "failures": self.failed, "done_keys": self.done, "skipped_keys": self.skipped}
+        counts = {k: len(getattr(self, k)) for k in ("done", "unchanged", "no_person", "skipped", "failed")}
+        return {"recon": __version__, "counts": counts, "interrupted": self.interrupted,
+                "seconds": round(self.seconds, 1), "done": self.done, "unchanged": self.unchanged,
+                "no_person": self.no_person, "skipped": self.skipped, "failed": self.failed}
 
     def line(self) -> str:
-        s = f"done {len(self.done)}, skipped (already done) {len(self.skipped)}, failed {len(self.failed)}"
+        s = (f"done {len(self.done)}, unchanged {len(self.unchanged)}, no person found {len(self.no_person)}, "
+             f"skipped {len(self.skipped)} (not images or unreadable), failed {len(self.failed)}")
         return s + (" - interrupted: run the same command again to resume" if self.interrupted else "")
 
 
@@ -74,83 +113,180 @@ def check_writable(out: Path) -> None:
         raise ReconError(f"output folder {out} is not writable: {e.strerror or e}") from e
 
 
-def run(inputs: list[str | Path], out: str | Path, reconstructor: Reconstructor | None = None, batch_size: int = 4,
-        overlay: bool = True, outfit: str | None = None, tightness: tuple[float, float] | None = None,
-        progress: bool = True, log=print, exif_focal: bool = True, max_people: int = 1) -> RunSummary:
-    """Reconstruct every image of ``inputs`` into ``out`` (see the module doc). ``reconstructor``:
-    default ``Reconstructor()`` (``recon run``'s defaults), built when the first image loads; the
-    fit comes from it, and its ``focal_factor`` for images whose EXIF gives no 35 mm equivalent
-    focal length (``exif_focal``: read it; False: always the reconstructor's). ``outfit``: dress
-    the bodies with a trained PBNS outfit, resized to each body and, with ``tightness`` (2,) and a
-    trained resizer, looser or tighter. ``max_people``: people per image (the largest first); an
-    image with more than one gets ``person_0/``, ``person_1/``, ... (each as above), one
-    ``overlay.png`` with all of them and ``people.json`` (written last, it marks the image done).
-    """
+def made_from(digest: str, options: RunOptions, config: ReconstructorConfig) -> dict:
+    """What a result is made from: the input's bytes, the options and config, recon's version."""
+    return {"recon": __version__, "input_sha256": digest, "options": options.to_json(),
+            "reconstructor": config.to_json()}
+
+
+def recorded(folder: Path) -> dict | None:
+    """The ``made_from`` of a complete image folder (result.json or people.json), else None."""
+    for name in ("result.json", "people.json"):
+        try:
+            return json.loads((folder / name).read_text()).get("made_from", {})
+        except (OSError, ValueError):
+            continue
+    return None
+
+
+def run(inputs: list[str | Path], out: str | Path, options: RunOptions | None = None,
+        config: ReconstructorConfig | None = None, reconstructor: Reconstructor | None = None,
+        progress: bool = True, log=print) -> RunSummary:
+    """Reconstruct every image of ``inputs`` into ``out`` (see the module doc). ``config``: the
+    reconstruction (default ``recon run``'s); ``reconstructor``: one already built (its config is
+    used), else one is built when the first image needs it."""
+    options = options or RunOptions()
+    if options.max_people < 1 or options.batch_size < 1:
+        raise ReconError("max_people and batch_size must be at least 1")
+    config = reconstructor.config if reconstructor is not None else (config or ReconstructorConfig())
     out = Path(out)
+    dresser = _dresser(options)
     check_writable(out)
-    items = list_images(inputs)
-    summary, t0 = RunSummary(), time.time()
-    summary.skipped = [k for _, k in items if any((out / k / f).exists() for f in ("result.json", "people.json"))]
-    todo = [(p, k) for p, k in items if k not in set(summary.skipped)]
-    if not items:
-        log(f"no images found in {', '.join(map(str, inputs))}")
-    dresser = None
-    if outfit:
-        dresser = Dresser(outfit)  # fails early (clear message) if the outfit is not trained
-        if tightness is not None and not dresser.has_resizer:
-            raise ReconError(f"--tightness needs a trained resizer for {outfit}: "
-                             f"run `recon garment resize --outfit {outfit}`")
-    elif tightness is not None:
-        raise ReconError("--tightness needs --outfit")
+    staging = _staging(out)
+    scan = scan_inputs(inputs)
+    summary, t0 = RunSummary(skipped=dict(scan.skipped)), time.time()
+    for path, reason in scan.skipped.items():
+        log(f"skipped: {path}: {reason}")
+    todo = []
+    for item in scan.files:
+        try:
+            digest = file_digest(item.path)
+        except OSError as e:
+            summary.skipped[str(item.path)] = f"cannot read ({e.strerror or e})"
+            log(f"skipped: {item.path}: cannot read ({e.strerror or e})")
+            continue
+        stamp = made_from(digest, options, config)
+        if not options.force and recorded(out / item.key) == stamp:
+            summary.unchanged.append(item.key)
+        else:
+            todo.append((item, stamp))
+    if not scan.files and not scan.skipped:
+        log(f"no files found in {', '.join(map(str, inputs))}")
     rec = reconstructor
     bar = tqdm(total=len(todo), desc="recon run", unit="img", disable=not progress)
     try:
-        for b in range(0, len(todo), batch_size):
+        for b in range(0, len(todo), options.batch_size):
             loaded = []
-            for p, key in todo[b:b + batch_size]:
+            for item, stamp in todo[b:b + options.batch_size]:
                 try:
-                    loaded.append((p, key, load_image(p)))
+                    loaded.append((item, stamp, load_image(item.path)))
                 except ImageError as e:
-                    summary.failed[key] = str(e)
-                    log(f"failed: {e}")
+                    summary.skipped[str(item.path)] = _reason(e, item.path)
+                    log(f"skipped: {e}")
                     bar.update(1)
             if not loaded:
                 continue
-            rec = rec or Reconstructor()
+            rec = rec or Reconstructor(config)
             small = [_downscale(img) for _, _, img in loaded]
-            focal = [(exif_focal_factor(p) if exif_focal else None) for p, _, _ in loaded]
+            focal = [(exif_focal_factor(item.path) if options.exif_focal else None) for item, _, _ in loaded]
             ks = [np.diag([s, s, 1.0]) @ camera.default_intrinsics(*img.shape[:2], f or rec.focal_factor)
                   for (_, _, img), (_, s), f in zip(loaded, small, focal, strict=True)]
-            images = [im for im, _ in small]
-            results = (rec.people(images, ks, max_people) if max_people > 1
-                       else [r if isinstance(r, Exception) else [r] for r in rec.batch(images, ks)])
-            for (p, key, img), (im, s), k, r, f in zip(loaded, small, ks, results, focal, strict=True):
-                if isinstance(r, Exception):
-                    summary.failed[key] = f"{p}: {r}"
-                    log(f"failed: {p}: {r}")
-                else:
-                    try:
-                        focal_from = "exif" if f else "default"
-                        if len(r) == 1:
-                            _write(out / key, p, img, im, s, k, r[0], rec, overlay, dresser, tightness, focal_from)
-                        else:
-                            _write_people(out / key, p, img, im, s, k, r, rec, overlay, dresser, tightness, focal_from)
-                        summary.done.append(key)
-                    except OSError as e:
-                        summary.failed[key] = f"{p}: cannot write outputs ({e})"
-                        log(f"failed: {p}: cannot write outputs ({e})")
+            try:
+                results = rec.people([im for im, _ in small], ks, options.max_people)
+            except (KeyboardInterrupt, ReconError):
+                raise
+            except Exception as e:  # noqa: BLE001 - one batch's bug must not stop a folder of thousands
+                log_.debug("reconstruction failed", exc_info=True)
+                results = [e] * len(loaded)
+            for (item, stamp, img), (im, s), k, r, f in zip(loaded, small, ks, results, focal, strict=True):
+                _finish(summary, out, staging, item, stamp, img, im, s, k, r, rec, options, dresser,
+                        "exif" if f else "default", log)
                 bar.update(1)
     except KeyboardInterrupt:
         summary.interrupted = True
     finally:
         bar.close()
         summary.seconds = time.time() - t0
+        shutil.rmtree(staging, ignore_errors=True)
+        with contextlib.suppress(OSError):
+            staging.parent.rmdir()  # when no other run is writing here
         try:
             paths.write_text(out / "summary.json", json.dumps(summary.to_json(), indent=1))
         except OSError:
             pass
     log(summary.line())
     return summary
+
+
+def _dresser(options: RunOptions) -> Dresser | None:
+    """The outfit's Dresser, refused before any image when the outfit or its resizer is missing."""
+    if not options.outfit:
+        if options.tightness is not None:
+            raise ReconError("--tightness needs --outfit")
+        return None
+    dresser = Dresser(options.outfit)
+    if options.tightness is not None and not dresser.has_resizer:
+        raise ReconError(f"--tightness needs a trained resizer for {options.outfit}: "
+                         f"run `recon garment resize --outfit {options.outfit}`")
+    return dresser
+
+
+def _staging(out: Path) -> Path:
+    """This run's staging folder; those of runs that are no longer alive are removed."""
+    root = out / STAGING
+    if root.is_dir():
+        for d in root.iterdir():
+            pid = d.name.split("-")[0]
+            if not (pid.isdigit() and _alive(int(pid))):
+                shutil.rmtree(d, ignore_errors=True)
+    path = root / f"{os.getpid()}-{uuid.uuid4().hex[:8]}"
+    path.mkdir(parents=True)
+    return path
+
+
+def _alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return False  # an earlier run of this process (the API called twice) is over
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def _reason(e: Exception, path: Path) -> str:
+    """An error's message without the path in front (the summary lists it by path)."""
+    msg = str(e)
+    return msg[len(str(path)) + 2:] if msg.startswith(f"{path}: ") else msg
+
+
+def _finish(summary: RunSummary, out: Path, staging: Path, item: Input, stamp: dict, img, small, s: float, k,
+            result, rec, options: RunOptions, dresser, focal_from: str, log) -> None:
+    """Files of one image written in a staging folder, then moved into place; the summary updated."""
+    if isinstance(result, NoPersonFound):
+        summary.no_person[item.key] = str(item.path)
+        log(f"no person found: {item.path}")
+        return
+    if isinstance(result, Exception):
+        summary.failed[str(item.path)] = f"reconstruction failed: {result!r} (a bug: please report it; -v shows more)"
+        log(f"failed: {item.path}: {summary.failed[str(item.path)]}")
+        return
+    tmp = staging / uuid.uuid4().hex
+    try:
+        people = result if options.max_people > 1 else result[:1]
+        write = _write_people if options.max_people > 1 else _write_one
+        write(tmp, item.path, img, small, s, k, people, rec, options, dresser, focal_from, stamp)
+        _move_into_place(tmp, out / item.key, staging)
+        summary.done.append(item.key)
+    except OSError as e:
+        summary.failed[str(item.path)] = f"cannot write outputs ({e.strerror or e})"
+        log(f"failed: {item.path}: cannot write outputs ({e.strerror or e})")
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _move_into_place(tmp: Path, dst: Path, staging: Path) -> None:
+    """Replace ``dst`` by the finished folder ``tmp``: two renames on one file system."""
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    if dst.exists() or dst.is_symlink():
+        old = staging / f"old-{uuid.uuid4().hex}"
+        os.rename(dst, old)
+        os.rename(tmp, dst)
+        shutil.rmtree(old, ignore_errors=True)
+    else:
+        os.rename(tmp, dst)
 
 
 def _downscale(img: np.ndarray) -> tuple[np.ndarray, float]:
@@ -184,26 +320,32 @@ def write_rigged_glb(path: Path, body, r: Reconstruction, image_hw: tuple[int, i
                      tightness=tightness, camera=(k, image_hw), animation_name="photo")
 
 
-def _write_people(folder: Path, src: Path, img, small, s: float, k_small, people: list[Reconstruction],
-                  rec: Reconstructor, overlay: bool, dresser, tightness, focal_from: str) -> None:
-    """Several people of one image: person_<i>/ each, then one overlay with all, then people.json."""
+def _write_people(folder: Path, src: Path, img, small, s: float, k_small, people: list[Reconstruction], rec,
+                  options: RunOptions, dresser, focal_from: str, stamp: dict) -> None:
+    """The people of one image: person_<i>/ each, one overlay with all, then people.json."""
     for i, r in enumerate(people):
-        _write(folder / f"person_{i}", src, img, small, s, k_small, r, rec, overlay, dresser, tightness, focal_from)
-    if overlay:
+        _write(folder / f"person_{i}", src, img, small, s, k_small, r, rec, options, dresser, focal_from, stamp)
+    if options.overlay:
         meshes = [(r.vertices, rec.faces, OVERLAY_COLOURS[i % len(OVERLAY_COLOURS)]) for i, r in enumerate(people)]
         paths.write_image(folder / "overlay.png", render_overlay(small, meshes, k_small))
     index = {"source": str(src), "image_size": list(img.shape[:2]), "count": len(people),
              "people": [{"folder": f"person_{i}", "box": np.round(np.asarray(r.keypoints.box) / s, 1).tolist(),
-                         "confidence": round(r.keypoints.confidence, 4)} for i, r in enumerate(people)]}
+                         "confidence": round(r.keypoints.confidence, 4)} for i, r in enumerate(people)],
+             "made_from": stamp}
     paths.write_text(folder / "people.json", json.dumps(index, indent=1))
 
 
-def _write(folder: Path, src: Path, img, small, s: float, k_small, r: Reconstruction, rec: Reconstructor,
-           overlay: bool, dresser=None, tightness=None, focal_from: str = "default") -> None:
-    """Outputs of one image; result.json last (it marks the folder complete). ``focal_from``: where
-    the intrinsics' focal length came from ("exif" or "default"), recorded in result.json."""
+def _write_one(folder: Path, src: Path, img, small, s: float, k_small, people: list[Reconstruction], rec,
+               options: RunOptions, dresser, focal_from: str, stamp: dict) -> None:
+    _write(folder, src, img, small, s, k_small, people[0], rec, options, dresser, focal_from, stamp)
+
+
+def _write(folder: Path, src: Path, img, small, s: float, k_small, r: Reconstruction, rec, options: RunOptions,
+           dresser, focal_from: str, stamp: dict) -> None:
+    """Outputs of one person; result.json last. ``focal_from``: where the intrinsics' focal length
+    came from ("exif" or "default"), recorded in result.json."""
     folder.mkdir(parents=True, exist_ok=True)
-    faces = rec.faces
+    faces, tightness = rec.faces, options.tightness
     mesh = trimesh.Trimesh(r.vertices, faces, process=False)
     paths.atomic_write(folder / "body.obj", lambda t: mesh.export(t, file_type="obj"))
     write_rigged_glb(folder / "body.glb", rec.body, r, small.shape[:2], k_small)
@@ -219,7 +361,7 @@ def _write(folder: Path, src: Path, img, small, s: float, k_small, r: Reconstruc
         paths.atomic_write(folder / "outfit.obj", lambda t: cloth.export(t, file_type="obj"))
         write_rigged_glb(folder / "dressed.glb", rec.body, r, small.shape[:2], k_small, dresser, tightness)
         meshes = [(r.vertices, faces, DRESSED_BODY_RGBA), (d.vertices[0], d.faces, OUTFIT_RGBA)]
-    if overlay:
+    if options.overlay:
         paths.write_image(folder / "overlay.png", render_overlay(small, meshes, k_small))
         if min(small.shape[:2]) >= 64:
             side = render_meshes([(camera.to_view(m[0]), m[1], m[2]) for m in meshes],
@@ -242,4 +384,5 @@ def _write(folder: Path, src: Path, img, small, s: float, k_small, r: Reconstruc
         js["outfit"] = {"name": dresser.outfit, "garments": dresser.names,
                         "tightness": None if tightness is None else [float(t) for t in tightness]}
     js["files"] = sorted(p.name for p in folder.iterdir() if not p.name.startswith("."))
+    js["made_from"] = stamp
     paths.write_text(folder / "result.json", json.dumps(js, indent=1))

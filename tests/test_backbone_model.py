@@ -19,7 +19,7 @@ from recon.body import skeleton
 from recon.fit import FitConfig
 from recon.keypoints import BackboneSource
 from recon.pipeline import Reconstructor
-from recon.run import run
+from recon.run import RunOptions, run
 from recon.smplr.features import template_distances
 from recon.synth.dataset import BENCHMARKS
 from recon.synth.scene import SceneSampler
@@ -144,7 +144,8 @@ def test_recon_run_with_the_backbone_source(tmp_path, val_samples):
     torch.set_num_threads(1)
     cv2.imwrite(str(tmp_path / "synthetic.png"), val_samples[0]["rgb"][..., ::-1])
     rec = Reconstructor(source="backbone", fit=FitConfig(steps=0))
-    s = run([tmp_path / "synthetic.png"], tmp_path / "out", rec, overlay=False, progress=False, log=lambda *_: None)
+    s = run([tmp_path / "synthetic.png"], tmp_path / "out", RunOptions(overlay=False), reconstructor=rec,
+            progress=False, log=lambda *_: None)
     assert s.done == ["synthetic"]
     js = json.loads((tmp_path / "out" / "synthetic" / "result.json").read_text())
     assert js["keypoint_source"] == "backbone" and len(js["joints3d"]) == 24

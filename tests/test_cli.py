@@ -1,6 +1,10 @@
 """The command line: scoped subcommands, defaults from the dataclasses, user errors vs bugs, and
 the demo (needs offscreen GL)."""
+import argparse
 import json
+import subprocess
+import sys
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -8,9 +12,12 @@ import pytest
 import torch
 import trimesh
 
-from recon import cli
 from recon.backbone.train import BackboneTrainConfig
-from recon.cli import build_parser, main
+from recon.cli import COMMANDS, build_parser, main, parsing
+from recon.cli import body as cli_body
+from recon.cli import garment as cli_garment
+from recon.cli import run as cli_run
+from recon.cli import synth as cli_synth
 from recon.fit import FitConfig
 from recon.garment import ncs_train, store
 from recon.garment.templates import RestBody
@@ -60,7 +67,7 @@ def test_user_errors_are_one_line_and_bugs_keep_their_traceback(capsys, monkeypa
     def bug(args):
         raise ValueError("a bug, not the user's fault")
 
-    monkeypatch.setattr(cli, "cmd_body_info", bug)
+    monkeypatch.setattr(cli_body, "body_info", bug)
     with pytest.raises(ValueError, match="a bug"):
         main(["body", "info"])
 
@@ -75,8 +82,8 @@ def test_threads_flag_sets_torch_threads():
 
 def test_ncs_train_flags_reach_its_config(monkeypatch):
     seen = []
-    monkeypatch.setattr(cli, "default_body", lambda: None)
-    monkeypatch.setattr(cli.ncs_train, "train", lambda body, cfg: seen.append(cfg) or {
+    monkeypatch.setattr(cli_garment, "default_body", lambda: None)
+    monkeypatch.setattr(cli_garment.ncs_train, "train", lambda body, cfg: seen.append(cfg) or {
         "outfit": cfg.outfit, "train_seconds": 0.0, "curve": [{"val_teacher_mm": 1.0}]})
     main(["garment", "train", "--model", "ncs", "--outfit", "top-shorts", "--physics-steps", "400",
           "--static-weight", "3", "--free-weight", "10", "--field-lr", "0.001"])
@@ -91,9 +98,9 @@ def test_demo_finds_an_outfit_trained_into_the_cache(monkeypatch, tmp_path):
     monkeypatch.setattr(store, "user_dir", lambda: tmp_path)
     (tmp_path / "pbns_mine.pt").write_bytes(b"")
     seen = {}
-    monkeypatch.setattr(cli, "photo_demo", lambda out, outfit: seen.setdefault("outfit", outfit) and [])
-    monkeypatch.setattr(cli, "body_demo", lambda out, seed: [])
-    monkeypatch.setattr(cli, "dressed_gif", lambda out, outfit: tmp_path / "x.gif")
+    monkeypatch.setattr(cli_run, "photo_demo", lambda out, outfit: seen.setdefault("outfit", outfit) and [])
+    monkeypatch.setattr(cli_run, "body_demo", lambda out, seed: [])
+    monkeypatch.setattr(cli_run, "dressed_gif", lambda out, outfit: tmp_path / "x.gif")
     assert main(["demo", "--out", str(tmp_path / "d"), "--outfit", "mine"]) == 0
     assert seen["outfit"] == "mine"
 
@@ -118,11 +125,78 @@ def test_synth_generate_framing_wide_is_the_wide_benchmarks_framing(monkeypatch,
         seen["cfg"] = cfg
         raise SystemExit(0)
 
-    monkeypatch.setattr(cli.dataset, "generate", generate)
+    monkeypatch.setattr(cli_synth.dataset, "generate", generate)
     for framing, size in (("wide", 512), ("standard", None)):
         with pytest.raises(SystemExit):
             main(["synth", "generate", "--out", str(tmp_path), "--n", "2", "--framing", framing])
         assert (seen["cfg"] and seen["cfg"].size) == size
         if framing == "wide":
-            assert seen["cfg"] == cli.dataset.bench_config("synth-wide-val")
+            assert seen["cfg"] == cli_synth.dataset.bench_config("synth-wide-val")
     assert seen["cfg"] is None  # standard: the generator's defaults
+
+
+def _numeric_flags(parser: argparse.ArgumentParser, prefix=()):
+    """(argv that reaches the action, flag, its type) for every numeric flag of every command."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                yield from _numeric_flags(sub, (*prefix, name))
+        elif action.option_strings and action.type not in (None, str, Path, parsing.device):
+            yield prefix, action.option_strings[-1], action
+
+
+def _required(parser: argparse.ArgumentParser, path) -> list[str]:
+    for name in path:
+        sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+        parser = sub.choices[name]
+    return [w for a in parser._actions if a.required and a.option_strings for w in (a.option_strings[-1], "x")]
+
+
+def test_every_numeric_flag_refuses_values_out_of_its_range(capsys):
+    """One helper (recon.cli.parsing.number) types every int/float flag; a value below or above its
+    range, or not a number, exits with 2 and one line naming the flag, before anything runs."""
+    parser = build_parser()
+    flags = list(_numeric_flags(parser))
+    assert len(flags) > 40
+    for path, flag, action in flags:
+        if path == () and flag == "--threads":
+            path = ("body", "info")  # a global flag: any command
+        kind = action.type
+        assert kind in (parsing.COUNT, parsing.STEPS, parsing.SEED, parsing.POSITIVE, parsing.NON_NEGATIVE) or (
+            hasattr(kind, "low")), f"{path} {flag} is typed {kind}, not by parsing.number"
+        bad = ["nan", "abc"]
+        if kind.low is not None:
+            bad.append(str(kind.low if kind.low_open else kind.low - 1))
+        if kind.high is not None:
+            bad.append(str(kind.high + 1))
+        for value in bad:
+            values = [value] * (action.nargs if isinstance(action.nargs, int) else 1)
+            argv = [*path[:1], *(["--threads", value] if flag == "--threads" else []), *path[1:],
+                    *_required(parser, path)]
+            if flag != "--threads":
+                argv += [flag, *values]
+            with pytest.raises(SystemExit) as e:
+                parser.parse_args(argv)
+            err = capsys.readouterr().err
+            assert e.value.code == 2 and err.count("\n") == 1 and "error: argument" in err, (argv, err)
+
+
+def test_device_flags_refuse_a_device_this_machine_lacks(capsys, monkeypatch):
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    for argv in (["run", "--out", "o", "--device", "cuda"], ["run", "--out", "o", "--device", "gpu0"],
+                 ["backbone", "recipe", "--device", "cuda:0"]):
+        with pytest.raises(SystemExit) as e:
+            build_parser().parse_args(argv)
+        assert e.value.code == 2 and capsys.readouterr().err.count("\n") == 1
+    assert build_parser().parse_args(["run", "--out", "o", "--device", "cpu"]).device == "cpu"
+
+
+def test_recon_help_is_quick_and_lists_every_command():
+    """`recon --help` imports no command module (torch loads only when a command runs)."""
+    code = ("import sys, time; t = time.perf_counter(); from recon.cli import main\n"
+            "try:\n    main(['--help'])\nexcept SystemExit:\n    pass\n"
+            "assert 'torch' not in sys.modules, 'torch imported'\n"
+            "print(time.perf_counter() - t, file=sys.stderr)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    for name in COMMANDS:
+        assert f"    {name} " in out.stdout, name

@@ -1,6 +1,5 @@
 """Image loading and `recon run` robustness: bad files are reported and skipped, outputs are
 atomic, an interrupted batch resumes."""
-import inspect
 import json
 
 import cv2
@@ -23,9 +22,9 @@ from recon.keypoints.adapter import MP_MIRROR
 from recon.keypoints.adapter import WEIGHTS as ADAPTER_WEIGHTS
 from recon.keypoints.mediapipe import MPPose
 from recon.keypoints.sources import _unview, box_overlap, pad_image, windows
-from recon.pipeline import Reconstructor
+from recon.pipeline import Reconstructor, ReconstructorConfig
 from recon.poses.bvh import read_bvh
-from recon.run import run
+from recon.run import RunOptions, run
 
 needs_pipeline = pytest.mark.skipif(not (mediapipe_available() and ADAPTER_WEIGHTS.exists()),
                                     reason="needs mediapipe (scripts/setup.sh) and the adapter weights")
@@ -118,14 +117,42 @@ def test_huge_refused_before_decoding(tmp_path, monkeypatch):
         io.load_image(tmp_path / "big.png")
 
 
-def test_list_images_keys(tmp_path):
-    (tmp_path / "sub").mkdir()
-    for n in ("a.jpg", "a.png", "b.JPG", "sub/c.png", "notes.txt", ".hidden.png"):
+def test_scan_inputs_keys_and_skipped(tmp_path):
+    """Every file seen is either an input with a key of its own or listed with a reason; two
+    files never share an output folder (the same name in two folders, a.jpg beside a/)."""
+    for d in ("in/sub", "other", "in/a", "in/x"):
+        (tmp_path / d).mkdir(parents=True)
+    for n in ("in/a.jpg", "in/a.png", "in/b.JPG", "in/sub/c.png", "in/notes.txt", "in/.hidden.png", "in/p.jpg",
+              "other/p.jpg", "in/a/d.jpg", "in/noext", "in/x.jpg", "in/x/e.jpg"):
         (tmp_path / n).write_bytes(b"x")
-    keys = [k for _, k in io.list_images([tmp_path])]
-    assert keys == ["a_jpg", "a_png", "b", "sub/c"]
+    (tmp_path / "in/dangling.jpg").symlink_to(tmp_path / "nowhere")
+    (tmp_path / "in/loop1").symlink_to(tmp_path / "in/loop2")
+    (tmp_path / "in/loop2").symlink_to(tmp_path / "in/loop1")
+    (tmp_path / "in/sub/up").symlink_to(tmp_path / "in")
+    (tmp_path / "in/copy.jpg").symlink_to(tmp_path / "in/b.JPG")
+    scan = io.scan_inputs([tmp_path / "in", tmp_path / "other", tmp_path / "in/p.jpg", tmp_path / "nope"])
+    keys = {f.path.relative_to(tmp_path).as_posix(): f.key for f in scan.files}
+    assert keys == {"in/a.jpg": "a_jpg", "in/a.png": "a_png", "in/a/d.jpg": "a/d", "in/b.JPG": "b",
+                    "in/sub/c.png": "sub/c", "in/notes.txt": "notes", "in/noext": "noext", "in/p.jpg": "in/p",
+                    "other/p.jpg": "other/p", "in/x.jpg": "x_jpg", "in/x/e.jpg": "x/e"}
+    assert len({k.casefold() for k in keys.values()}) == len(keys)
+    reasons = {k.replace(str(tmp_path) + "/", ""): v for k, v in scan.skipped.items()}
+    assert reasons["in/.hidden.png"].startswith("hidden file")
+    assert reasons["in/dangling.jpg"] == "broken symbolic link"
+    assert reasons["in/loop1"] == reasons["in/loop2"] == "symbolic link loop"
+    assert reasons["in/sub/up"].startswith("symbolic link loop")
+    assert reasons["in/copy.jpg"].startswith("the same file as")
+    assert reasons["nope"] == "no such file or folder"
     with pytest.raises(FileNotFoundError):
-        io.list_images([tmp_path / "nope"])
+        io.scan_inputs([tmp_path / "nope"])
+    assert [f.key for f in io.scan_inputs([tmp_path / "in/loop1", tmp_path / "in/b.JPG"]).files] == ["b"]
+
+
+def test_long_names_are_shortened_within_file_system_limits(tmp_path):
+    name = "é" * 120 + ".jpg"  # 240 bytes in UTF-8
+    (tmp_path / name).write_bytes(b"x")
+    (key,) = [f.key for f in io.scan_inputs([tmp_path]).files]
+    assert len(key.encode()) <= io.MAX_NAME_BYTES and key != name
 
 
 def test_unwritable_output(tmp_path):
@@ -141,14 +168,14 @@ def reconstructor():
 
 def test_the_api_defaults_are_recon_runs():
     """`recon.Reconstructor()` gives what `recon run` gives: the same source and fit defaults."""
-    params = inspect.signature(Reconstructor).parameters
+    cfg = ReconstructorConfig()
     args = build_parser().parse_args(["run", "--out", "o"])
-    assert params["source"].default == args.source and params["lift"].default == args.lift
-    assert params["retry"].default is args.retry is True
-    assert args.focal is None and params["focal_factor"].default == 1.0  # no --focal: EXIF, else the API's
-    assert params["fit"].default is None and (FitConfig().steps, FitConfig().silhouette) == (args.refine_steps,
-                                                                                            args.silhouette)
+    assert (cfg.source, cfg.lift, cfg.retry, cfg.guard) == (args.source, args.lift, args.retry, args.guard)
+    assert cfg.retry is True and args.focal is None and cfg.focal_factor == 1.0  # no --focal: EXIF, else the API's
+    assert (cfg.fit.steps, cfg.fit.silhouette) == (args.refine_steps, args.silhouette) == (FitConfig().steps,
+                                                                                          FitConfig().silhouette)
     assert args.refine_steps == 30
+    assert (args.batch_size, args.max_people) == (RunOptions().batch_size, RunOptions().max_people)
 
 
 @needs_pipeline
@@ -190,43 +217,45 @@ def test_run_robust_batch_and_resume(tmp_path, reconstructor):
     class Interrupting:  # Ctrl-C during the second batch
         def __init__(self):
             self.calls, self.faces, self.focal_factor, self.body = 0, reconstructor.faces, 1.0, reconstructor.body
+            self.config, self.source = reconstructor.config, reconstructor.source
 
-        def batch(self, images, ks):
+        def people(self, images, ks, max_people):
             self.calls += 1
             if self.calls == 2:
                 raise KeyboardInterrupt
-            return reconstructor.batch(images, ks)
+            return reconstructor.people(images, ks, max_people)
 
-    s = run([src], out, Interrupting(), batch_size=2, overlay=False, progress=False, log=lambda m: None)
+    s = run([src], out, RunOptions(batch_size=2, overlay=False), reconstructor=Interrupting(), progress=False,
+            log=lambda m: None)
     assert s.interrupted and s.done == ["a_photo", "b_gray16"]
     assert not list(out.rglob(".*"))  # no temporary files left behind
-    s = run([src], out, reconstructor, batch_size=2, overlay=True, progress=False, log=lambda m: None)
+    s = run([src], out, RunOptions(batch_size=2, overlay=False), reconstructor=reconstructor, progress=False,
+            log=lambda m: None)
     assert not s.interrupted
-    assert sorted(s.skipped) == ["a_photo", "b_gray16"]
-    assert set(s.failed) == {"c_corrupt", "d_text", "e_nobody"}
-    assert "truncated" in s.failed["c_corrupt"] and "not an image" in s.failed["d_text"]
-    assert "no person" in s.failed["e_nobody"]
-    assert s.done == ["f_huge"]
+    assert sorted(s.unchanged) == ["a_photo", "b_gray16"]
+    skipped = {k.rsplit("/", 1)[-1]: v for k, v in s.skipped.items()}
+    assert set(skipped) == {"c_corrupt.jpg", "d_text.png"} and s.no_person == {"e_nobody": str(src / "e_nobody.png")}
+    assert "truncated" in skipped["c_corrupt.jpg"] and "not an image" in skipped["d_text.png"]
+    assert s.done == ["f_huge"] and not s.failed
     huge = json.loads((out / "f_huge" / "result.json").read_text())
     assert huge["image_size"] == [4096, 4096]
     assert huge["fit"] == {"steps": 30, "silhouette": 10.0}  # MediaPipe gives a mask: the fit used it
+    assert huge["made_from"]["input_sha256"] == io.file_digest(src / "f_huge.jpg")
     assert huge["camera"]["K"][0][2] == pytest.approx(2048)  # original pixels, not the downscaled ones
     assert max(max(p) for p in huge["joints2d"]) > 1920
-    for key in ("f_huge",):
-        assert {"result.json", "body.obj", "body.glb", "overlay.png", "side.png"} <= {
-            p.name for p in (out / key).iterdir()}
+    assert {"result.json", "body.obj", "body.glb", "pose.bvh"} <= {p.name for p in (out / "f_huge").iterdir()}
     summary = json.loads((out / "summary.json").read_text())
-    assert summary["done"] == 1 and summary["skipped"] == 2 and summary["failed"] == 3
+    assert summary["counts"] == {"done": 1, "unchanged": 2, "no_person": 1, "skipped": 2, "failed": 0}
     assert not (out / "c_corrupt").exists()  # nothing written for failures
 
 
 def test_run_tightness_needs_an_outfit_with_a_resizer(tmp_path, monkeypatch):
     quiet = dict(progress=False, log=lambda m: None)
     with pytest.raises(ReconError, match="needs --outfit"):
-        run([EXAMPLES], tmp_path / "a", tightness=(0.1, 0.0), **quiet)
+        run([EXAMPLES], tmp_path / "a", RunOptions(tightness=(0.1, 0.0)), **quiet)
     monkeypatch.setattr(store, "resizer_path", lambda outfit, pbns=None: tmp_path / "none.pt")  # no resizer there
     with pytest.raises(ReconError, match="trained resizer for top-shorts"):
-        run([EXAMPLES], tmp_path / "b", outfit="top-shorts", tightness=(0.1, 0.0), **quiet)
+        run([EXAMPLES], tmp_path / "b", RunOptions(outfit="top-shorts", tightness=(0.1, 0.0)), **quiet)
     assert not (tmp_path / "b" / "summary.json").exists()  # refused before any image
 
 
@@ -252,8 +281,8 @@ def test_run_reads_the_focal_length_from_exif(tmp_path, reconstructor):
     exif.get_ifd(io.EXIF_IFD)[io.FOCAL_35MM] = 50
     Image.open(ASTRONAUT).save(tmp_path / "exif.jpg", exif=exif)
     Image.open(ASTRONAUT).save(tmp_path / "plain.jpg")
-    run([tmp_path / "exif.jpg", tmp_path / "plain.jpg"], tmp_path / "out", reconstructor, overlay=False,
-        progress=False, log=lambda m: None)
+    run([tmp_path / "exif.jpg", tmp_path / "plain.jpg"], tmp_path / "out", RunOptions(overlay=False),
+        reconstructor=reconstructor, progress=False, log=lambda m: None)
     with_exif = json.loads((tmp_path / "out" / "exif" / "result.json").read_text())["camera"]
     plain = json.loads((tmp_path / "out" / "plain" / "result.json").read_text())["camera"]
     side = max(io.load_image(ASTRONAUT).shape[:2])
@@ -273,7 +302,8 @@ def test_run_writes_rigged_glb_files(tmp_path, reconstructor):
     """body.glb / dressed.glb: valid glTF whose skeleton, skin and blend shapes pose the meshes
     where body.obj / outfit.obj are (view frame), with the photo's camera."""
     out = tmp_path / "out"
-    s = run([ASTRONAUT], out, reconstructor, outfit="tshirt-skirt", overlay=False, progress=False, log=lambda m: None)
+    s = run([ASTRONAUT], out, RunOptions(outfit="tshirt-skirt", overlay=False), reconstructor=reconstructor,
+            progress=False, log=lambda m: None)
     folder = out / s.done[0]
     for name in ("body.glb", "dressed.glb"):
         assert_valid(folder / name)
@@ -295,14 +325,14 @@ def test_run_writes_rigged_glb_files(tmp_path, reconstructor):
 @needs_pipeline
 def test_run_finds_every_person(tmp_path, reconstructor):
     """Two photos side by side: --max-people gives person_0/, person_1/, one overlay and
-    people.json (the largest person first); one person per image keeps today's layout."""
+    people.json (the largest person first); one person per image keeps the flat layout."""
 
     photos = [io.load_image(p) for p in sorted(EXAMPLES.glob("*.jpg"))[:2]]
     h = min(p.shape[0] for p in photos)
     strip = np.concatenate([cv2.resize(p, (round(p.shape[1] * h / p.shape[0]), h)) for p in photos], 1)
     Image.fromarray(strip).save(tmp_path / "two.png")
     quiet = dict(progress=False, log=lambda m: None)
-    s = run([tmp_path / "two.png"], tmp_path / "many", reconstructor, max_people=3, **quiet)
+    s = run([tmp_path / "two.png"], tmp_path / "many", RunOptions(max_people=3), reconstructor=reconstructor, **quiet)
     folder = tmp_path / "many" / s.done[0]
     index = json.loads((folder / "people.json").read_text())
     assert index["count"] == 2 and not (folder / "result.json").exists()
@@ -316,9 +346,10 @@ def test_run_finds_every_person(tmp_path, reconstructor):
     centres = [np.mean(json.loads((folder / p["folder"] / "result.json").read_text())["joints2d"], 0)[0]
                for p in index["people"]]
     assert min(centres) < strip.shape[1] / 2 < max(centres)  # one on each side
-    again = run([tmp_path / "two.png"], tmp_path / "many", reconstructor, max_people=3, **quiet)
-    assert again.skipped == s.done
-    one = run([tmp_path / "two.png"], tmp_path / "one", reconstructor, **quiet)
+    again = run([tmp_path / "two.png"], tmp_path / "many", RunOptions(max_people=3), reconstructor=reconstructor,
+                **quiet)
+    assert again.unchanged == s.done
+    one = run([tmp_path / "two.png"], tmp_path / "one", reconstructor=reconstructor, **quiet)
     assert (tmp_path / "one" / one.done[0] / "result.json").exists()
 
 

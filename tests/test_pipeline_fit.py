@@ -129,7 +129,7 @@ def test_reconstructor_lifts_a_sources_2d_in_each_lift_mode(body, mocap):
     img = np.zeros((480, 640, 3), np.uint8)
     err = {}
     for lift in ("source", "camera", "blend"):
-        rec = Reconstructor(body, source=source, fit=FitConfig(steps=0), lift=lift)
+        rec = Reconstructor(body=body, source=source, fit=FitConfig(steps=0), lift=lift)
         r = rec(img, k)
         err[lift] = np.linalg.norm((r.joints - r.joints[:1]) - (cam[:24] - cam[:1]), axis=1).mean()
         assert abs(r.translation[2] - 3.5) < 0.5, (lift, r.translation)

@@ -161,7 +161,7 @@ class MediaPipeSMPLR:
     source, fit, lift, retry, guard = "mediapipe", FitConfig(steps=0, silhouette=0.0), "source", False, False  # 0.2's
 
     def __init__(self, body):
-        self.rec = Reconstructor(body, source=self.source, fit=replace(self.fit), lift=self.lift, retry=self.retry,
+        self.rec = Reconstructor(body=body, source=self.source, fit=replace(self.fit), lift=self.lift, retry=self.retry,
                                  guard=self.guard)
 
     def __call__(self, rgb: np.ndarray, k: np.ndarray) -> Prediction | None:
@@ -190,7 +190,7 @@ class ReconRun(MediaPipeSMPLR):
     description = "`recon run` defaults: recon.Reconstructor()"
 
     def __init__(self, body):
-        self.rec = Reconstructor(body)
+        self.rec = Reconstructor(body=body)
 
 
 class MediaPipeLifterFit(MediaPipeSMPLR):

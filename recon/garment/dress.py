@@ -44,7 +44,7 @@ class Dresser:
         """``resolve_collisions``: push cloth that PBNS leaves inside the body out of it
         (recon.garment.collide; ~1 % of the vertices, about 30-70 ms a frame on one core).
         ``dynamics``: motions through the outfit's NCS (None: when it has one; True: it must)."""
-        path = Path(path or store.pbns_path(outfit))  # a preset, your own garment's name, or a .pt file
+        path = Path(path) if path else store.trained_pbns(outfit)  # a preset, your own garment, a .pt file
         if not path.exists():
             raise MissingFile(f"no trained outfit {path}: run `recon garment train --outfit {outfit}`")
         self.model, ck = PBNS.load(path)

@@ -2,9 +2,11 @@
 cache. Every module that reads or writes PBNS or resizer weights asks here."""
 from __future__ import annotations
 
+import difflib
 from pathlib import Path
 
 from recon import paths
+from recon.errors import MissingFile, ReconError
 from recon.garment.templates import PRESETS, outfit_name
 
 SHIPPED_DIR = Path(__file__).resolve().parent / "weights"
@@ -43,3 +45,23 @@ def trained_outfits() -> list[str]:
     found = sorted(p.stem[5:] for p in SHIPPED_DIR.glob("pbns_*.pt"))
     own = user_dir()
     return found + sorted(p.stem[5:] for p in own.glob("pbns_*.pt")) if own.exists() else found
+
+
+def check_outfit(outfit: str) -> None:
+    """Refuse an outfit that is not a preset, a trained garment of yours, a weights file or a
+    garment mesh, listing the presets (and the closest one)."""
+    if outfit in PRESETS or Path(outfit).is_file() or pbns_path(outfit).exists():
+        return
+    close = difflib.get_close_matches(outfit, list(PRESETS), n=1)
+    hint = f" (did you mean {close[0]}?)" if close else ""
+    raise ReconError(f"unknown outfit {outfit!r}{hint}; presets: {', '.join(PRESETS)}; or your own garment mesh "
+                     "(.obj, .ply, .glb) trained with `recon garment train --outfit MESH`")
+
+
+def trained_pbns(outfit: str) -> Path:
+    """The PBNS weights of an outfit that must exist (MissingFile names the command that makes them)."""
+    check_outfit(outfit)
+    path = pbns_path(outfit)
+    if not path.exists():
+        raise MissingFile(f"no trained outfit {path}: run `recon garment train --outfit {outfit}`")
+    return path

@@ -3,7 +3,11 @@ source. Optional extra: scripts/setup.sh installs it without its dependency pins
 protobuf<5 and jax conflict with ours; docs/install.md)."""
 from __future__ import annotations
 
+import contextlib
 import importlib.util
+import logging
+import os
+import sys
 from dataclasses import dataclass
 
 import numpy as np
@@ -28,6 +32,24 @@ class MPPose:
         return float(lo[0] - g), float(lo[1] - g), float(hi[0] + g), float(hi[1] + g)
 
 
+@contextlib.contextmanager
+def quiet_native_logs():
+    """MediaPipe's C++ (TFLite, absl) writes INFO and W0000 lines straight to the process' stderr:
+    they go to /dev/null for the duration, unless recon logs at DEBUG (``recon -v``)."""
+    if logging.getLogger("recon").isEnabledFor(logging.DEBUG):
+        yield
+        return
+    sys.stderr.flush()
+    saved, null = os.dup(2), os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(null, 2)
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+        os.close(null)
+
+
 def available() -> bool:
     """Whether the optional mediapipe package is installed."""
     return importlib.util.find_spec("mediapipe") is not None
@@ -42,15 +64,17 @@ class MediaPipePose:
                              "(or use `recon run --source backbone`)")
         import mediapipe as mp  # noqa: PLC0415 - optional extra, imported only when used
 
-        self.pose = mp.solutions.pose.Pose(static_image_mode=True, model_complexity=complexity,
-                                           enable_segmentation=segmentation,
-                                           min_detection_confidence=min_confidence)
+        with quiet_native_logs():
+            self.pose = mp.solutions.pose.Pose(static_image_mode=True, model_complexity=complexity,
+                                               enable_segmentation=segmentation,
+                                               min_detection_confidence=min_confidence)
 
     def __call__(self, rgb: np.ndarray) -> MPPose | None:
         if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
             raise ValueError(f"expected an (H, W, 3) uint8 RGB image, got {rgb.shape} {rgb.dtype}")
         h, w = rgb.shape[:2]
-        r = self.pose.process(np.ascontiguousarray(rgb))
+        with quiet_native_logs():
+            r = self.pose.process(np.ascontiguousarray(rgb))
         if r.pose_landmarks is None or r.pose_world_landmarks is None:
             return None
         lm = r.pose_landmarks.landmark

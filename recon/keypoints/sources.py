@@ -22,7 +22,19 @@ from recon.keypoints.mediapipe import MediaPipePose, MPPose
 # zero-padding factor, detection threshold): its detector misses people behind occluders or cut by
 # the frame. Chosen on synth-val (eval/results/error-budget.md, section 3: the three padded views
 # each rescue about half of the misses, the four together 79 %); the default threshold is 0.5.
+GRAY_TINT = (1.05, 0.85, 0.85)  # a warm tint for grayscale images; the choice: CHANGELOG 0.5.0
+GRAY_SMALL = 256  # grayscale images are also searched at this longer side
 RETRIES = (("plain", 2.0, 0.5), ("plain", 1.5, 0.3), ("mirror", 1.5, 0.5), ("plain", 1.0, 0.3))
+
+
+def is_grayscale(rgb: np.ndarray) -> bool:
+    """Whether the three channels are equal (a black-and-white photo loaded as RGB)."""
+    return bool((rgb[..., 0] == rgb[..., 1]).all() and (rgb[..., 0] == rgb[..., 2]).all())
+
+
+def tinted(rgb: np.ndarray) -> np.ndarray:
+    """A grayscale image with a warm tint: MediaPipe's person detector finds more people in it."""
+    return np.clip(rgb.astype(np.float32) * np.asarray(GRAY_TINT, np.float32), 0, 255).astype(np.uint8)
 
 
 def pad_image(rgb: np.ndarray, factor: float) -> tuple[np.ndarray, int]:
@@ -170,7 +182,23 @@ class MediaPipeSource:
 
     def _find(self, rgb: np.ndarray, k: np.ndarray, retry: bool, strict: bool) -> Keypoints | None:
         """``__call__`` with its retries on or off; ``strict``: even the first answer needs a retry
-        view's evidence (``people`` on windows, which are upscaled views)."""
+        view's evidence (``people`` on windows, which are upscaled views). MediaPipe's detector misses
+        many people in grayscale images: those are searched tinted, as they are, then tinted at
+        ``GRAY_SMALL`` px (the answer mapped back to the image)."""
+        if not is_grayscale(rgb):
+            return self._find_in(rgb, k, retry, strict)
+        warm = tinted(rgb)
+        found = self._find_in(warm, k, retry, strict) or self._find_in(rgb, k, retry, strict)
+        f = GRAY_SMALL / max(rgb.shape[:2])
+        if found is not None or f >= 1.0:
+            return found
+        small = cv2.resize(warm, (round(rgb.shape[1] * f), round(rgb.shape[0] * f)), interpolation=cv2.INTER_AREA)
+        ks = np.array(k, float)
+        ks[:2] *= f
+        found = self._find_in(small, ks, retry, strict)
+        return None if found is None else _scaled(found, 1.0 / f, rgb.shape)
+
+    def _find_in(self, rgb: np.ndarray, k: np.ndarray, retry: bool, strict: bool) -> Keypoints | None:
         found = self._detect(rgb, k)
         score = None if found is None else self._person(found[0], rgb, retry=strict)
         found = None if score is None else found
@@ -253,6 +281,15 @@ def _same_person(new: Keypoints, old: Keypoints) -> bool:
     p = new.points2d
     inside = (p[:, 0] >= x0) & (p[:, 0] <= x1) & (p[:, 1] >= y0) & (p[:, 1] <= y1)
     return bool(inside.mean() > 0.5 or box_overlap(new.box, old.box) > 0.5)
+
+
+def _scaled(kp: Keypoints, factor: float, shape) -> Keypoints:
+    """Keypoints found on a resized copy -> the same in the image (``factor``: image / copy)."""
+    mask = None
+    if kp.mask is not None:
+        mask = cv2.resize(kp.mask.astype(np.uint8), (shape[1], shape[0]), interpolation=cv2.INTER_NEAREST) > 0
+    return Keypoints(kp.points3d, kp.points2d * factor, kp.confidence, tuple(float(b) * factor for b in kp.box),
+                     mask, kp.person_score)
 
 
 def _shifted(kp: Keypoints, x0: int, y0: int, shape) -> Keypoints:

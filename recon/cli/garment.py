@@ -1,0 +1,138 @@
+"""``recon garment``: PBNS and NCS outfits, their resizers, tables and physics references."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from recon import report
+from recon.body import default_body
+from recon.cli.parsing import COUNT, NON_NEGATIVE, STEPS, Parser, actions, default
+from recon.errors import ReconError
+from recon.garment import evaluate as garment_eval
+from recon.garment import evaluate_ncs as garment_eval_ncs
+from recon.garment import ncs_train, store
+from recon.garment import train as garment_train
+from recon.garment.resize import ResizeConfig
+from recon.garment.templates import PRESETS
+
+
+def outfits(names: list[str]) -> list[str]:
+    """'all' -> every preset; unknown names refused with the presets listed."""
+    if names == ["all"]:
+        return list(PRESETS)
+    for n in names:
+        store.check_outfit(n)
+    return names
+
+
+def train(args) -> None:
+    for o in outfits(args.outfit):
+        if args.model == "ncs":
+            if args.epochs:
+                raise ReconError("--epochs is PBNS's: NCS takes --chunks and --steps")
+            more = {k: getattr(args, k) for k in NCS_FLAGS if getattr(args, k) is not None}
+            meta = ncs_train.train(default_body(), ncs_train.NCSTrainConfig(outfit=o, **more))
+            weights = store.ncs_path(o)
+        else:
+            epochs = {"epochs": args.epochs} if args.epochs else {}
+            meta = garment_train.train(default_body(), garment_train.GarmentTrainConfig(outfit=o, poses=args.poses,
+                                                                                         **epochs))
+            weights = store.pbns_path(o)
+        last = meta["curve"][-1]
+        print(json.dumps({"outfit": meta["outfit"], "weights": str(weights), "train_seconds": meta["train_seconds"],
+                          **{k: v for k, v in last.items() if k.startswith("val_")}}))
+
+
+def resize(args) -> None:
+    for o in outfits(args.outfit):
+        meta = garment_train.train_resizer(default_body(), store.pbns_path(o), cfg=ResizeConfig(epochs=args.epochs))
+        print(json.dumps({"outfit": meta["outfit"], "weights": str(store.resizer_path(o)),
+                          "train_seconds": meta["train_seconds"], "transfer_only": meta["val_transfer_only"],
+                          "resized": meta["curve"][-1]}))
+
+
+def evaluate(args) -> None:
+    body, names = default_body(), outfits(args.outfit)
+    if args.model == "ncs":
+        weights = [Path(w) for w in args.ncs_weights] if args.ncs_weights else None
+        if weights and len(weights) != len(names):
+            raise ReconError("--ncs-weights takes one file per outfit")
+        print(Path(garment_eval_ncs.evaluate_and_report(body, names, Path(args.out), dynamic=not args.no_simulation,
+                                                         ncs_weights=weights, log=print, val=args.val,
+                                                         update=args.update)).read_text())
+        return
+    print(Path(garment_eval.evaluate_and_report(body, names, args.n, Path(args.out))).read_text())
+    for o in names:  # the resizing table, for outfits with a trained resizer
+        if store.resizer_path(o).exists():
+            print(Path(garment_eval.evaluate_resizer(body, o, out_dir=Path(args.out))).read_text())
+
+
+def reference(args) -> None:
+    names = outfits(args.outfit)
+    if not set(names) <= set(PRESETS):
+        raise ReconError("reference drapes are for the preset outfits: " + ", ".join(PRESETS))
+    for o in names:
+        md = (garment_eval.rescore_reference(o, Path(args.out)) if args.rescore
+              else garment_eval.reference_and_report(o, args.n, Path(args.out), args.frames, args.workers))
+        print(Path(md).read_text())
+
+
+# NCS training flags: name -> (type, help); their defaults are NCSTrainConfig's
+NCS_FLAGS = {
+    "chunks": (COUNT, "train chunks to integrate"),
+    "val_chunks": (COUNT, "val chunks"),
+    "physics_steps": (STEPS, "physics-loss steps"),
+    "static_weight": (NON_NEGATIVE, "weight of PBNS's loss on the static part in the physics steps"),
+    "free_weight": (NON_NEGATIVE, "weight of the collision/edge/pin energies on unsolved motions in the physics steps"),
+    "field_lr": (NON_NEGATIVE, "learning rate of D's new rows in the physics steps, 0: the principal fields stay"),
+    "steps": (STEPS, "fitting steps"),
+    "workers": (COUNT, "processes integrating chunks"),
+}
+
+
+def add_garment(p: Parser) -> None:
+    action = actions(p)
+    help_outfit = ("preset names, 'all', or your own garment meshes (.obj, .ply, .glb, ...: body frame, metres, "
+                   "+Y up; trained into ~/.cache/recon/garments)")
+    help_model = "pbns: quasi-static (ch. 5); ncs: dynamic (ch. 6), trained from the outfit's PBNS"
+    a = action("train", train, "train outfits (unsupervised, physics energies): PBNS, then NCS")
+    a.add_argument("--outfit", nargs="+", default=["tshirt-trousers"], help=help_outfit)
+    a.add_argument("--model", choices=("pbns", "ncs"), default="pbns", help=help_model)
+    a.add_argument("--epochs", type=COUNT, default=None,
+                   help=f"PBNS: default {default(garment_train.GarmentTrainConfig, 'epochs')}")
+    a.add_argument("--poses", type=COUNT, default=default(garment_train.GarmentTrainConfig, "poses"))
+    for name, (kind, help) in NCS_FLAGS.items():
+        a.add_argument("--" + name.replace("_", "-"), type=kind, default=None,
+                       help=f"NCS: {help} (default {default(ncs_train.NCSTrainConfig, name)})")
+    a = action("resize", resize, "train the body-shape + tightness resizer of trained outfits")
+    a.add_argument("--outfit", nargs="+", default=["tshirt-trousers"], help=help_outfit)
+    a.add_argument("--epochs", type=COUNT, default=default(ResizeConfig, "epochs"))
+    a = action("eval", evaluate, "PBNS (and resizer) tables on held-out poses (and shapes); "
+               "--model ncs: skinning, PBNS and NCS on held-out clips and against dynamic simulations")
+    a.add_argument("--outfit", nargs="+", default=["tshirt-trousers"], help=help_outfit)
+    a.add_argument("--model", choices=("pbns", "ncs"), default="pbns")
+    a.add_argument("--no-simulation", action="store_true",
+                   help="--model ncs: skip the newton simulations (minutes a clip; cached once run)")
+    a.add_argument("--ncs-weights", nargs="+", default=None,
+                   help="--model ncs: NCS files to evaluate instead of the shipped ones (one per outfit)")
+    a.add_argument("--update", action="store_true",
+                   help="--model ncs: keep the other outfits' rows of the existing table")
+    a.add_argument("--val", action="store_true",
+                   help="--model ncs: against the val performers' simulations (what the recipe is tuned on)")
+    a.add_argument("--n", type=COUNT, default=default(garment_eval.evaluate_and_report, "n_poses"),
+                   help="held-out test poses")
+    a.add_argument("--out", default=str(report.RESULTS))
+    a = action("reference", reference, "PBNS against a newton cloth drape (needs newton; minutes a pose)")
+    a.add_argument("--outfit", nargs="+", default=["tshirt-trousers"], help="preset names or 'all'")
+    a.add_argument("--n", type=COUNT, default=default(garment_eval.reference_and_report, "poses"),
+                   help="held-out test poses to drape")
+    a.add_argument("--frames", type=COUNT, default=default(garment_eval.reference_and_report, "frames"),
+                   help="frame cap of each drape")
+    a.add_argument("--workers", type=COUNT, default=default(garment_eval.reference_and_report, "workers"),
+                   help="drapes run in parallel processes")
+    a.add_argument("--rescore", action="store_true", help="score the current weights against the cached drapes "
+                   "instead of simulating (after a retrain that barely moved the skinned start)")
+    a.add_argument("--out", default=str(report.RESULTS))
+
+
+ADD = {"garment": add_garment}

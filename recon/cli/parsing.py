@@ -1,0 +1,100 @@
+"""Argument parsing shared by the commands: a parser whose errors are one line, the help
+formatter, ``default`` (a flag's default read from the code it configures) and ``number`` (every
+numeric flag's type, with its range checked at parse time)."""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import importlib
+import inspect
+import math
+import sys
+
+
+class Parser(argparse.ArgumentParser):
+    """An ArgumentParser whose errors are one line on stderr (exit 2): what is wrong and where the
+    flags are listed."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (`{self.prog} --help` lists the flags)\n")
+
+    def exit(self, status: int = 0, message: str | None = None):
+        if message:
+            sys.stderr.write(message)
+        raise SystemExit(status)
+
+
+class formatter(argparse.ArgumentDefaultsHelpFormatter):  # noqa: N801 - passed where argparse takes a class
+    """Shows a flag's default only where there is one to show (not None, not a switch's False)."""
+
+    def _get_help_string(self, action):
+        if action.default in (None, False) or action.default is argparse.SUPPRESS:
+            return action.help
+        return super()._get_help_string(action)
+
+
+def actions(p: Parser):
+    """The action subparsers of a command group, and a helper adding one action."""
+    sub = p.add_subparsers(dest="action", required=True, metavar="ACTION", parser_class=Parser)
+
+    def action(name: str, func, help: str) -> Parser:
+        a = sub.add_parser(name, help=help, description=help, formatter_class=formatter)
+        a.set_defaults(func=func)
+        return a
+
+    return action
+
+
+def default(owner, name: str):
+    """The default of a dataclass field (plain or from its factory) or of a function's parameter, so
+    that a flag's default has one home: the code it configures."""
+    if dataclasses.is_dataclass(owner):
+        f = {f.name: f for f in dataclasses.fields(owner)}[name]
+        return f.default_factory() if f.default is dataclasses.MISSING else f.default
+    return inspect.signature(owner).parameters[name].default
+
+
+def number(kind: type = float, low: float | None = None, high: float | None = None, low_open: bool = False):
+    """The type of a numeric flag: ``kind`` (int or float), finite, in [low, high] (``low_open``:
+    above low). A value outside is refused at parse time with the range in the message. The
+    returned function carries ``kind``, ``low``, ``high`` and ``low_open`` for the tests."""
+    lo = "" if low is None else (f"> {low:g}" if low_open else f">= {low:g}")
+    hi = "" if high is None else f"<= {high:g}"
+    rule = " and ".join(s for s in (lo, hi) if s) or "a number"
+
+    def parse(text: str):
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not {'an integer' if kind is int else 'a number'}") from None
+        if not math.isfinite(value) or (low is not None and (value <= low if low_open else value < low)) or (
+                high is not None and value > high):
+            raise argparse.ArgumentTypeError(f"must be {rule}, got {text}")
+        return value
+
+    parse.__name__ = kind.__name__  # argparse names the type in its messages
+    parse.kind, parse.low, parse.high, parse.low_open = kind, low, high, low_open
+    return parse
+
+
+COUNT = number(int, 1)  # how many of something: at least one
+STEPS = number(int, 0)  # optimiser steps, 0 allowed
+SEED = number(int, 0)
+POSITIVE = number(float, 0, low_open=True)
+NON_NEGATIVE = number(float, 0)
+
+
+def device(text: str) -> str:
+    """The type of a ``--device`` flag: a torch device this machine has."""
+    torch = importlib.import_module("torch")  # the commands that take a device load torch anyway
+    try:
+        dev = torch.device(text)
+    except (RuntimeError, ValueError):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a torch device (cpu, cuda, cuda:1, ...)") from None
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        raise argparse.ArgumentTypeError(f"{text}: no CUDA GPU is visible to this torch ({torch.__version__})")
+    if dev.type == "cuda" and dev.index is not None and dev.index >= torch.cuda.device_count():
+        raise argparse.ArgumentTypeError(f"{text}: this machine has {torch.cuda.device_count()} CUDA device(s)")
+    if dev.type not in ("cpu", "cuda"):
+        raise argparse.ArgumentTypeError(f"{text}: recon runs on cpu or cuda")
+    return text

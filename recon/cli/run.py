@@ -1,0 +1,128 @@
+"""``recon run`` (photos -> bodies), ``recon demo`` (the bundled photos) and ``recon animate``
+(a reconstructed person moved by a mocap clip)."""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from recon.animate import animate, list_motions
+from recon.cli.parsing import COUNT, NON_NEGATIVE, POSITIVE, SEED, STEPS, Parser, default, device, number
+from recon.demo import body_demo, dressed_gif, example_photos, photo_demo
+from recon.errors import ReconError
+from recon.fit import FitConfig
+from recon.garment import store
+from recon.garment.resize import TIGHTNESS_RANGE
+from recon.garment.templates import PRESETS
+from recon.keypoints import SOURCES
+from recon.pipeline import LIFTS, ReconstructorConfig
+from recon.run import RunOptions, run
+
+FOCAL = number(float, 0.05, 20.0)  # in units of the longer image side: a fisheye to a long telephoto
+TIGHTNESS = number(float, -1.0, 1.0)
+
+
+def run_images(args) -> int:
+    config = ReconstructorConfig(source=args.source, device=args.device, flip=args.flip, lift=args.lift,
+                                 retry=args.retry, guard=args.guard,
+                                 fit=FitConfig(steps=args.refine_steps, silhouette=args.silhouette),
+                                 **({} if args.focal is None else {"focal_factor": args.focal}))
+    options = RunOptions(outfit=args.outfit, tightness=args.tightness, max_people=args.max_people,
+                         overlay=not args.no_overlay, exif_focal=args.focal is None, batch_size=args.batch_size,
+                         force=args.force)
+    s = run(args.inputs or example_photos(), Path(args.out), options, config)
+    if s.interrupted:
+        return 130
+    return 1 if s.failed or not (s.done or s.unchanged or s.no_person) else 0
+
+
+def animate_person(args) -> int:
+    if args.list_motions:
+        print(list_motions())
+        return 0
+    if not args.source or not args.motion or not args.out:
+        raise ReconError("recon animate needs a photo or result folder, --motion and --out (or --list-motions)")
+    written = animate(args.source, args.motion, args.out, outfit=args.outfit, tightness=args.tightness, asf=args.asf,
+                      max_seconds=args.seconds, render=args.render, dynamics=args.dynamics)
+    for path in written.values():
+        print(path)
+    return 0
+
+
+def demo(args) -> None:
+    out = Path(args.out)
+    outfit = args.outfit if store.pbns_path(args.outfit).exists() else None
+    written = photo_demo(out, outfit) + body_demo(out, seed=args.seed)
+    if outfit:
+        written.append(dressed_gif(out, outfit))
+    for p in written:
+        print(p)
+
+
+def add_run(p: Parser) -> None:
+    p.set_defaults(func=run_images)
+    cfg = ReconstructorConfig
+    p.add_argument("inputs", nargs="*", help="image files or folders (none: the bundled example photos)")
+    p.add_argument("--out", required=True, help="output folder (one subfolder per image; an interrupted run resumes)")
+    p.add_argument("--force", action="store_true",
+                   help="make every image again (default: images already done from the same file and options are "
+                        "left as they are)")
+    p.add_argument("--batch-size", type=COUNT, default=default(RunOptions, "batch_size"),
+                   help="images per SMPLR/fit batch")
+    p.add_argument("--device", type=device, default=default(cfg, "device"), help="torch device of the networks")
+    p.add_argument("--focal", type=FOCAL, default=None,
+                   help="focal length in units of the longer image side (default: the photo's EXIF 35 mm "
+                        f"equivalent, else {default(cfg, 'focal_factor')})")
+    p.add_argument("--no-overlay", action="store_true", help="skip overlay.png / side.png rendering")
+    p.add_argument("--max-people", type=number(int, 1, 50), default=default(RunOptions, "max_people"),
+                   help="people per image, the largest first (MediaPipe: found one after the other); above 1 every "
+                        "image folder holds person_0/, person_1/, ... and one overlay")
+    p.add_argument("--source", choices=SOURCES, default=default(cfg, "source"),
+                   help="keypoints: MediaPipe + adapter, or our volumetric hourglass alone")
+    p.add_argument("--retry", action=argparse.BooleanOptionalAction, default=default(cfg, "retry"),
+                   help="MediaPipe: when it finds nobody, ask again on padded/mirrored views and at a lower "
+                        "threshold (more people found, and more phantoms on person-free images)")
+    p.add_argument("--guard", action=argparse.BooleanOptionalAction, default=default(cfg, "guard"),
+                   help="MediaPipe: refuse answers scored as phantoms (bodies found where there is no person)")
+    p.add_argument("--lift", choices=LIFTS, default=default(cfg, "lift"),
+                   help="SMPLR's 3D J+: the camera-aware lifter on the 2D keypoints, or the source's own 3D")
+    p.add_argument("--flip", action=argparse.BooleanOptionalAction, default=None,
+                   help="test-time mirror averaging of the keypoints (unset: on for MediaPipe, off for the backbone)")
+    p.add_argument("--refine-steps", type=STEPS, default=FitConfig.steps,
+                   help="steps fitting the body to the keypoints after SMPLR (0: off)")
+    p.add_argument("--silhouette", type=NON_NEGATIVE, default=FitConfig.silhouette,
+                   help="weight of the person mask in that fit, which then also fits the body shape "
+                        "(0: keypoints only)")
+    p.add_argument("--outfit", default=None, help="dress the bodies: a trained outfit (presets: "
+                   f"{', '.join(PRESETS)}; or your own, `recon garment train`)")
+    p.add_argument("--tightness", type=TIGHTNESS, nargs=2, default=None, metavar=("WEIGHT", "HEIGHT"),
+                   help="with --outfit: looser (> 0) or tighter (< 0), offsets of the body's weight and height "
+                        f"phenotypes (trained range {TIGHTNESS_RANGE}; needs a resizer)")
+
+
+def add_animate(p: Parser) -> None:
+    p.set_defaults(func=animate_person)
+    p.add_argument("source", nargs="?", help="a photo (reconstructed first) or a `recon run` result folder")
+    p.add_argument("--motion", help="a .bvh (CMU, Daz, Mixamo or recon's own skeleton), an .amc, or a shipped "
+                                    "clip's name (--list-motions)")
+    p.add_argument("--asf", default=None, help="the skeleton of an .amc (default: the one .asf beside it)")
+    p.add_argument("--out", help="output folder: animated.glb, animated.mp4 (or .gif), animation.json")
+    p.add_argument("--outfit", default=None, help="dress the body (default: the outfit `recon run` used, if any)")
+    p.add_argument("--tightness", type=TIGHTNESS, nargs=2, default=None, metavar=("WEIGHT", "HEIGHT"),
+                   help="with an outfit that has a resizer: looser (> 0) or tighter (< 0)")
+    p.add_argument("--seconds", type=POSITIVE, default=None, help="only the clip's first seconds")
+    p.add_argument("--dynamics", action=argparse.BooleanOptionalAction, default=None,
+                   help="cloth dynamics (NCS: swings, lags, settles) or quasi-static cloth (PBNS); "
+                        "default: dynamic where the outfit has NCS weights")
+    p.add_argument("--render", choices=("mp4", "gif", "none"), default="mp4",
+                   help="the video (GIF where OpenCV has no MP4 encoder)")
+    p.add_argument("--list-motions", action="store_true", help="list the shipped clips and stop")
+
+
+def add_demo(p: Parser) -> None:
+    p.set_defaults(func=demo)
+    p.add_argument("--out", default="out/demo")
+    p.add_argument("--seed", type=SEED, default=0)
+    p.add_argument("--outfit", default="tshirt-trousers", help="outfit of the dressed renders (if trained)")
+
+
+ADD = {"run": add_run, "animate": add_animate, "demo": add_demo}

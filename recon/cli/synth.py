@@ -1,0 +1,74 @@
+"""``recon synth`` (rendered benchmarks and training data) and ``recon eval`` (methods on a benchmark)."""
+from __future__ import annotations
+
+from pathlib import Path
+
+from recon import report
+from recon.bench import runner
+from recon.bench.methods import METHODS
+from recon.cli.parsing import COUNT, SEED, Parser, actions, default
+from recon.errors import ReconError
+from recon.synth import dataset
+
+
+def _verify(out: Path, bench: str | None) -> None:
+    bad = dataset.SynthDataset(out).verify()
+    if bad:
+        raise ReconError(f"shards {bad} differ from the manifest")
+    print("all shards match the manifest")
+    if bench and dataset.reference_hashes_path(bench).exists():
+        diff = dataset.compare_with_reference(bench)
+        if diff:
+            raise ReconError(f"shards {diff} differ from the committed reference hashes")
+        print(f"bit-identical to the reference ({dataset.reference_hashes_path(bench)})")
+
+
+def bench(args) -> None:
+    out = dataset.build_benchmark(args.name, workers=args.workers, n=args.n)
+    if args.verify:
+        _verify(out, args.name)
+    print(f"{out}: {len(dataset.SynthDataset(out))} samples")
+
+
+def generate(args) -> None:
+    cfg = dataset.bench_config("synth-wide-test") if args.framing == "wide" else None
+    out = dataset.generate(Path(args.out), args.split, args.seed, args.n, workers=args.workers,
+                           store_vertices=not args.no_vertices, cfg=cfg)
+    if args.verify:
+        _verify(out, None)
+    print(f"{out}: {len(dataset.SynthDataset(out))} samples")
+
+
+def evaluate(args) -> None:
+    print(Path(runner.evaluate(args.bench, args.method, n=args.n, out_dir=Path(args.out))).read_text())
+
+
+def add_synth(p: Parser) -> None:
+    action = actions(p)
+    a = action("bench", bench, "render (or finish) a fixed benchmark into the cache")
+    a.add_argument("name", choices=list(dataset.BENCHMARKS))
+    a.add_argument("--n", type=COUNT, default=None, help="only the first N images")
+    a.add_argument("--workers", type=COUNT, default=default(dataset.build_benchmark, "workers"),
+                   help="render processes")
+    a.add_argument("--verify", action="store_true", help="re-hash the shards; compare with the committed hashes")
+    a = action("generate", generate, "render samples of a split into a folder")
+    a.add_argument("--out", required=True)
+    a.add_argument("--split", default="train", choices=["train", "val", "test"])
+    a.add_argument("--seed", type=SEED, default=0)
+    a.add_argument("--n", type=COUNT, default=1000)
+    a.add_argument("--workers", type=COUNT, default=default(dataset.generate, "workers"), help="render processes")
+    a.add_argument("--no-vertices", action="store_true", help="do not store vertices (smaller shards)")
+    a.add_argument("--framing", default="standard", choices=["standard", "wide"],
+                   help="wide: framed as the synth-wide benchmarks (512 px, people 30-90 %% of the height, off-centre)")
+    a.add_argument("--verify", action="store_true", help="re-hash the shards against the manifest")
+
+
+def add_eval(p: Parser) -> None:
+    p.set_defaults(func=evaluate)
+    p.add_argument("--bench", default="synth-test", help=", ".join(dataset.BENCHMARKS))
+    p.add_argument("--method", nargs="+", default=["mean", "mediapipe"], help=", ".join(METHODS))
+    p.add_argument("--n", type=COUNT, default=None, help="only the first N images")
+    p.add_argument("--out", default=str(report.RESULTS))
+
+
+ADD = {"synth": add_synth, "eval": add_eval}
