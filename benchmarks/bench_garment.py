@@ -5,10 +5,12 @@ recomputed every call, and the broadcast-and-sum skinning; then the collision re
 Dresser applies (recon.garment.collide), and its body normals (a sparse incidence matmul)
 against the index_add of recon.garment.mesh.vertex_normals.
 
-    .venv/bin/python benchmarks/bench_garment.py [--threads 1] [--batch 1 64 256]
+    .venv/bin/python benchmarks/bench_garment.py [--threads 1] [--batch 1 64 256] [--device cuda]
 
 Frames per second of the garment model alone given the body's joint transforms (pose -> MLP ->
-PSD -> skinning). -> eval/results/bench-garment-<threads>t.{json,md}
+PSD -> skinning). -> eval/results/bench-garment-<threads>t.{json,md} on the CPU,
+bench-garment-<device>.{json,md} on another device (the collision resolution, a CPU step, is left
+out there).
 """
 from __future__ import annotations
 
@@ -61,22 +63,27 @@ def main() -> None:
     ap.add_argument("--batch", type=int, nargs="+", default=[1, 64, 256])
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--device", default="cpu", help="torch device of the garment model (cuda: a GPU)")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
+    dev = torch.device(args.device)
     body = default_body()
     rot_all = pose_set("test", max(args.batch), 0.5, seed=123)
     speed, resolution = [], []
     for name in store.trained_outfits():
         model, ck = PBNS.load(store.pbns_path(name))
+        model = model.to(dev)
         shape = ck["shape"][None]
         for b in args.batch:
             rot = rot_all[torch.arange(b) % len(rot_all)]
             with torch.no_grad():
-                t = body(rot, shape.expand(b, -1), points_only=True).transforms
-                ms = compare(forms(model, rot, t), rounds=args.rounds)
+                t = body(rot, shape.expand(b, -1), points_only=True).transforms.to(dev)
+                ms = compare(forms(model, rot.to(dev), t), rounds=args.rounds)
             fps = {k: 1000 * b / v for k, v in ms.items()}
             speed.append([name, int(model.rest.shape[0]), b, fps["shipped"]]
                          + [x for k in list(ms)[1:] for x in (fps[k], ms[k] / ms["shipped"])])
+        if dev.type != "cpu":
+            continue
         res = CollisionResolver(model.faces.numpy(), ck["layer"].numpy())
         rot = rot_all[:1]
         with torch.no_grad():
@@ -92,11 +99,15 @@ def main() -> None:
                       "normals, index_add": lambda: vertex_normals(bv, body.faces)}, rounds=args.rounds)  # noqa: B023
         resolution.append([name, ms["pbns"], ms["pbns + resolution"], ms["normals, incidence"],
                            ms["normals, index_add"], ms["normals, index_add"] / ms["normals, incidence"]])
-    data = {"machine": report.machine(), "speed": speed, "resolution": resolution}
+    data = {"machine": report.machine(), "device": str(dev), "speed": speed, "resolution": resolution}
     where = report.describe(data["machine"])
+    if dev.type == "cuda":
+        where += f", device {torch.cuda.get_device_name(dev)}"
+    on = f"{args.threads} thread(s)" if dev.type == "cpu" else str(dev)
     md = "\n".join([
-        f"# PBNS inference speed, {args.threads} thread(s)", "",
-        f"`benchmarks/bench_garment.py --threads {args.threads}`; {where}. Frames per second of the garment "
+        f"# PBNS inference speed, {on}", "",
+        f"`benchmarks/bench_garment.py --threads {args.threads} --device {dev}`; {where}. Frames per second of the "
+        "garment "
         "model given joint transforms, and each form's time relative to the shipped `PBNS.pose` (> 1: slower).", "",
         report.table(speed, ["outfit", "vertices", "batch", "FPS shipped", "FPS batch-major", "ratio",
                              "FPS softmax per call", "ratio", "FPS broadcast", "ratio"],
@@ -105,7 +116,8 @@ def main() -> None:
         report.table(resolution, ["outfit", "PBNS ms/frame", "+ collision resolution ms/frame",
                                   "body normals: incidence ms", "index_add ms", "ratio"],
                      ["", ".2f", ".1f", ".2f", ".2f", ".2f"])])
-    print(Path(report.write(OUT / f"bench-garment-{args.threads}t", data, md)).read_text())
+    stem = f"bench-garment-{args.threads}t" if dev.type == "cpu" else f"bench-garment-{dev.type}"
+    print(Path(report.write(OUT / stem, data, md)).read_text())
 
 
 if __name__ == "__main__":

@@ -18,8 +18,8 @@ import torch
 from recon.animate import BODY_RGBA, OUTFIT_RGBA, write_video
 from recon.body import default_body
 from recon.garment import store
-from recon.garment.evaluate_ncs import MODELS, _clip, run_models
 from recon.garment.ncs import NCS
+from recon.garment.ncs_eval import MODELS, clip_motion, run_models
 from recon.garment.pbns import PBNS
 from recon.poses.mocap import MocapPoses
 from recon.viz import SequenceRenderer
@@ -40,7 +40,7 @@ def main() -> None:
     pbns, ck = PBNS.load(store.pbns_path(a.outfit))
     ncs, _ = NCS.load(Path(a.ncs) if a.ncs else store.ncs_path(a.outfit))
     shape = ck["shape"][None]
-    rot, tr = _clip(MocapPoses.load("test"), *CLIP)
+    rot, tr = clip_motion(MocapPoses.load("test"), *CLIP)
     cloth = run_models(pbns, ncs, body, shape, rot, tr)
     with torch.no_grad():
         bv = body(rot, shape.expand(len(rot), -1), transl=tr).vertices.numpy()

@@ -28,7 +28,7 @@ from recon import camera, paths, report
 from recon.io import load_image, scan_inputs
 from recon.keypoints import guard
 from recon.keypoints.mediapipe import MediaPipePose
-from recon.keypoints.sources import RETRIES, MediaPipeSource, _unview, pad_image
+from recon.keypoints.sources import RETRIES, MediaPipeSource, pad_image, unview
 from recon.keypoints.train import rgb_rows
 from recon.synth.dataset import SynthDataset, bench_dir
 from recon.synth.scene import background, occlude
@@ -50,7 +50,7 @@ def detections(rgb: np.ndarray, detectors: dict[float, MediaPipePose], extra_low
                 padded = np.ascontiguousarray(padded[:, ::-1])
             r = detectors[threshold](padded)
             if r is not None:
-                r = _unview(r, pad, view == "mirror", rgb.shape)
+                r = unview(r, pad, view == "mirror", rgb.shape)
                 out.append(guard.evidence(r, rgb.shape) | {"view": f"{view} x{factor:g} @{threshold:g}"})
                 break
     if extra_low:

@@ -1,7 +1,6 @@
-"""Records the check slices of results files as computed on this machine's CPU vendor (AMD and
-Intel compute some apart, ``recon.kernels``; a check's plain ``values`` were recorded on AMD EPYC
-machines), with the tests' settings: pinned kernels, one thread, no ../shared. Run it on a
-machine of the other vendor when a slice fails only there:
+"""Re-records the check slices of results files (their ``values``) with the tests' settings:
+pinned kernels, one thread, no ../shared. For a change that moves a slice by float noise only (a
+refactor, another weights file whose table was re-run); never to make a failing check pass:
 
     RECON_SHARED_DIR=$(mktemp -d) .venv/bin/python eval/record_checks.py synth-test synth-wide-test
 """
@@ -24,11 +23,11 @@ from recon import report  # noqa: E402
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("names", nargs="+", help="results files under eval/results, without suffix")
-    a = ap.parse_args()
+    args = ap.parse_args()
     torch.set_num_threads(1)
-    for name in a.names:
+    for name in args.names:
         report.record_check(report.RESULTS / name)
-        print(f"{name}: recorded for {kernels.vendor()}")
+        print(f"{name}: recorded")
 
 
 if __name__ == "__main__":

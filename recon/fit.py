@@ -101,7 +101,7 @@ def linear_rest_geometry(body, shape: torch.Tensor, ids: torch.Tensor | None, wi
     Jacobian in the shape parameters by central differences in one batched call: a fitting
     loop then skips the shape blendshapes (most of a body call). anny's phenotype blends are
     piecewise linear, so the linear model holds for the small shape changes a fit makes (a test
-    bounds its error; on synth-val the fit moved by 0.03 mm of P1 with it, IoU unchanged).
+    bounds its error).
     Returns ((rest_v, rest_j), (jac_v, jac_j) | None)."""
     sel = body.landmark_indices if ids is None else torch.cat([body.landmark_indices, ids])
     with torch.no_grad():

@@ -1,29 +1,25 @@
-"""The same float kernels on every x86 machine, and which CPU vendor ran them. Import before torch.
+"""The same float kernels on every x86-64 machine. Call ``pin`` before torch and Mesa load.
 
-The committed check slices (tests/test_results.py) hold outputs of networks whose last bits differ
-between AVX2 and AVX-512 kernels, which a crop search or a person detector can turn into another
-crop or another detection. ``pin`` makes torch, oneDNN and MKL use AVX2 kernels; even so, AMD and
-Intel CPUs compute some slices apart (MediaPipe's TFLite kernels, measured: 25 % on one 8-image
-slice), so a check may hold values per ``vendor`` (``recon.report.recompute_check``).
+Libraries pick their SIMD code path by the CPU they run on, and the paths round differently in the
+last bits, which a crop search or a person detector can turn into another crop or another
+detection. ``pin`` sets the variables that choose one path everywhere (each only if unset, so a
+test can ask for another):
+- torch's own kernels, oneDNN and MKL: AVX2 (what every x86-64 CPU of the last decade has);
+- Mesa's llvmpipe (the synthetic renderer, ``recon.synth.raster``): SSE4.1 and 128-bit vectors,
+  so no FMA contraction and no AVX-512 code.
+MediaPipe's TFLite kernels cannot be pinned: its detections may differ between CPU vendors.
 """
 from __future__ import annotations
 
 import os
-import platform
 
-PINNED = (("ATEN_CPU_CAPABILITY", "avx2"), ("ONEDNN_MAX_CPU_ISA", "AVX2"), ("MKL_CBWR", "AVX2"))
+PINNED = (("ATEN_CPU_CAPABILITY", "avx2"), ("ONEDNN_MAX_CPU_ISA", "AVX2"), ("MKL_CBWR", "AVX2"),
+          ("GALLIUM_OVERRIDE_CPU_CAPS", "sse4.1"), ("LP_NATIVE_VECTOR_WIDTH", "128"))
 
 
 def pin() -> None:
-    """Sets the kernel variables (unless already set); works only before torch is imported."""
+    """Sets the kernel variables (unless already set); torch's work only before torch is imported,
+    Mesa's before the first OpenGL context."""
     for var, isa in PINNED:
         os.environ.setdefault(var, isa)
 
-
-def vendor() -> str:
-    """The CPU's vendor id ("GenuineIntel", "AuthenticAMD", ...), else the machine's architecture."""
-    try:
-        with open("/proc/cpuinfo") as f:
-            return next(line.split(":", 1)[1].strip() for line in f if line.startswith("vendor_id"))
-    except (OSError, StopIteration):
-        return platform.machine()

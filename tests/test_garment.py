@@ -10,11 +10,9 @@ from scipy.spatial import cKDTree
 
 import recon.garment.pbns as P
 from recon.errors import ReconError
-from recon.garment import evaluate as E
-from recon.garment import losses as L
-from recon.garment import mesh as gm
-from recon.garment import store
-from recon.garment import train as T
+from recon.garment import losses, mesh, store
+from recon.garment import pbns_eval as E
+from recon.garment import pbns_train as T
 from recon.garment.data import pose_set, posed_bodies
 from recon.garment.dress import Dresser
 from recon.garment.gltf import write_glb
@@ -33,11 +31,11 @@ def _grid(n=6):
 
 def test_cut_is_exact_and_connected():
     v, f = _grid()
-    cv, cf = gm.cut(v, f, v[:, 0] - 0.55)
+    cv, cf = mesh.cut(v, f, v[:, 0] - 0.55)
     assert cv[:, 0].min() == pytest.approx(0.55)  # new boundary exactly on the level set
-    loops = gm.boundary_loops(cf)
+    loops = mesh.boundary_loops(cf)
     assert len(loops) == 1  # one connected open sheet
-    e = gm.unique_edges(cf)
+    e = mesh.unique_edges(cf)
     tri_count = np.zeros(len(e))  # manifold: every edge in 1 or 2 faces
     key = {tuple(x): k for k, x in enumerate(e)}
     for t in cf:
@@ -87,6 +85,14 @@ def test_pbns_weight_cache_follows_changes():
     assert m.weights.requires_grad  # training still differentiates through the softmax
 
 
+def test_inference_form_follows_device_and_batch():
+    """Vertex-major on the CPU from VERTEX_MAJOR_MIN_BATCH frames; batch-major on any other device
+    (a GPU is fastest batch-major at every batch: eval/results/bench-garment-gpu-h200.md)."""
+    n = P.VERTEX_MAJOR_MIN_BATCH
+    assert not P.vertex_major(torch.zeros(n - 1, 8)) and P.vertex_major(torch.zeros(n, 8))
+    assert not P.vertex_major(torch.zeros(4096, 8, device="meta"))
+
+
 @pytest.mark.parametrize("batch", [1, 12, 20])
 def test_pbns_pose_equals_forward(batch, monkeypatch):
     """The inference path (vertex-major, in chunks of vertices from 12 frames on) gives the
@@ -117,10 +123,10 @@ def test_pbns_pose_equals_forward(batch, monkeypatch):
 def test_energies():
     v, f = _grid(5)
     rest = torch.tensor(v).float()
-    edge = L.EdgeLoss(rest, f)
+    edge = losses.EdgeLoss(rest, f)
     assert float(edge(rest[None])) == pytest.approx(0.0, abs=1e-12)
     assert float(edge(rest[None] * 1.1)) > 0
-    bend = L.BendLoss(f)
+    bend = losses.BendLoss(f)
     assert float(bend.energy(rest[None])) == pytest.approx(0.0, abs=1e-10)  # flat sheet
     folded = rest.clone()
     folded[:, 2] = (folded[:, 0] - 0.5).abs()
@@ -129,17 +135,17 @@ def test_energies():
     body_v, body_n = rest[None], torch.tensor([0.0, 0.0, 1.0]).expand(1, len(v), 3)
     cloth = torch.tensor([[[0.5, 0.5, -0.01], [0.5, 0.5, 0.02]]])
 
-    pen = penetration(cloth, body_v, body_n, L.nearest(body_v, cloth), 0.004)
+    pen = penetration(cloth, body_v, body_n, losses.nearest(body_v, cloth), 0.004)
     assert pen[0, 0] == pytest.approx(-0.014, abs=1e-6) and pen[0, 1] == 0
-    cand = L.nearest(body_v, cloth, k=4)
-    assert torch.equal(L.nearest_among(body_v, cloth, cand), L.nearest(body_v, cloth))
+    cand = losses.nearest(body_v, cloth, k=4)
+    assert torch.equal(losses.nearest_among(body_v, cloth, cand), losses.nearest(body_v, cloth))
 
 
 def test_stiffness_continuation_scales_only_the_edge_energy():
 
     v, f = _grid(5)
     rest = torch.tensor(v).float()
-    edge = L.EdgeLoss(rest, f)
+    edge = losses.EdgeLoss(rest, f)
     full = float(edge(rest[None] * 1.1))
     edge.scale = T.edge_scale(0.1, 0, 100)
     assert float(edge(rest[None] * 1.1)) == pytest.approx(0.1 * full)
@@ -160,8 +166,8 @@ def test_templates_are_clean(body, outfits):
     expected_loops = {"tshirt": 4, "top": 2, "trousers": 3, "shorts": 3, "skirt": 2, "dress": 4, "jumpsuit": 5}
     for name, o in outfits.items():
         for g in o.garments:
-            assert len(gm.boundary_loops(g.faces)) == expected_loops[g.name], (name, g.name)
-            el = np.linalg.norm(np.diff(g.vertices[gm.unique_edges(g.faces)], axis=1)[:, 0], axis=1)
+            assert len(mesh.boundary_loops(g.faces)) == expected_loops[g.name], (name, g.name)
+            el = np.linalg.norm(np.diff(g.vertices[mesh.unique_edges(g.faces)], axis=1)[:, 0], axis=1)
             assert 0.007 < np.median(el) < 0.017, (name, g.name, np.median(el))  # ~1 cm cloth
             # outside the rest body: in front of the nearest body vertex's tangent plane
 
@@ -175,7 +181,7 @@ def test_templates_are_clean(body, outfits):
 def test_outfit_layers_do_not_interpenetrate(outfits):
     o = outfits["tshirt-trousers"]
     inner, outer = o.garments
-    n = gm.vertex_normals(torch.from_numpy(inner.vertices)[None], torch.from_numpy(inner.faces))[0].numpy()
+    n = mesh.vertex_normals(torch.from_numpy(inner.vertices)[None], torch.from_numpy(inner.faces))[0].numpy()
 
     dist, idx = cKDTree(inner.vertices).query(outer.vertices)
     near = dist < 0.02
@@ -253,13 +259,14 @@ def test_train_and_dress_your_own_garment_mesh(body, outfits, tmp_path, monkeypa
 
 
     shorts = outfits["top-shorts"].garments[0]
-    mesh = tmp_path / "my_shorts.obj"
-    trimesh.Trimesh(shorts.vertices, shorts.faces).export(mesh)
+    mesh_file = tmp_path / "my_shorts.obj"
+    trimesh.Trimesh(shorts.vertices, shorts.faces).export(mesh_file)
     monkeypatch.setattr(store, "user_dir", lambda: tmp_path / "garments")
-    cfg = T.GarmentTrainConfig(outfit=str(mesh), poses=24, epochs=1, batch=8)
+    cfg = T.GarmentTrainConfig(outfit=str(mesh_file), poses=24, epochs=1, batch=8)
     meta = T.train(body, cfg, log=lambda *_: None, progress=False)
     assert meta["outfit"] == "my_shorts" and meta["garments"] == ["my_shorts"]
-    assert store.pbns_path(str(mesh)) == store.pbns_path("my_shorts") == tmp_path / "garments" / "pbns_my_shorts.pt"
+    own = tmp_path / "garments" / "pbns_my_shorts.pt"
+    assert store.pbns_path(str(mesh_file)) == store.pbns_path("my_shorts") == own
     assert store.trained_outfits()[-1] == "my_shorts"
     assert not list((tmp_path / "garments").glob(".*.run"))  # the resumable state goes once the weights are written
     assert (tmp_path / "garments" / "pbns_my_shorts.pt").exists()
@@ -270,12 +277,12 @@ def test_train_and_dress_your_own_garment_mesh(body, outfits, tmp_path, monkeypa
     with pytest.raises(ReconError, match="or a garment mesh"):
         T.build(body, T.GarmentTrainConfig(outfit="no-such-outfit"))
     logs = []  # valid poses only (thesis 5.4.3): fewer training poses, or a clear error when none is left
-    T.train(body, T.GarmentTrainConfig(outfit=str(mesh), poses=96, epochs=1, batch=4, valid_max_self=1.0),
+    T.train(body, T.GarmentTrainConfig(outfit=str(mesh_file), poses=96, epochs=1, batch=4, valid_max_self=1.0),
             out=tmp_path / "v.pt", log=logs.append, progress=False)
     n_train = int(logs[0].split(";")[1].split()[0])
     assert 4 <= n_train < 0.85 * 96 / 2  # about an eighth of the poses are valid
     with pytest.raises(ReconError, match="body self-intersection"):
-        T.train(body, T.GarmentTrainConfig(outfit=str(mesh), poses=24, batch=8, valid_max_self=-1.0),
+        T.train(body, T.GarmentTrainConfig(outfit=str(mesh_file), poses=24, batch=8, valid_max_self=-1.0),
                 out=tmp_path / "w.pt")
 
 
@@ -301,8 +308,8 @@ def test_collision_pct_takes_the_first_of_k_nearest_as_the_nearest():
     cloth = torch.rand(2, 300, 3, generator=g)
     exact = collision_pct(cloth, body_v, body_n)
     assert 5 < float(exact.mean()) < 95
-    assert torch.equal(collision_pct(cloth, body_v, body_n, gm.nearest(body_v, cloth, 8)[..., 0]), exact)
-    far = gm.nearest(body_v, cloth, 8)[..., -1]  # the 8th nearest: another normal, another count
+    assert torch.equal(collision_pct(cloth, body_v, body_n, mesh.nearest(body_v, cloth, 8)[..., 0]), exact)
+    far = mesh.nearest(body_v, cloth, 8)[..., -1]  # the 8th nearest: another normal, another count
     assert not torch.equal(collision_pct(cloth, body_v, body_n, far), exact)
 
 
@@ -320,7 +327,7 @@ def test_diffused_blend_weights_stretch_the_skinned_cloth_less(body, outfits):
     rot = roma.rotvec_to_rotmat(rv)
     with torch.no_grad():
         out = body(rot, body.mean_shape[None])
-    bn = gm.vertex_normals(out.vertices, body.faces)
+    bn = mesh.vertex_normals(out.vertices, body.faces)
     edge = {}
     for steps in (0, PBNSConfig().weight_diffusion):
         w = torch.from_numpy(initial_weights(rb, o, steps))

@@ -5,8 +5,8 @@ import torch
 from recon.garment import resize, store
 from recon.garment.data import trained_outfit
 from recon.garment.dress import Dresser
+from recon.garment.pbns_train import train_resizer
 from recon.garment.templates import PRESETS
-from recon.garment.train import train_resizer
 from recon.paths import load_checkpoint
 
 PBNS_FILE = store.SHIPPED_DIR / "pbns_top-shorts.pt"

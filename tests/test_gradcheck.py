@@ -12,7 +12,7 @@ from torch.autograd import gradcheck
 from recon.backbone.volumetric import soft_argmax_3d, volumetric_ce
 from recon.body import lbs
 from recon.fit import SilhouetteTarget
-from recon.garment import losses as L
+from recon.garment import losses
 from recon.garment.mesh import nearest
 from recon.garment.metrics import penetration
 
@@ -81,10 +81,10 @@ def test_pbns_energies(sheet):
     g = torch.Generator().manual_seed(3)
     v = (rest + 0.02 * torch.randn(2, *rest.shape, dtype=F64, generator=g)).requires_grad_(True)
     dt = (0.01 * torch.randn(2, *rest.shape, dtype=F64, generator=g)).requires_grad_(True)
-    for energy in (L.EdgeLoss(rest, faces), L.BendLoss(faces), L.GravityLoss()):
+    for energy in (losses.EdgeLoss(rest, faces), losses.BendLoss(faces), losses.GravityLoss()):
         energy = energy.double()
         assert gradcheck(energy, (v,)), type(energy).__name__
-    assert gradcheck(L.PinLoss(np.arange(len(rest)) < 4).double(), (dt,))
+    assert gradcheck(losses.PinLoss(np.arange(len(rest)) < 4).double(), (dt,))
 
 
 def test_the_collision_energy(sheet):
@@ -94,7 +94,7 @@ def test_the_collision_energy(sheet):
     body_v, body_n = rest[None], torch.tensor([0.0, 0.0, 1.0], dtype=F64).expand(1, len(rest), 3)
     cloth = torch.tensor([[[0.05, 0.05, -0.010], [0.1, 0.2, 0.03], [0.2, 0.1, 0.001], [0.25, 0.25, -0.02]]],
                          dtype=F64, requires_grad=True)
-    coll = L.CollisionLoss(np.zeros(4, int)).double()
+    coll = losses.CollisionLoss(np.zeros(4, int)).double()
     idx = nearest(body_v, cloth)
     assert gradcheck(lambda c: penetration(c, body_v, body_n, idx, 0.004), (cloth,))
     assert gradcheck(lambda c: coll(c, body_v, body_n, torch.from_numpy(faces[:2])), (cloth,))

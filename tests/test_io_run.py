@@ -21,7 +21,7 @@ from recon.keypoints import available as mediapipe_available
 from recon.keypoints.adapter import MP_MIRROR
 from recon.keypoints.adapter import WEIGHTS as ADAPTER_WEIGHTS
 from recon.keypoints.mediapipe import MPPose
-from recon.keypoints.sources import _unview, box_overlap, pad_image, windows
+from recon.keypoints.sources import box_overlap, pad_image, unview, windows
 from recon.pipeline import Reconstructor, ReconstructorConfig
 from recon.poses.bvh import read_bvh
 from recon.run import RunOptions, run
@@ -76,7 +76,7 @@ def test_retry_views_map_back_to_the_image():
     seen_xy = xy[mirror] + pad
     seen_xy[:, 0] = w + 2 * pad - seen_xy[:, 0]  # what MediaPipe reports on the padded mirror view
     seen_mask = np.pad(mask, pad)[:, ::-1]
-    r = _unview(MPPose(seen_xy, np.arange(33.0)[mirror], world[mirror] * [-1, 1, 1], seen_mask), pad, True, (h, w))
+    r = unview(MPPose(seen_xy, np.arange(33.0)[mirror], world[mirror] * [-1, 1, 1], seen_mask), pad, True, (h, w))
     np.testing.assert_allclose(r.image_xy, xy, atol=1e-9)
     np.testing.assert_allclose(r.world, world, atol=1e-12)
     np.testing.assert_array_equal(r.visibility, np.arange(33.0))

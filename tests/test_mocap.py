@@ -14,7 +14,7 @@ from recon.errors import ReconError
 from recon.poses.asfamc import read_asf_amc
 from recon.poses.bvh import BVHError, read_bvh
 from recon.poses.mocap import SPLIT_SUBJECTS, MocapPoses, build, read_clip, resample
-from recon.poses.retarget import PRIMARY_CHILD, SKELETON_MAPS, Retargeter, _snap, detect_skeleton
+from recon.poses.retarget import PRIMARY_CHILD, SKELETON_MAPS, Retargeter, detect_skeleton, snap_to_joint
 
 TINY_BVH = """HIERARCHY
 ROOT hip
@@ -144,7 +144,7 @@ def test_retargeted_pose_reproduces_source_bone_directions(body, rel, kind):
     table = SKELETON_MAPS[kind]
     src = {n: rt._points(motion, s, False)[0] for n, s in table.items()}
     srest = {n: rt._points(motion, s, True)[0] for n, s in table.items()}
-    up, left = _snap(srest["head"] - srest["pelvis"]), _snap(srest["left_hip"] - srest["right_hip"])
+    up, left = snap_to_joint(srest["head"] - srest["pelvis"]), snap_to_joint(srest["left_hip"] - srest["right_hip"])
     align = np.stack([left, up, np.cross(left, up)])
     worst = 0.0
     for j, c in PRIMARY_CHILD.items():

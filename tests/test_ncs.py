@@ -11,33 +11,25 @@ from gltf_check import assert_valid, pose_meshes
 
 from recon.body import lbs, skeleton
 from recon.body.lbs import forward_kinematics
-from recon.garment import losses as L
-from recon.garment import ncs, store
+from recon.garment import losses, ncs, store
 from recon.garment.data import pose_set, posed_bodies, trained_outfit
 from recon.garment.dress import Dresser
-from recon.garment.evaluate_ncs import _clip, hem_vertices
 from recon.garment.gltf import write_glb
 from recon.garment.integrate import IntegrateConfig, Preconditioner, integrate, minimise, settle, unpose
-from recon.garment.ncs_train import (
-    Contact,
-    Fit,
-    FreeMotion,
+from recon.garment.ncs_config import NCSTrainConfig
+from recon.garment.ncs_eval import clip_motion, hem_vertices
+from recon.garment.ncs_losses import Contact, Fit, FreeMotion, Physics, StaticPoses, gram, principal_fields, project
+from recon.garment.ncs_teacher import (
     Motions,
-    NCSTrainConfig,
-    Physics,
-    StaticPoses,
     Teacher,
     ankle_taper,
     chunks_of,
-    gram,
     mirror_map,
     part_outfit,
-    principal_fields,
-    project,
     rest_joint_height,
     sound_chunks,
-    train,
 )
+from recon.garment.ncs_train import train
 from recon.garment.pbns import PBNS, initial_weights, pose_features
 from recon.garment.templates import Garment, GarmentSpec, Outfit, RestBody, make_outfit
 from recon.poses.mocap import MocapPoses
@@ -204,7 +196,7 @@ def test_the_dynamic_branch_keeps_a_gradient_when_every_hidden_unit_is_negative(
 
 def test_inertia_is_zero_at_constant_velocity_and_never_looks_back():
     m = torch.tensor([0.5, 1.0])
-    loss = ncs.InertiaLoss(m, fps=30.0, cfg=ncs.InertiaConfig(weight=1.0, keep_velocity=1.0))
+    loss = losses.InertiaLoss(m, fps=30.0, cfg=losses.InertiaConfig(weight=1.0, keep_velocity=1.0))
     x0, x1 = torch.zeros(1, 2, 3), torch.full((1, 2, 3), 0.01)
     assert loss(2 * x1 - x0, x1, x0).abs().max() < 1e-12
     prev, prev2 = x1.clone().requires_grad_(), x0.clone().requires_grad_()
@@ -220,7 +212,7 @@ def test_damping_acts_on_the_velocity_relative_to_the_carrying_motion():
     """keep_velocity damps the cloth's velocity relative to where the body carries it: cloth moving
     with the body projects on with it whatever the damping; relative motion keeps ``keep`` of itself;
     without a carrying motion the world frame is the reference."""
-    loss = ncs.InertiaLoss(torch.ones(1), cfg=ncs.InertiaConfig(keep_velocity=0.9))
+    loss = losses.InertiaLoss(torch.ones(1), cfg=losses.InertiaConfig(keep_velocity=0.9))
     x0, carry = torch.zeros(1, 3), torch.tensor([[0.03, 0.0, 0.0]])
     assert torch.allclose(loss.projection(x0 + carry, x0, carry), x0 + 2 * carry)
     swing = torch.tensor([[0.0, 0.0, 0.01]])
@@ -230,7 +222,7 @@ def test_damping_acts_on_the_velocity_relative_to_the_carrying_motion():
 
 def test_inertia_gradcheck_float64():
     m = torch.rand(5, dtype=torch.float64) + 0.1
-    loss = ncs.InertiaLoss(m, fps=30.0)
+    loss = losses.InertiaLoss(m, fps=30.0)
     prev, prev2 = torch.randn(2, 5, 3, dtype=torch.float64), torch.randn(2, 5, 3, dtype=torch.float64)
     carry = torch.randn(2, 5, 3, dtype=torch.float64)
     x = torch.randn(2, 5, 3, dtype=torch.float64, requires_grad=True)
@@ -270,10 +262,10 @@ class _Strip:
 def _strip_energies(gravity=5.0):
     o = _Strip()
     rest = torch.from_numpy(o.vertices).float()
-    cfg = NCSTrainConfig(gravity=L.GravityConfig(weight=gravity),
-                         collision=L.CollisionConfig(weight=0.0))
-    crit = L.Criterion(o, rest, cfg)
-    inertia = ncs.InertiaLoss(torch.from_numpy(ncs.vertex_masses(o.vertices, o.faces)), cfg=cfg.inertia)
+    cfg = NCSTrainConfig(gravity=losses.GravityConfig(weight=gravity),
+                         collision=losses.CollisionConfig(weight=0.0))
+    crit = losses.Criterion(o, rest, cfg)
+    inertia = losses.InertiaLoss(torch.from_numpy(ncs.vertex_masses(o.vertices, o.faces)), cfg=cfg.inertia)
     far = 10.0 + torch.rand(1, 20, 3, generator=torch.Generator().manual_seed(0))  # a body far away: no contact
     return o, rest, crit, inertia, far
 
@@ -514,7 +506,7 @@ def test_hem_is_the_lowest_boundary_ring_and_held_clips_stop_dead():
     v = tube.vertices[:, [0, 2, 1]]  # the axis along +Y
     hem = hem_vertices(v, tube.faces)
     assert len(hem) == 24 and np.allclose(v[hem, 1], v[:, 1].min())
-    rot, tr = _clip(MocapPoses.load("test"), "12_01", 10, 5, hold=3)
+    rot, tr = clip_motion(MocapPoses.load("test"), "12_01", 10, 5, hold=3)
     assert rot.shape == (8, 24, 3, 3) and torch.equal(rot[4], rot[7]) and torch.equal(tr[4], tr[7])
     assert tr[0, [0, 2]].abs().max() == 0  # the first frame's pelvis above the origin
 
@@ -604,9 +596,9 @@ def test_physics_is_the_loss_against_the_solved_past_and_trains_the_network(body
     physics = Physics(model, teacher, [(rot, tr)], off, [x[None] for x in inputs])
     one = torch.zeros(1, dtype=torch.long)
     with torch.no_grad():
-        losses = [float(physics.energy(one, torch.tensor([5]), torch.cat([pbns_code, torch.tensor([[a]])], 1))[0])
-                  for a in (0.0, 0.5, 0.9, 1.0, 1.1, 1.5)]
-    assert min(losses[2:5]) < min(losses[0], losses[1], losses[5])
+        energies = [float(physics.energy(one, torch.tensor([5]), torch.cat([pbns_code, torch.tensor([[a]])], 1))[0])
+                    for a in (0.0, 0.5, 0.9, 1.0, 1.1, 1.5)]
+    assert min(energies[2:5]) < min(energies[0], energies[1], energies[5])
     loss, terms = physics(one, torch.tensor([[3, 5]]))
     loss.backward()
     assert torch.isfinite(loss) and terms["physics_edge_mm"] > 0
@@ -645,7 +637,7 @@ def test_update_keeps_the_other_outfits_rows(tmp_path, monkeypatch):
     """``evaluate_and_report(update=True)`` replaces the evaluated outfit's rows where they were,
     keeps the rest of the existing table and adds a new outfit's at its end; without it the table
     holds only what was evaluated."""
-    from recon.garment import evaluate_ncs as E
+    from recon.garment import ncs_eval as E
     monkeypatch.setattr(E, "evaluate", lambda body, o, *a, **k: {"outfit": o, "rows": {"new": True}})
     monkeypatch.setattr(E, "ncs_check", lambda names: {n: {} for n in names})
     monkeypatch.setattr(E, "render", lambda data: "table")

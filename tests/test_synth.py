@@ -1,5 +1,8 @@
-"""Rasteriser conventions, IoU, the scene sampler and sharded dataset storage."""
+"""Rasteriser conventions, IoU, the scene sampler and sharded dataset storage, the same on every CPU."""
 import json
+import os
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -125,3 +128,55 @@ def test_mediapipe_mapping_shape():
     assert j.shape == (24, 3)
     np.testing.assert_allclose(j[1], w[23])  # left hip = MediaPipe's left hip
     np.testing.assert_allclose(j[0], 0.5 * (w[23] + w[24]))
+
+
+# what another CPU changes: torch's, oneDNN's, MKL's, OpenCV's and NumPy's SIMD paths and llvmpipe's
+# thread count; Mesa's code path itself is pinned by recon.kernels whatever the CPU
+OTHER_CPU = {"ATEN_CPU_CAPABILITY": "default", "ONEDNN_MAX_CPU_ISA": "SSE41", "MKL_CBWR": "COMPATIBLE",
+             "OPENCV_CPU_DISABLE": "AVX2,AVX,FP16,SSE4_2,SSE4_1", "OPENCV_IPP": "disabled",
+             "NPY_DISABLE_CPU_FEATURES": "X86_V3", "LP_NUM_THREADS": "1"}
+RENDER = """
+import hashlib, sys
+from recon import kernels
+kernels.pin()
+import torch
+torch.set_num_threads(1)
+from recon.body import default_body
+from recon.synth.dataset import BENCHMARKS, bench_config
+from recon.synth.scene import SceneSampler
+b = BENCHMARKS["synth-test"]
+s = SceneSampler(default_body(), b["split"], b["seed"], bench_config("synth-test"))
+for i in range(int(sys.argv[1])):
+    h = hashlib.sha256()
+    for k, v in sorted(s.sample(i).items()):
+        h.update(k.encode() + v.tobytes())
+    print(h.hexdigest())
+"""
+
+
+def _render_hashes(n: int, env: dict) -> list[str]:
+    out = subprocess.run([sys.executable, "-c", RENDER, str(n)], capture_output=True, text=True, check=True,
+                         env={**os.environ, **env})
+    return out.stdout.split()
+
+
+def test_the_same_samples_under_another_cpus_kernels():
+    """Sample i of a benchmark is the same bytes (images, geometry, cameras) whatever SIMD paths the
+    libraries take: the geometry is computed in float64, the renderer pinned (recon.kernels)."""
+    assert _render_hashes(3, {}) == _render_hashes(3, OTHER_CPU)
+
+
+@pytest.mark.slow
+def test_a_benchmark_shard_rendered_with_another_cpus_kernels_is_the_committed_one(tmp_path):
+    """synth-test's first shard, rendered with every kernel choice of OTHER_CPU, hashes to the
+    committed reference (rendered with the pinned ones)."""
+    code = ("from recon import kernels; kernels.pin()\n"
+            "import sys; from pathlib import Path\n"
+            "from recon.synth.dataset import BENCHMARKS, bench_config, generate\n"
+            "b = BENCHMARKS['synth-test']\n"
+            "generate(Path(sys.argv[1]), b['split'], b['seed'], 250, workers=1, cfg=bench_config('synth-test'),"
+            " progress=False)\n")
+    subprocess.run([sys.executable, "-c", code, str(tmp_path)], check=True, env={**os.environ, **OTHER_CPU},
+                   capture_output=True)
+    made = json.loads((tmp_path / "manifest.json").read_text())["shards"]["0"]
+    assert made == json.loads(dataset.reference_hashes_path("synth-test").read_text())["shards"]["0"]

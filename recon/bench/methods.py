@@ -1,5 +1,8 @@
 """Methods evaluated on the synthetic benchmarks. Each gets the RGB image and the camera
-intrinsics K (as in the thesis protocol) and returns a ``Prediction`` in the camera frame."""
+intrinsics K (as in the thesis protocol) and returns a ``Prediction`` in the camera frame.
+``detects``: a discrete decision (MediaPipe's person detector, the backbone's crop search) lies
+between the image and our networks, so that last-bit differences between CPUs can change the
+result by more than float noise (``recon.bench.runner.check`` leaves those methods out)."""
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
@@ -36,6 +39,7 @@ class MeanBaseline:
 
     name = "mean"
     description = "mean pose + mean shape, facing the camera"
+    detects = False
 
     def __init__(self, body):
         self.body = body
@@ -85,6 +89,7 @@ class MediaPipeBaseline:
 
     name = "mediapipe"
     description = "MediaPipe Pose 3D world landmarks mapped to our joints"
+    detects = True
 
     def __init__(self, body=None):
         self.pose = MediaPipePose(complexity=1, segmentation=True)
@@ -109,6 +114,7 @@ class SMPLROracle2D:
 
     name = "smplr-gt2d"
     description = "oracle: GT 2D J+ -> camera-aware lifter -> SMPLR -> 30-step fit to the 2D (not an image method)"
+    detects = False
     fit = FitConfig(silhouette=0.0)
 
     def __init__(self, body):
@@ -137,6 +143,7 @@ class SMPLROracle2DOrthographic:
 
     name = "smplr-gt2d-dae2d"
     description = "oracle: GT 2D J+ -> metric orthographic 2D -> DAE-2D -> SMPLR (before 0.3)"
+    detects = False
 
     def __init__(self, body):
         self.model = SMPLR.load(body)
@@ -157,6 +164,7 @@ class MediaPipeSMPLR:
 
     name = "mediapipe-smplr"
     description = "recon.Reconstructor: MediaPipe (+ its mirror image) -> adapter -> DAE -> SMPLR, no fit"
+    detects = True
 
     source, fit, lift, retry, guard = "mediapipe", FitConfig(steps=0, silhouette=0.0), "source", False, False  # 0.2's
 
@@ -255,6 +263,7 @@ def _backbone(crop: str, stage: str, flip: bool = False) -> type:
             + ("-flip" if flip else ""))
     how = ", final pass averaged with the mirrored crop" if flip else ""
     return type(name, (BackboneMethod,), {"name": name, "crop": crop, "stage": stage, "flip": flip,
+                                          "detects": crop == "self",
                                           "description": f"our hourglass{how}, {where}: {what}"})
 
 

@@ -13,8 +13,6 @@ from scipy.spatial import cKDTree
 from recon.body import skeleton
 
 J = {n: i for i, n in enumerate(skeleton.JOINT_NAMES)}
-UP = np.array([0.0, 1.0, 0.0])
-FWD = np.array([0.0, 0.0, 1.0])
 
 
 def _pick(verts: np.ndarray, mask: np.ndarray, score: np.ndarray, name: str) -> int:

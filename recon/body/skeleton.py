@@ -52,7 +52,6 @@ LANDMARKS: tuple[tuple[str, str], ...] = (
     ("right_toe_tip", "right_foot"),
 )
 LANDMARK_NAMES: tuple[str, ...] = tuple(n for n, _ in LANDMARKS)
-NUM_LANDMARKS = len(LANDMARKS)
 
 # J+ = joints followed by landmarks (42 points) and its kinematic tree kappa.
 POINT_NAMES: tuple[str, ...] = JOINT_NAMES + LANDMARK_NAMES

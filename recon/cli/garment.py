@@ -8,10 +8,7 @@ from recon import report
 from recon.body import default_body
 from recon.cli.parsing import COUNT, NON_NEGATIVE, STEPS, Parser, actions, default
 from recon.errors import ReconError
-from recon.garment import evaluate as garment_eval
-from recon.garment import evaluate_ncs as garment_eval_ncs
-from recon.garment import ncs_train, store
-from recon.garment import train as garment_train
+from recon.garment import ncs_eval, ncs_train, pbns_eval, pbns_train, store
 from recon.garment.resize import ResizeConfig
 from recon.garment.templates import PRESETS
 
@@ -35,7 +32,7 @@ def train(args) -> None:
             weights = store.ncs_path(o)
         else:
             epochs = {"epochs": args.epochs} if args.epochs else {}
-            meta = garment_train.train(default_body(), garment_train.GarmentTrainConfig(outfit=o, poses=args.poses,
+            meta = pbns_train.train(default_body(), pbns_train.GarmentTrainConfig(outfit=o, poses=args.poses,
                                                                                          **epochs))
             weights = store.pbns_path(o)
         last = meta["curve"][-1]
@@ -45,7 +42,7 @@ def train(args) -> None:
 
 def resize(args) -> None:
     for o in outfits(args.outfit):
-        meta = garment_train.train_resizer(default_body(), store.pbns_path(o), cfg=ResizeConfig(epochs=args.epochs))
+        meta = pbns_train.train_resizer(default_body(), store.pbns_path(o), cfg=ResizeConfig(epochs=args.epochs))
         print(json.dumps({"outfit": meta["outfit"], "weights": str(store.resizer_path(o)),
                           "train_seconds": meta["train_seconds"], "transfer_only": meta["val_transfer_only"],
                           "resized": meta["curve"][-1]}))
@@ -57,14 +54,14 @@ def evaluate(args) -> None:
         weights = [Path(w) for w in args.ncs_weights] if args.ncs_weights else None
         if weights and len(weights) != len(names):
             raise ReconError("--ncs-weights takes one file per outfit")
-        print(Path(garment_eval_ncs.evaluate_and_report(body, names, Path(args.out), dynamic=not args.no_simulation,
+        print(Path(ncs_eval.evaluate_and_report(body, names, Path(args.out), dynamic=not args.no_simulation,
                                                          ncs_weights=weights, log=print, val=args.val,
                                                          update=args.update)).read_text())
         return
-    print(Path(garment_eval.evaluate_and_report(body, names, args.n, Path(args.out))).read_text())
+    print(Path(pbns_eval.evaluate_and_report(body, names, args.n, Path(args.out))).read_text())
     for o in names:  # the resizing table, for outfits with a trained resizer
         if store.resizer_path(o).exists():
-            print(Path(garment_eval.evaluate_resizer(body, o, out_dir=Path(args.out))).read_text())
+            print(Path(pbns_eval.evaluate_resizer(body, o, out_dir=Path(args.out))).read_text())
 
 
 def reference(args) -> None:
@@ -72,8 +69,8 @@ def reference(args) -> None:
     if not set(names) <= set(PRESETS):
         raise ReconError("reference drapes are for the preset outfits: " + ", ".join(PRESETS))
     for o in names:
-        md = (garment_eval.rescore_reference(o, Path(args.out)) if args.rescore
-              else garment_eval.reference_and_report(o, args.n, Path(args.out), args.frames, args.workers))
+        md = (pbns_eval.rescore_reference(o, Path(args.out)) if args.rescore
+              else pbns_eval.reference_and_report(o, args.n, Path(args.out), args.frames, args.workers))
         print(Path(md).read_text())
 
 
@@ -99,8 +96,8 @@ def add_garment(p: Parser) -> None:
     a.add_argument("--outfit", nargs="+", default=["tshirt-trousers"], help=help_outfit)
     a.add_argument("--model", choices=("pbns", "ncs"), default="pbns", help=help_model)
     a.add_argument("--epochs", type=COUNT, default=None,
-                   help=f"PBNS: default {default(garment_train.GarmentTrainConfig, 'epochs')}")
-    a.add_argument("--poses", type=COUNT, default=default(garment_train.GarmentTrainConfig, "poses"))
+                   help=f"PBNS: default {default(pbns_train.GarmentTrainConfig, 'epochs')}")
+    a.add_argument("--poses", type=COUNT, default=default(pbns_train.GarmentTrainConfig, "poses"))
     for name, (kind, help) in NCS_FLAGS.items():
         a.add_argument("--" + name.replace("_", "-"), type=kind, default=None,
                        help=f"NCS: {help} (default {default(ncs_train.NCSTrainConfig, name)})")
@@ -119,16 +116,16 @@ def add_garment(p: Parser) -> None:
                    help="--model ncs: keep the other outfits' rows of the existing table")
     a.add_argument("--val", action="store_true",
                    help="--model ncs: against the val performers' simulations (what the recipe is tuned on)")
-    a.add_argument("--n", type=COUNT, default=default(garment_eval.evaluate_and_report, "n_poses"),
+    a.add_argument("--n", type=COUNT, default=default(pbns_eval.evaluate_and_report, "n_poses"),
                    help="held-out test poses")
     a.add_argument("--out", default=str(report.RESULTS))
     a = action("reference", reference, "PBNS against a newton cloth drape (needs newton; minutes a pose)")
     a.add_argument("--outfit", nargs="+", default=["tshirt-trousers"], help="preset names or 'all'")
-    a.add_argument("--n", type=COUNT, default=default(garment_eval.reference_and_report, "poses"),
+    a.add_argument("--n", type=COUNT, default=default(pbns_eval.reference_and_report, "poses"),
                    help="held-out test poses to drape")
-    a.add_argument("--frames", type=COUNT, default=default(garment_eval.reference_and_report, "frames"),
+    a.add_argument("--frames", type=COUNT, default=default(pbns_eval.reference_and_report, "frames"),
                    help="frame cap of each drape")
-    a.add_argument("--workers", type=COUNT, default=default(garment_eval.reference_and_report, "workers"),
+    a.add_argument("--workers", type=COUNT, default=default(pbns_eval.reference_and_report, "workers"),
                    help="drapes run in parallel processes")
     a.add_argument("--rescore", action="store_true", help="score the current weights against the cached drapes "
                    "instead of simulating (after a retrain that barely moved the skinned start)")

@@ -42,7 +42,7 @@ class Dresser:
     def __init__(self, outfit: str = "tshirt-trousers", path: str | Path | None = None, resizer: bool = True,
                  resolve_collisions: bool = True, dynamics: bool | None = None):
         """``resolve_collisions``: push cloth that PBNS leaves inside the body out of it
-        (recon.garment.collide; ~1 % of the vertices, about 30-70 ms a frame on one core).
+        (recon.garment.collide; its cost: eval/results/bench-garment-1t.md).
         ``dynamics``: motions through the outfit's NCS (None: when it has one; True: it must)."""
         path = Path(path) if path else store.trained_pbns(outfit)  # a preset, your own garment, a .pt file
         if not path.exists():

@@ -26,9 +26,8 @@ import scipy.sparse as sp
 import torch
 from scipy.sparse.linalg import splu
 
-from recon.garment.losses import Criterion
+from recon.garment.losses import Criterion, InertiaLoss
 from recon.garment.mesh import nearest
-from recon.garment.ncs import InertiaLoss
 
 
 @dataclass

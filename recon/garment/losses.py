@@ -1,5 +1,6 @@
-"""PBNS potential energies (thesis 5.3.4). Each term is a module with its own config; the
-training loss (``Criterion``) is their plain sum and keeps each term for logging. All take the
+"""PBNS potential energies (thesis 5.3.4) and NCS's inertia term (6.3.4, eq. 6.9). Each term is a
+module with its own config; the training loss (``Criterion``) is their plain sum and keeps each
+term for logging. All take the
 posed outfit (B, N, 3) in metres, body frame (+Y up: gravity acts along -Y). The geometric
 quantities (strain, bending, penetration) are recon.garment.metrics', shared with the
 evaluation."""
@@ -11,9 +12,10 @@ import numpy as np
 import torch
 from torch import nn
 
-from recon.garment import mesh as gm
+from recon.garment import mesh
 from recon.garment.mesh import nearest, nearest_among
 from recon.garment.metrics import bending, penetration, strain
+from recon.garment.ncs import FPS
 
 
 @dataclass
@@ -28,7 +30,7 @@ class EdgeLoss(nn.Module):
                  fabric: torch.Tensor | None = None):
         super().__init__()
         self.cfg = cfg or EdgeConfig()
-        e = torch.from_numpy(gm.unique_edges(faces))
+        e = torch.from_numpy(mesh.unique_edges(faces))
         self.register_buffer("edges", e)
         self.register_buffer("rest_len", (rest[e[:, 0]] - rest[e[:, 1]]).norm(dim=-1))
         w = torch.ones(len(e)) if fabric is None else 0.5 * (fabric[e[:, 0]] + fabric[e[:, 1]])
@@ -56,7 +58,7 @@ class BendLoss(nn.Module):
         super().__init__()
         self.cfg = cfg or BendConfig()
         self.register_buffer("faces", torch.from_numpy(np.ascontiguousarray(faces)).long())
-        self.register_buffer("adj", torch.from_numpy(np.array(gm.face_adjacency(faces))).long())
+        self.register_buffer("adj", torch.from_numpy(np.array(mesh.face_adjacency(faces))).long())
         if fabric is None:
             w = torch.ones(len(self.adj))
         else:
@@ -106,7 +108,7 @@ class CollisionLoss(nn.Module):
         total = (pen ** 2).mean(1)
         pairs = self.pairs()
         if pairs:
-            n = gm.vertex_normals(v, faces).detach()
+            n = mesh.vertex_normals(v, faces).detach()
             for k, (inner, outer) in enumerate(pairs):
                 vi, vo = v[:, inner], v[:, outer]
                 idx = nearest(vi, vo) if cloth_cand is None else nearest_among(vi, vo, cloth_cand[k])
@@ -169,3 +171,46 @@ class Criterion(nn.Module):
                       "collision": self.collision(v, body_v, body_n, self.faces, body_cand, cloth_cand, body_inside),
                       "gravity": self.gravity(v), "pin": self.pin(dt)}
         return sum(self.terms.values())
+
+
+@dataclass
+class InertiaConfig:
+    # in the units of the PBNS energies, whose gravity term is GravityConfig.weight x mean height:
+    # gravity weight / g (5 / 9.81) puts inertia and gravity in their physical ratio
+    weight: float = 5.0 / 9.81
+    # share of the cloth's velocity relative to where the body carries it (the skinned outfit) that
+    # it keeps from one frame to the next: the fabric's and the air's damping, the air moving with
+    # the body. 0.95 is the reference simulation's (reference.DynamicConfig); 1 is the thesis' eq.
+    # 6.8, whose only damping is the implicit step's
+    keep_velocity: float = 0.95
+
+
+class InertiaLoss(nn.Module):
+    """Eq. 6.9 as a mean over particles: weight x m / (2 dt^2) |x_t - x_proj|^2 with the projection
+    x_proj = x_{t-1} + v, v = c + keep (x_{t-1} - x_{t-2} - c): the previous velocity, its part
+    relative to the body's carrying motion c damped (``InertiaConfig.keep_velocity``); c = 0 when
+    not given (the world frame). The masses are scaled to a mean of 1 (the PBNS energies are per
+    mean vertex). The previous states are constants: gradients must not travel back in time (the
+    thesis' point against SNUG), so they are detached here whatever the caller passes."""
+
+    def __init__(self, masses: torch.Tensor, fps: float = FPS, cfg: InertiaConfig | None = None):
+        super().__init__()
+        self.cfg = cfg or InertiaConfig()
+        self.fps = fps
+        m = torch.as_tensor(masses, dtype=torch.float32 if not torch.is_tensor(masses) else masses.dtype)
+        self.register_buffer("m", m / m.mean())
+
+    def projection(self, x_prev: torch.Tensor, x_prev2: torch.Tensor,
+                   carry: torch.Tensor | None = None) -> torch.Tensor:
+        """x_proj from the two previous states and the carrying motion over this frame (detached)."""
+        x_prev, v = x_prev.detach(), (x_prev - x_prev2).detach()
+        c = torch.zeros_like(v) if carry is None else carry.detach()
+        return x_prev + c + self.cfg.keep_velocity * (v - c)
+
+    def to_projection(self, x: torch.Tensor, proj: torch.Tensor) -> torch.Tensor:
+        d2 = ((x - proj.detach()) ** 2).sum(-1)
+        return self.cfg.weight * 0.5 * self.fps ** 2 * (self.m.to(x) * d2).mean(-1)
+
+    def forward(self, x: torch.Tensor, x_prev: torch.Tensor, x_prev2: torch.Tensor,
+                carry: torch.Tensor | None = None) -> torch.Tensor:
+        return self.to_projection(x, self.projection(x_prev, x_prev2, carry))

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from recon.garment import mesh as gm
+from recon.garment import mesh
 
 # (low, high] % of the covered skin inside the body (recon.garment.self_intersection); the first bin includes 0
 SELF_INTERSECTION_BINS = ((0.0, 1.0), (1.0, 3.0), (3.0, 100.0))
@@ -30,7 +30,7 @@ def collision_pct(v: torch.Tensor, body_v: torch.Tensor, body_n: torch.Tensor,
                   idx: torch.Tensor | None = None) -> torch.Tensor:
     """(B,) % of cloth vertices inside the body (exact nearest body vertex; ``idx`` (B, N): those
     indices already found, e.g. the first of ``mesh.nearest``'s k, which come sorted)."""
-    idx = gm.nearest(body_v, v) if idx is None else idx
+    idx = mesh.nearest(body_v, v) if idx is None else idx
     return (penetration(v, body_v, body_n, idx) < 0).float().mean(1) * 100
 
 
@@ -44,7 +44,7 @@ def bending(v: torch.Tensor, faces: torch.Tensor, adjacency: torch.Tensor, weigh
             ) -> torch.Tensor:
     """(B,) mean over adjacent face pairs (A, 2) of ||n_i - n_j||^2 (optionally weighted): 0 for a
     flat sheet, crumpling otherwise."""
-    n = gm.face_normals(v, faces)
+    n = mesh.face_normals(v, faces)
     d = ((n[:, adjacency[:, 0]] - n[:, adjacency[:, 1]]) ** 2).sum(-1)
     return (d if weights is None else weights * d).mean(1)
 
@@ -59,12 +59,12 @@ def physical_metrics(v: torch.Tensor, faces: np.ndarray, rest: torch.Tensor, bod
     ``rest``: (N, 3) template, or (B, N, 3) one rest garment per sample (resizing).
     ``body_self`` (B,): the body's self-intersection % per pose; adds collision % and edge error
     per bin of SELF_INTERSECTION_BINS."""
-    e = torch.from_numpy(gm.unique_edges(faces))
+    e = torch.from_numpy(mesh.unique_edges(faces))
     l0 = (rest[..., e[:, 0], :] - rest[..., e[:, 1], :]).norm(dim=-1)
     s = strain(v, e, l0)
     per_pose, strain_pose = collision_pct(v, body_v, body_n), s.abs().mean(-1) * 1000
     bend = bending(v, torch.from_numpy(np.ascontiguousarray(faces)).long(),
-                   torch.from_numpy(np.array(gm.face_adjacency(faces))).long())
+                   torch.from_numpy(np.array(mesh.face_adjacency(faces))).long())
     floor = body_v[..., 1].min(1).values[:, None]
     bins = {}
     if body_self is not None:

@@ -10,15 +10,12 @@ any bias (2 per-joint FC layers, 2 FC layers, one GRU), so that no motion gives 
 code and the GRU state fades when motion stops; the codes are added and decoded in PBNS's
 blend-shape form (z . D, so the .glb export stays morph targets), then skinned. D holds PBNS's
 rows and ``NCSConfig.dynamic`` rows after them, the principal fields of the cloth's motion found
-by training (recon.garment.ncs_train). The static code on PBNS's rows is PBNS's own (its MLP, on
-PBNS's input ``pbns.pose_features``, kept fixed): the garments that do not hang (a t-shirt above a
-skirt) are PBNS's exactly, and a copy distilled into the static encoder drifted (its miss of
-PBNS's codes grew 2.4 -> 6.9 mm in training, and the t-shirt went into the body more often than
-PBNS's); the static encoder gives the static code on the new rows, both codes reach those.
-Training (6.3.4) minimises the PBNS energies plus ``InertiaLoss`` (eq. 6.9), the previous states
-constants (recon.garment.integrate, recon.garment.ncs_train). Frames: the body frame, +Y up
-(gravity along -Y), metres; the network steps at the frame rate it was trained at
-(``NCSConfig.fps``).
+in training (recon.garment.ncs_train). The static code on PBNS's rows is PBNS's own (its MLP on
+``pbns.pose_features``, fixed), so garments that do not hang stay PBNS's exactly (a distilled
+copy drifted: the model card's NCS history); the static encoder gives the code on the new rows.
+Training (6.3.4): the PBNS energies plus the inertia term (eq. 6.9, ``losses.InertiaLoss``).
+Frames: the body frame, +Y up (gravity along -Y), metres; the network steps at the frame rate it
+was trained at (``NCSConfig.fps``).
 """
 from __future__ import annotations
 
@@ -282,46 +279,3 @@ def vertex_masses(vertices: np.ndarray, faces: np.ndarray, density: float = 0.15
     m = np.zeros(len(vertices))
     np.add.at(m, faces.ravel(), np.repeat(a / 3.0, 3))
     return (density * m).astype(np.float32)
-
-
-@dataclass
-class InertiaConfig:
-    # in the units of the PBNS energies, whose gravity term is GravityConfig.weight x mean height:
-    # gravity weight / g (5 / 9.81) puts inertia and gravity in their physical ratio
-    weight: float = 5.0 / 9.81
-    # share of the cloth's velocity relative to where the body carries it (the skinned outfit) that
-    # it keeps from one frame to the next: the fabric's and the air's damping, the air moving with
-    # the body. 0.95 is the reference simulation's (reference.DynamicConfig); 1 is the thesis' eq.
-    # 6.8, whose only damping is the implicit step's
-    keep_velocity: float = 0.95
-
-
-class InertiaLoss(nn.Module):
-    """Eq. 6.9 as a mean over particles: weight x m / (2 dt^2) |x_t - x_proj|^2 with the projection
-    x_proj = x_{t-1} + v, v = c + keep (x_{t-1} - x_{t-2} - c): the previous velocity, its part
-    relative to the body's carrying motion c damped (``InertiaConfig.keep_velocity``); c = 0 when
-    not given (the world frame). The masses are scaled to a mean of 1 (the PBNS energies are per
-    mean vertex). The previous states are constants: gradients must not travel back in time (the
-    thesis' point against SNUG), so they are detached here whatever the caller passes."""
-
-    def __init__(self, masses: torch.Tensor, fps: float = FPS, cfg: InertiaConfig | None = None):
-        super().__init__()
-        self.cfg = cfg or InertiaConfig()
-        self.fps = fps
-        m = torch.as_tensor(masses, dtype=torch.float32 if not torch.is_tensor(masses) else masses.dtype)
-        self.register_buffer("m", m / m.mean())
-
-    def projection(self, x_prev: torch.Tensor, x_prev2: torch.Tensor,
-                   carry: torch.Tensor | None = None) -> torch.Tensor:
-        """x_proj from the two previous states and the carrying motion over this frame (detached)."""
-        x_prev, v = x_prev.detach(), (x_prev - x_prev2).detach()
-        c = torch.zeros_like(v) if carry is None else carry.detach()
-        return x_prev + c + self.cfg.keep_velocity * (v - c)
-
-    def to_projection(self, x: torch.Tensor, proj: torch.Tensor) -> torch.Tensor:
-        d2 = ((x - proj.detach()) ** 2).sum(-1)
-        return self.cfg.weight * 0.5 * self.fps ** 2 * (self.m.to(x) * d2).mean(-1)
-
-    def forward(self, x: torch.Tensor, x_prev: torch.Tensor, x_prev2: torch.Tensor,
-                carry: torch.Tensor | None = None) -> torch.Tensor:
-        return self.to_projection(x, self.projection(x_prev, x_prev2, carry))

@@ -29,8 +29,8 @@ class PBNSConfig:
     embedding: int = 128  # |X|, rows of D (32 -> 128: fewer collisions and less strain, ablation)
     optimise_weights: bool = True  # blend weights trained with the network (thesis: skirts)
     # Laplacian smoothing steps of the nearest-vertex blend weights: nearest-vertex weights jump
-    # between bones (crotch, hips) and stretch the skinned cloth 3x more than the body's own skin
-    # (top-shorts, held-out poses: 1.96 mm edge error, 10 steps 1.11 mm, body surface 0.57 mm).
+    # between bones (crotch, hips) and stretch the skinned cloth far more than the body's own skin
+    # (the garment model card's ablation).
     weight_diffusion: int = 10
 
 
@@ -63,11 +63,17 @@ def remove_yaw(r: torch.Tensor) -> torch.Tensor:
     return ry @ r
 
 
-# Inference batches at least this large take the vertex-major path of PBNS.pose (break-even at
-# 8-16 frames, measured); chunk size in floats of blended transforms (1 MB): 256k-512k measured
-# best, 16k slower than batch-major.
+# On the CPU, inference batches at least this large take the vertex-major path of PBNS.pose
+# (benchmarks/bench_garment.py), in chunks of this many floats of blended transforms (1 MB); on a
+# GPU the batch-major form is the faster one at every batch (eval/results/bench-garment-gpu-h200.md)
 VERTEX_MAJOR_MIN_BATCH = 12
 VERTEX_MAJOR_CHUNK_FLOATS = 1 << 18
+
+
+def vertex_major(x: torch.Tensor) -> bool:
+    """Whether inference on codes ``x`` (B, E) takes the vertex-major form: a batch of at least
+    ``VERTEX_MAJOR_MIN_BATCH`` frames on the CPU."""
+    return x.device.type == "cpu" and x.shape[0] >= VERTEX_MAJOR_MIN_BATCH
 
 
 class BlendShapeGarment(nn.Module):
@@ -103,8 +109,8 @@ class BlendShapeGarment(nn.Module):
     def skin(self, x: torch.Tensor, transforms: torch.Tensor) -> torch.Tensor:
         """LBS of rest-pose points x ((N, 3) or (B, N, 3)) with the joint transforms (B, 24, 3, 4)
         (BodyOutput.transforms, rest -> posed). One matmul blends the transforms per vertex:
-        faster than an einsum over joints for batches (measured). The 3x3 part is applied with an
-        einsum: broadcasting to (B, N, 3, 3) and summing is memory-bound (measured 1.5x slower)."""
+        faster than an einsum over joints for batches. The 3x3 part is applied with an einsum:
+        broadcasting to (B, N, 3, 3) and summing is memory-bound (benchmarks/bench_garment.py)."""
         b = transforms.shape[0]
         t = (self.weights @ transforms.reshape(b, -1, 12)).view(b, -1, 3, 4)
         if x.dim() == 2:
@@ -117,11 +123,11 @@ class BlendShapeGarment(nn.Module):
 
     @torch.no_grad()
     def pose_codes(self, x: torch.Tensor, transforms: torch.Tensor, rest: torch.Tensor | None = None) -> torch.Tensor:
-        """Posed vertices (B, N, 3) of codes (B, E) for inference (no gradients), computed for
-        batches of >= ``VERTEX_MAJOR_MIN_BATCH`` frames vertex-major in chunks of vertices.
-        ``rest``: (N, 3) or (B, N, 3) rest outfit (resized per body; default the template)."""
+        """Posed vertices (B, N, 3) of codes (B, E) for inference (no gradients), in the faster form
+        for the device and batch (``vertex_major``). ``rest``: (N, 3) or (B, N, 3) rest outfit
+        (resized per body; default the template)."""
         rest = self.rest if rest is None else rest
-        if x.shape[0] < VERTEX_MAJOR_MIN_BATCH:
+        if not vertex_major(x):
             return self.skin(rest + self.decode(x), transforms)
         return self._pose_vertex_major(x, transforms, rest)
 
@@ -130,8 +136,7 @@ class BlendShapeGarment(nn.Module):
         the blended transforms (c, 12, B) one GEMM with the blend weights, and the 3x4 products
         are elementwise over B. Chunks keep the blended transforms (the largest intermediate,
         48 bytes per vertex and frame) in cache; batch-major, they stream through memory and the
-        3x3 products become B x N tiny matmuls (benchmarks/bench_garment.py: 1.9-3.5x at B = 64
-        and 256 on one thread, slower below ~12 frames)."""
+        3x3 products become B x N tiny matmuls (benchmarks/bench_garment.py)."""
         b, n, e = x.shape[0], self.rest.shape[0], x.shape[1]
         d_t, w = self._d_vertex_major(), self.weights  # both cached
         xt = x.t().contiguous()  # (E, B)
@@ -159,7 +164,7 @@ class BlendShapeGarment(nn.Module):
     # --- persistence ----------------------------------------------------------------------------
     def save(self, path: Path, extra: dict) -> None:
         sd = self.state_dict()
-        sd["D"] = sd["D"].half()  # halves the file; dT moves 1 um on average, 0.01 mm at most (64 test poses)
+        sd["D"] = sd["D"].half()  # halves the file; dT moves by float noise (eval/results/weights-float16.md)
         state = {"cfg": asdict(self.cfg), "state": sd} | extra
         paths.atomic_write(Path(path), lambda t: torch.save(state, t))
 

@@ -11,8 +11,8 @@ at their skinned positions. Gravity pulls, body contact pushes out.
 Quasi-static: velocities are reset to zero after every substep, so each substep is one implicit
 relaxation step of gravity + elasticity + contact. Dynamic VBD (velocities kept) does not hold a
 1-cm-resolution garment on the body at 5-10 iterations: the cloth keeps falling at nearly
-free-fall and the collar stretches up to 3.5x over the shoulders (measured; likely because
-Gauss-Seidel carries the shoulders' support only a few rings of vertices per iteration). The
+free-fall and the collar stretches over the shoulders (likely because Gauss-Seidel carries the
+shoulders' support only a few rings of vertices per iteration). The
 drape stops when the particles moved less than ``settle_mm`` in the last frame (99th percentile
 over particles: a few light particles at sliver triangles keep jittering by millimetres) or
 after ``frames`` frames.
@@ -24,8 +24,8 @@ cut from a run does not start with the cloth at rest around a running body) and 
 damps its velocity relative to it, a frame at a time (the fabric's damping of its swing; the air
 moves with the body). Damped relative to the world instead, the same 5 % a frame is a wind of still
 air, 5 m/s^2 on a runner's skirt at 3.5 m/s, which blows it back by tens of cm. A skirt hanging
-from its pinned waist holds this way (strain < 1 % on the test clips, measured), which the free
-fall above does not contradict: the pins carry it.
+from its pinned waist holds this way (eval/results/garment-ncs.md), which the free fall above
+does not contradict: the pins carry it.
 
 Body sign: a posed body self-intersects (armpits, groin), which breaks ray-parity inside tests;
 the collider uses the pseudo-normal sign instead.

@@ -1,5 +1,5 @@
 """Outfit resizing with PBNS (thesis 5.5.6): body shape + tightness -> rest-pose outfit.
-Trained by ``recon garment resize`` (recon.garment.train), evaluated by recon.garment.evaluate.
+Trained by ``recon garment resize`` (recon.garment.pbns_train), evaluated by recon.garment.pbns_eval.
 
 The pose input of PBNS is replaced by the body shape beta concatenated with the outfit
 tightness gamma (R^2) and skinning is removed:
@@ -27,7 +27,7 @@ from scipy.spatial import cKDTree
 from torch import nn
 
 from recon import paths
-from recon.garment import losses as L
+from recon.garment import losses
 from recon.garment.mesh import smooth_vertex_values
 
 TIGHTNESS_PHENOTYPES = ("weight", "height")  # what gamma offsets (anny), like CLOTH3D's beta_0, beta_1
@@ -38,7 +38,7 @@ TIGHTNESS_RANGE = ((-0.1, 0.3), (-0.05, 0.1))  # sampling range per component, b
 class ResizeConfig:
     samples: int = 600  # (shape, tightness) training samples
     val_samples: int = 100
-    epochs: int = 2  # measured: more epochs trade edge error for the 4 mm body margin (20 epochs: 0.27 % / 5.4 mm)
+    epochs: int = 2  # more epochs trade edge error for the body margin (the garment model card)
     batch: int = 16
     lr: float = 1e-3
     lr_psd: float = 3e-4
@@ -48,11 +48,11 @@ class ResizeConfig:
     smooth: int = 10  # Laplacian iterations on the transferred displacement
     candidates: int = 8
     seed: int = 0
-    edge: L.EdgeConfig = field(default_factory=L.EdgeConfig)
-    bend: L.BendConfig = field(default_factory=L.BendConfig)
-    collision: L.CollisionConfig = field(default_factory=lambda: L.CollisionConfig(weight=1e5))
-    gravity: L.GravityConfig = field(default_factory=L.GravityConfig)
-    pin: L.PinConfig = field(default_factory=L.PinConfig)
+    edge: losses.EdgeConfig = field(default_factory=losses.EdgeConfig)
+    bend: losses.BendConfig = field(default_factory=losses.BendConfig)
+    collision: losses.CollisionConfig = field(default_factory=lambda: losses.CollisionConfig(weight=1e5))
+    gravity: losses.GravityConfig = field(default_factory=losses.GravityConfig)
+    pin: losses.PinConfig = field(default_factory=losses.PinConfig)
 
 
 class Resizer(nn.Module):

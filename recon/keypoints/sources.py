@@ -18,12 +18,12 @@ from recon.keypoints.adapter import MP_MIRROR, KeypointAdapter
 from recon.keypoints.base import Keypoints
 from recon.keypoints.mediapipe import MediaPipePose, MPPose
 
-# When MediaPipe finds nobody, it is asked again on these views of the image, in order (view,
-# zero-padding factor, detection threshold): its detector misses people behind occluders or cut by
-# the frame. Chosen on synth-val (eval/results/error-budget.md, section 3: the three padded views
-# each rescue about half of the misses, the four together 79 %); the default threshold is 0.5.
 GRAY_TINT = (1.05, 0.85, 0.85)  # a warm tint for grayscale images; the choice: CHANGELOG 0.5.0
 GRAY_SMALL = 256  # grayscale images are also searched at this longer side
+# When MediaPipe finds nobody, it is asked again on these views of the image, in order (view,
+# zero-padding factor, detection threshold): its detector misses people behind occluders or cut by
+# the frame. Chosen on synth-val (eval/results/error-budget.md, section 3); the default threshold
+# is 0.5.
 RETRIES = (("plain", 2.0, 0.5), ("plain", 1.5, 0.3), ("mirror", 1.5, 0.5), ("plain", 1.0, 0.3))
 
 
@@ -43,7 +43,7 @@ def pad_image(rgb: np.ndarray, factor: float) -> tuple[np.ndarray, int]:
     return (cv2.copyMakeBorder(rgb, p, p, p, p, cv2.BORDER_CONSTANT, value=(0, 0, 0)) if p else rgb), p
 
 
-def _unview(r: MPPose, pad: int, mirrored: bool, shape) -> MPPose:
+def unview(r: MPPose, pad: int, mirrored: bool, shape) -> MPPose:
     """A MediaPipe result on a padded (and mirrored) view -> the same in the original image."""
     h, w = shape[:2]
     xy, vis, world, mask = r.image_xy.copy(), r.visibility, r.world, r.mask
@@ -171,7 +171,7 @@ class MediaPipeSource:
                 padded = np.ascontiguousarray(padded[:, ::-1])
             r = self._detector(threshold)(padded)
             if r is not None:
-                r = _unview(r, pad, view == "mirror", rgb.shape)
+                r = unview(r, pad, view == "mirror", rgb.shape)
                 if (score := self._person(r, rgb, retry=True)) is not None:
                     self.last_view = f"{view} x{factor:g} @{threshold:g}"
                     return (r, *self.adapter.predict(r, k), score)

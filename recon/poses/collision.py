@@ -5,6 +5,7 @@ rest mesh (radius = 0.9 x distance to the nearest surface vertex), so two sphere
 different parts can only overlap when the surfaces interpenetrate. Pairs that overlap in
 the rest pose, or belong to parts adjacent in the kinematic tree, are ignored. The score is
 the deepest sphere overlap in metres; ``SelfIntersection.check`` rejects poses above ``tol``.
+Computed in float64, so that a pose near ``tol`` is accepted or rejected alike on every CPU.
 """
 from __future__ import annotations
 
@@ -58,15 +59,15 @@ class SelfIntersection:
         d = np.linalg.norm(centers[:, None] - centers[None], axis=-1)
         rest_overlap = radii[:, None] + radii[None] - d > 0
         pairs = np.argwhere(np.triu(~adjacent & ~rest_overlap, 1))
-        self.centers = torch.tensor(centers, dtype=torch.float32)
-        self.radii = torch.tensor(radii, dtype=torch.float32)
+        self.centers = torch.tensor(centers, dtype=torch.float64)
+        self.radii = torch.tensor(radii, dtype=torch.float64)
         self.owner = torch.tensor(owner)
         self.pairs = torch.tensor(pairs)
-        self.rest_joints = torch.tensor(j, dtype=torch.float32)
+        self.rest_joints = torch.tensor(j, dtype=torch.float64)
 
     def penetration(self, pose: torch.Tensor) -> torch.Tensor:
         """Deepest overlap (m) between non-adjacent parts, per pose: (B, 24, 3[,3]) -> (B,)."""
-        rot = lbs.as_rotmats(pose, 24).float()
+        rot = lbs.as_rotmats(pose.double(), 24)
         _, _, tf = lbs.forward_kinematics(rot, self.rest_joints.expand(rot.shape[0], -1, -1), skeleton.JOINT_PARENTS)
         t = tf[:, self.owner]  # (B, S, 3, 4)
         c = (t[..., :3] @ self.centers.unsqueeze(-1)).squeeze(-1) + t[..., 3]

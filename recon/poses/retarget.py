@@ -139,7 +139,7 @@ def _frame(primary: np.ndarray, lateral: np.ndarray) -> np.ndarray:
     return np.stack([x, y, np.cross(x, y)], axis=-1)
 
 
-def _snap(v: np.ndarray) -> np.ndarray:
+def snap_to_joint(v: np.ndarray) -> np.ndarray:
     out = np.zeros(3)
     k = int(np.argmax(np.abs(v)))
     out[k] = np.sign(v[k])
@@ -180,8 +180,8 @@ class Retargeter:
         table = SKELETON_MAPS[kind]
         # Axis normalisation from the rest pose (rows: left, up, forward).
         rp = {n: self._points(m, s, True)[0] for n, s in table.items()}
-        up = _snap(rp["head"] - rp["pelvis"])
-        left = _snap(rp["left_hip"] - rp["right_hip"])
+        up = snap_to_joint(rp["head"] - rp["pelvis"])
+        left = snap_to_joint(rp["left_hip"] - rp["right_hip"])
         if abs(up @ left) > 0.5:
             raise ReconError("could not infer the source's up and left axes from its rest pose")
         align = np.stack([left, up, np.cross(left, up)])

@@ -87,7 +87,7 @@ class PoseSampler:
         todo = np.arange(n)
         for _ in range(self.max_rounds):
             cand = self._draw(len(todo))
-            ok = self.collide.check(torch.tensor(cand, dtype=torch.float32)).numpy()
+            ok = self.collide.check(torch.tensor(cand, dtype=torch.float64)).numpy()
             out[todo[ok]] = cand[ok]
             todo = todo[~ok]
             if len(todo) == 0:

@@ -32,7 +32,7 @@ from recon.smplr.data import load_or_generate
 from recon.smplr.lifter import WEIGHTS, Lifter, LifterConfig, LiftInput, prepare
 from recon.training import Schedule, Trainer
 
-STORE_DTYPE = torch.float16  # the J+ move by 0.02 mm on synth-val (measured when shipped)
+STORE_DTYPE = torch.float16  # moves the J+ by float noise only (the lifter's model card)
 
 
 @dataclass
@@ -44,7 +44,7 @@ class CameraConfig:
     wide_focal: tuple[float, float] = (0.6, 3.0)  # x long side, log-uniform
     wide_fill: tuple[float, float] = (0.25, 1.0)
     aspects: tuple[float, ...] = (1.0, 4 / 3, 3 / 4, 16 / 9, 9 / 16)  # width / height
-    noise_scale: tuple[float, float] = (0.0, 1.5)  # x the measured residual field
+    noise_scale: tuple[float, float] = (0.0, 1.5)  # x the residual field of the keypoint source
     clean_share: float = 0.15  # batches' samples without any 2D noise
     drop_prob: float = 0.03  # seen points masked at random (occlusions the source flags)
     gaussian_box: float = 0.02  # fallback noise (no residual bank): sigma / box height

@@ -3,7 +3,10 @@
 A dataset folder holds ``shard-00000.npz`` ... (``shard_size`` samples each, written atomically,
 images as PNG bytes) and ``manifest.json`` (config, seed, split, per-shard SHA-256). A shard
 that exists is never recomputed, so an interrupted run resumes where it stopped. Sample i
-depends only on (split, seed, i): results are bit-identical for any number of workers.
+depends only on (split, seed, i): results are bit-identical for any number of workers, and on
+every x86-64 CPU (``recon.synth.scene`` and ``recon.synth.raster``). ``GENERATOR`` numbers the
+generator's versions: a folder made by another one is not continued, and the benchmarks' cache
+folders carry it in their name.
 """
 from __future__ import annotations
 
@@ -27,6 +30,7 @@ from recon.synth.scene import SceneSampler, SynthConfig
 # The wide ones frame people as photos do: 512 px frames, the body 30-90 % of the height, its
 # centre anywhere in the middle 60 % of the frame, so many are small, off-centre or cut.
 WIDE = {"size": 512, "focal_range": (600.0, 1400.0), "fill_range": (0.3, 0.9), "shift": 0.3}
+GENERATOR = 2  # 2: float64 geometry, CPU-independent rendering (0.5.0)
 BENCHMARKS = {
     "synth-val": {"split": "val", "seed": 1001, "n": 2000},
     "synth-test": {"split": "test", "seed": 2002, "n": 2000},
@@ -45,7 +49,7 @@ ARRAY_KEYS = ("K", "R", "t", "points3d", "points2d", "pose", "shape", "vertices"
 def bench_dir(name: str) -> Path:
     if name not in BENCHMARKS:
         raise ReconError(f"unknown benchmark {name!r}; known: {', '.join(BENCHMARKS)}")
-    return paths.cache_dir() / "synth" / name
+    return paths.cache_dir() / "synth" / f"{name}-v{GENERATOR}"
 
 
 def _encode(key: str, a: np.ndarray) -> bytes:
@@ -118,7 +122,7 @@ def generate(out_dir: Path, split: str, seed: int, n: int, shard_size: int = 250
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     meta = {"split": split, "seed": seed, "n": n, "shard_size": shard_size, "config": asdict(cfg),
-            "store_vertices": store_vertices}
+            "store_vertices": store_vertices, "generator": GENERATOR}
     meta = json.loads(json.dumps(meta))  # tuples -> lists, as stored
     man_path = out_dir / "manifest.json"
     manifest = json.loads(man_path.read_text()) if man_path.exists() else {**meta, "shards": {}}
@@ -126,7 +130,8 @@ def generate(out_dir: Path, split: str, seed: int, n: int, shard_size: int = 250
     defaults = json.loads(json.dumps(asdict(SynthConfig())))
     manifest["config"] = {**defaults, **manifest.get("config", {})}
     if any(manifest.get(k) != v for k, v in meta.items() if k != "n"):
-        raise ReconError(f"{out_dir} holds a dataset made with other settings; use another folder")
+        raise ReconError(f"{out_dir} holds a dataset made with other settings or another version of the "
+                         "generator; use another folder")
     manifest["n"] = n
     todo = []
     for shard, start in enumerate(range(0, n, shard_size)):

@@ -2,12 +2,18 @@
 
 Cameras follow OpenCV: x right, y down, z forward, pixels (u, v) = K @ X / Z, row 0 at the top.
 Used for dataset rendering and silhouette IoU; pyrender (recon.viz) stays for demo pictures.
+
+The same images on every x86-64 CPU: Mesa's llvmpipe is pinned to one code path
+(``recon.kernels``: SSE4.1, 128-bit vectors, no FMA), and the shaders use only exactly rounded
+operations (no ``normalize``/``inversesqrt``, whose approximations differ between CPU vendors):
+each face's shading is computed on the CPU in float64 and drawn flat.
 """
 from __future__ import annotations
 
 import moderngl
 import numpy as np
 
+from recon import kernels
 from recon.errors import ReconError
 
 VERT = """
@@ -15,37 +21,48 @@ VERT = """
 uniform mat4 proj;
 in vec3 in_pos;
 in vec3 in_color;
+in float in_shade;
 in int in_label;
 out vec3 v_color;
-out vec3 v_pos;
+out float v_depth;
+flat out float v_shade;
 flat out int v_label;
 void main() {
     vec3 eye = vec3(in_pos.x, -in_pos.y, -in_pos.z);  // OpenCV camera -> OpenGL eye
     gl_Position = proj * vec4(eye, 1.0);
     v_color = in_color;
-    v_pos = in_pos;
+    v_depth = in_pos.z;
+    v_shade = in_shade;
     v_label = in_label;
 }
 """
 FRAG = """
 #version 330
-uniform vec3 light_dir;
-uniform float ambient;
 in vec3 v_color;
-in vec3 v_pos;
+in float v_depth;
+flat in float v_shade;
 flat in int v_label;
 layout(location = 0) out vec4 f_color;
 layout(location = 1) out int f_label;
 layout(location = 2) out float f_depth;
 void main() {
-    vec3 n = normalize(cross(dFdx(v_pos), dFdy(v_pos)));
-    if (dot(n, v_pos) > 0.0) n = -n;  // face the camera
-    float shade = ambient + (1.0 - ambient) * max(dot(n, -light_dir), 0.0);
-    f_color = vec4(v_color * shade, 1.0);
+    f_color = vec4(v_color * v_shade, 1.0);
     f_label = v_label;
-    f_depth = v_pos.z;
+    f_depth = v_depth;
 }
 """
+
+
+def face_shading(verts: np.ndarray, faces: np.ndarray, light_dir, ambient: float) -> np.ndarray:
+    """Lambert shading of each face (F,) in float64: its normal turned towards the camera, lit from
+    ``light_dir`` (from the surface towards the light, camera frame) on top of ``ambient``."""
+    v = np.asarray(verts, np.float64)
+    n = np.cross(v[faces[:, 1]] - v[faces[:, 0]], v[faces[:, 2]] - v[faces[:, 0]])
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
+    centre = v[faces].mean(1)
+    n[(n * centre).sum(1) > 0] *= -1  # face the camera
+    ld = np.asarray(light_dir, np.float64)
+    return ambient + (1.0 - ambient) * np.maximum(n @ (ld / np.linalg.norm(ld)), 0.0)
 
 
 def projection(k: np.ndarray, width: int, height: int, near: float = 0.05, far: float = 100.0) -> np.ndarray:
@@ -63,6 +80,7 @@ class Rasterizer:
     """Render triangle meshes given in camera coordinates; reuse one instance per process."""
 
     def __init__(self, width: int = 256, height: int = 256):
+        kernels.pin()  # before Mesa loads (a no-op where the command line or the tests did it)
         try:
             self.ctx = moderngl.create_standalone_context(backend="egl")
         except Exception as e:  # noqa: BLE001 - moderngl raises plain Exceptions
@@ -78,18 +96,18 @@ class Rasterizer:
     def render(self, verts: np.ndarray, faces: np.ndarray, k: np.ndarray, colors: np.ndarray | None = None,
                labels: np.ndarray | None = None, light_dir=(0.3, 0.6, 1.0), ambient: float = 0.45):
         """Returns rgb (H,W,3) uint8, labels (H,W) int32 (-1 = background), depth (H,W) float32 (0 = bg)."""
+        faces = np.ascontiguousarray(faces, dtype=np.int64)
         n = len(verts)
         c = np.full((n, 3), 0.8, np.float32) if colors is None else colors.astype(np.float32)
         lab = np.zeros(n, np.int32) if labels is None else labels.astype(np.int32)
-        vbo = self.ctx.buffer(np.concatenate([verts.astype(np.float32), c], 1).tobytes())
-        lbo = self.ctx.buffer(lab.tobytes())
-        ibo = self.ctx.buffer(np.ascontiguousarray(faces, dtype=np.int32).tobytes())
-        vao = self.ctx.vertex_array(self.prog, [(vbo, "3f 3f", "in_pos", "in_color"), (lbo, "i", "in_label")],
-                                    index_buffer=ibo, index_element_size=4)
+        shade = face_shading(verts, faces, light_dir, ambient).astype(np.float32)
+        corner = faces.reshape(-1)  # one vertex per face corner: the shade is the face's own
+        data = np.concatenate([verts.astype(np.float32)[corner], c[corner], np.repeat(shade, 3)[:, None]], 1)
+        vbo = self.ctx.buffer(np.ascontiguousarray(data).tobytes())
+        lbo = self.ctx.buffer(lab[corner].tobytes())
+        vao = self.ctx.vertex_array(self.prog, [(vbo, "3f 3f 1f", "in_pos", "in_color", "in_shade"),
+                                                (lbo, "i", "in_label")])
         self.prog["proj"].write(projection(k, self.w, self.h).T.copy().tobytes())
-        ld = np.asarray(light_dir, np.float32)
-        self.prog["light_dir"].value = tuple(-ld / np.linalg.norm(ld))
-        self.prog["ambient"].value = ambient
         self.fbo.use()
         self.ctx.enable(self.ctx.DEPTH_TEST)
         self.ctx.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
@@ -101,7 +119,7 @@ class Rasterizer:
 
         rgb = read(0, 3, "f1", np.uint8)
         labels_img, depth = read(1, 1, "i4", np.int32)[..., 0], read(2, 1, "f4", np.float32)[..., 0]
-        vao.release(), vbo.release(), lbo.release(), ibo.release()
+        vao.release(), vbo.release(), lbo.release()
         mask = depth > 0
         labels_img = np.where(mask, labels_img, -1)
         return rgb.copy(), labels_img.copy(), depth.copy()

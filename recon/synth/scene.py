@@ -9,6 +9,7 @@ Camera: OpenCV (x right, y down, z forward). Body frame -> camera: X_cam = R @ X
 """
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 from functools import cache
 
@@ -147,9 +148,11 @@ class SceneSampler:
 
     def __init__(self, body, split: str, seed: int, cfg: SynthConfig | None = None, pool: int = 4096):
         cfg = cfg or SynthConfig()
-        self.body, self.split, self.seed, self.cfg = body, split, seed, cfg
-        self.pose_pool = PoseSampler(body, split=split, noise_deg=cfg.pose_noise_deg, seed=seed).sample(pool)
-        self.shape_pool = ShapeSampler(body, seed=seed).sample(4096)
+        self.split, self.seed, self.cfg = split, seed, cfg
+        # the geometry in float64: rounded to float32 it is the same on every CPU's float kernels
+        self.body = copy.deepcopy(body).double()
+        self.pose_pool = PoseSampler(self.body, split=split, noise_deg=cfg.pose_noise_deg, seed=seed).sample(pool)
+        self.shape_pool = ShapeSampler(self.body, seed=seed).sample(4096)
         self.parts = body.weights.argmax(1).numpy()
         self.faces = body.faces.numpy()
         self.raster = Rasterizer(cfg.size, cfg.size)
@@ -161,7 +164,7 @@ class SceneSampler:
         pose[0, 0] = torch.tensor((yaw * Rotation.from_rotvec(pose[0, 0].numpy())).as_rotvec(), dtype=torch.float32)
         shape = self.shape_pool[int(rng.integers(len(self.shape_pool)))][None]
         with torch.no_grad():
-            out = self.body(pose, shape)
+            out = self.body(pose.double(), shape.double())
         v = out.vertices[0].numpy().astype(np.float64)
         k, r, t = sample_camera(rng, self.cfg, float(v[:, 1].max() - v[:, 1].min()))
         to_cam = lambda p: p @ r.T + t  # noqa: E731

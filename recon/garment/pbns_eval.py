@@ -181,7 +181,7 @@ def evaluate_and_report(body, outfits: list[str], n_poses: int = 500, out_dir: P
     stem = Path(out_dir) / ("garment-pbns" if presets else "garment-pbns-" + "-".join(names))
     data = {"outfits": results}
     if presets:
-        data["check"] = {"function": "recon.garment.evaluate:pbns_check",
+        data["check"] = {"function": "recon.garment.pbns_eval:pbns_check",
                          "kwargs": {"outfits": names, "n_poses": CHECK_POSES},
                          "values": pbns_check(names, CHECK_POSES)}
     return report.write(stem, data, render_pbns(data))
@@ -257,7 +257,7 @@ def evaluate_resizer(body, outfit: str, n: int = 200, seed: int = 1234, out_dir:
     meta = json.loads(paths.load_checkpoint(store.resizer_path(name), "recon garment resize")["meta_json"])
     res = {"outfit": name, "conditions": n, "seed": seed, "rows": rows, "ms_per_outfit_batched": ms,
            "train_seconds": meta["train_seconds"], "threads": meta.get("threads", 2),
-           "check": {"function": "recon.garment.evaluate:resize_check",
+           "check": {"function": "recon.garment.pbns_eval:resize_check",
                      "kwargs": {"outfit": name, "n": CHECK_CONDITIONS}, "values": resize_check(name, CHECK_CONDITIONS)}}
     return report.write(Path(out_dir) / f"garment-resize-{name}", res, render_resize(res))
 
@@ -436,7 +436,7 @@ def _write_reference(result: dict, out_dir: Path) -> Path:
     mean = {n: {k: float(np.mean([p["rows"][n][k] for p in per_pose if k in p["rows"][n]]))
                 for k in keys + ["seconds"] if any(k in p["rows"][n] for p in per_pose)} for n in names}
     first = per_pose[0]
-    check = {"function": "recon.garment.evaluate:reference_check",
+    check = {"function": "recon.garment.pbns_eval:reference_check",
              "kwargs": {"outfit": outfit, "pose": first["pose"], "pool_size": result.get("pool_size", 500)},
              "values": {n: {k: v for k, v in first["rows"][n].items() if k not in ("error_mm", "seconds")}
                         for n in MODELS}}

@@ -37,11 +37,11 @@ from recon.body import default_body
 from recon.errors import MissingFile, ReconError
 from recon.garment import reference, store
 from recon.garment.data import posed_bodies, trained_outfit
-from recon.garment.evaluate import frames_per_second
 from recon.garment.mesh import boundary_loops, faces_within
 from recon.garment.metrics import physical_metrics
 from recon.garment.ncs import NCS, hanging_part, motion_inputs
 from recon.garment.pbns import PBNS
+from recon.garment.pbns_eval import frames_per_second
 from recon.garment.self_intersection import SkinSelfIntersection
 from recon.poses.mocap import SPLIT_SUBJECTS, MocapPoses
 
@@ -78,7 +78,7 @@ VAL_CLIPS = (DynamicClip("06_12", 210, 60, 0, 30, "turn (3.1 rad/s)", "val"),
 CHECK_CLIP = ("12_01", 0, 16, 0)  # the slice tests/test_results.py recomputes
 
 
-def _clip(split_poses: MocapPoses, name: str, start: int = 0, frames: int | None = None, hold: int = 0):
+def clip_motion(split_poses: MocapPoses, name: str, start: int = 0, frames: int | None = None, hold: int = 0):
     """Local rotations (T, 24, 3, 3) and translation (T, 3) of a clip (its first frame's pelvis
     above the origin), its last pose repeated ``hold`` more frames."""
     c = next((i for i, k in enumerate(split_poses.clips) if k["name"] == name), None)
@@ -118,7 +118,7 @@ def clip_rows(body, pbns: PBNS, ncs: NCS | None, shape: torch.Tensor, clips: lis
     posed: dict[str, list] = {m: [] for m in models}
     rots, trs = [], []
     for clip in clips:
-        rot, tr = _clip(poses, *clip[:4])
+        rot, tr = clip_motion(poses, *clip[:4])
         out = run_models(pbns, ncs, body, shape, rot, tr)
         keep = torch.arange(0, len(rot), stride)
         for m in models:
@@ -150,7 +150,8 @@ def dynamic_path(outfit: str, clip: DynamicClip) -> Path:
 
 def _lead_in(clip: DynamicClip) -> tuple[torch.Tensor, torch.Tensor]:
     """The clip's rotations and translation from its lead-in's first frame."""
-    return _clip(MocapPoses.load(clip.split), clip.name, clip.start - clip.lead, clip.lead + clip.frames, clip.hold)
+    return clip_motion(MocapPoses.load(clip.split), clip.name, clip.start - clip.lead, clip.lead + clip.frames,
+                       clip.hold)
 
 
 def dynamic_reference(body, outfit_name: str, pbns: PBNS, shape: torch.Tensor, clip: DynamicClip, log=None) -> dict:
@@ -236,7 +237,7 @@ def dynamic_rows(body, outfit_name: str, pbns: PBNS, ncs: NCS, shape: torch.Tens
 @torch.no_grad()
 def speed(pbns: PBNS, ncs: NCS, body, shape: torch.Tensor) -> dict:
     """Frames per second given the transforms: batch 1 and 64 (see the module's docstring)."""
-    rot, tr = _clip(MocapPoses.load("test"), CHECK_CLIP[0], 0, 64)
+    rot, tr = clip_motion(MocapPoses.load("test"), CHECK_CLIP[0], 0, 64)
     static, dynamic, pose, transforms = motion_inputs(body, rot, shape, tr)
     _, h = ncs.animate(static[:8], dynamic[:8], pose[:8], transforms[:8])
     fps = frames_per_second
@@ -318,7 +319,7 @@ def evaluate_and_report(body, outfits: list[str], out_dir: Path = report.RESULTS
         results = [mine.get(r["outfit"], r) for r in old] + [r for r in results if r["outfit"] not in had]
     names = [r["outfit"] for r in results]
     data = {"outfits": results, "clips": "val" if val else "test",
-            "check": {"function": "recon.garment.evaluate_ncs:ncs_check", "kwargs": {"outfits": names},
+            "check": {"function": "recon.garment.ncs_eval:ncs_check", "kwargs": {"outfits": names},
                       "values": ncs_check(names)}}
     return report.write(path, data, render(data))
 
@@ -327,7 +328,7 @@ def render(data: dict) -> str:
     val = data.get("clips") == "val"
     lines = ["# NCS (dynamic) vs PBNS (quasi-static) vs skinning on held-out clips"
              + (" (val: the clips the recipe is tuned on)" if val else ""), "",
-             "`recon garment eval --model ncs` (recon/garment/evaluate_ncs.py). Collision % / edge error: "
+             "`recon garment eval --model ncs` (recon/garment/ncs_eval.py). Collision % / edge error: "
              f"every {STRIDE}th frame of every {'val' if val else 'test'}-split clip (performers "
              f"{', '.join(sorted(SPLIT_SUBJECTS['val' if val else 'test'], key=int))}), the models run on "
              "every frame at 30 fps. Against the simulation: newton VBD with velocities (recon.garment.reference."

@@ -21,8 +21,7 @@ import torch
 
 from recon import paths
 from recon.errors import ReconError
-from recon.garment import losses as L
-from recon.garment import store
+from recon.garment import losses, store
 from recon.garment.data import Conditions, pose_set, posed_bodies, sample_conditions, trained_outfit
 from recon.garment.mesh import nearest
 from recon.garment.metrics import collision_pct, rest_metrics
@@ -53,13 +52,13 @@ class GarmentTrainConfig:
     # gravity; the stiff edges then remove the strain of the sag (ablation, fifth round)
     edge_warmup: float = 0.1
     model: PBNSConfig = field(default_factory=PBNSConfig)
-    # 10x stiffer edges than the fourth round (3e4) meet the 0.7 mm strain target; 5x gravity and
-    # 5x bending keep the sag and the smoothness they would lose (ablation, fifth round)
-    edge: L.EdgeConfig = field(default_factory=lambda: L.EdgeConfig(weight=3e5))
-    bend: L.BendConfig = field(default_factory=lambda: L.BendConfig(weight=1.0))
-    collision: L.CollisionConfig = field(default_factory=lambda: L.CollisionConfig(weight=1e5))
-    gravity: L.GravityConfig = field(default_factory=lambda: L.GravityConfig(weight=5.0))
-    pin: L.PinConfig = field(default_factory=L.PinConfig)
+    # stiff edges meet the strain target; gravity and bending raised with them keep the sag and the
+    # smoothness they would lose (the garment model card's ablation, fifth round)
+    edge: losses.EdgeConfig = field(default_factory=lambda: losses.EdgeConfig(weight=3e5))
+    bend: losses.BendConfig = field(default_factory=lambda: losses.BendConfig(weight=1.0))
+    collision: losses.CollisionConfig = field(default_factory=lambda: losses.CollisionConfig(weight=1e5))
+    gravity: losses.GravityConfig = field(default_factory=lambda: losses.GravityConfig(weight=5.0))
+    pin: losses.PinConfig = field(default_factory=losses.PinConfig)
 
 
 # stored in float16: it moves no published number (eval/results/weights-float16.md); PBNS keeps
@@ -101,7 +100,7 @@ def build(body, cfg: GarmentTrainConfig, shape: torch.Tensor | None = None):
 
 
 @torch.no_grad()
-def candidates(model: PBNS, crit: L.Criterion, rot, bt, bv, k: int, chunk: int = 64, codes=None):
+def candidates(model: PBNS, crit: losses.Criterion, rot, bt, bv, k: int, chunk: int = 64, codes=None):
     """Per pose, the k nearest body vertices (and inner-layer vertices) of every vertex of the
     skinned template (dT = 0), or of the model's drape at ``codes`` (P, E) where given: the
     prediction moves a few cm at most, so its nearest neighbour is almost always among them.
@@ -148,7 +147,7 @@ def train(body, cfg: GarmentTrainConfig | None = None, out: Path | None = None, 
     n_val = int(round(cfg.val_fraction * len(poses)))
     perm = torch.randperm(len(poses), generator=torch.Generator().manual_seed(cfg.seed))
     val_idx, tr_idx = perm[:n_val], perm[n_val:]
-    crit = L.Criterion(outfit, model.rest, cfg)
+    crit = losses.Criterion(outfit, model.rest, cfg)
     body_c, cloth_c = candidates(model, crit, poses, bt, bv, cfg.candidates)
     inside = SkinSelfIntersection(body, shape)(bv) if cfg.collision.skip_self_intersection else None
     opt = _adam(model, cfg.lr, cfg.lr_psd)
@@ -195,7 +194,7 @@ def train_resizer(body, pbns_path: Path, out: Path | None = None, cfg: ResizeCon
     outfit, shape0, name = trained_outfit(body, Path(pbns_path))
     out = Path(out or store.resizer_path(name, pbns_path))
     transfer = Transfer(body, outfit.vertices, outfit.faces, shape0, cfg.smooth)
-    crit = L.Criterion(outfit, torch.from_numpy(outfit.vertices), cfg)
+    crit = losses.Criterion(outfit, torch.from_numpy(outfit.vertices), cfg)
     tr = Conditions(body, transfer, *sample_conditions(body, cfg.samples, cfg.seed), crit.edge.edges, cfg.candidates)
     va = Conditions(body, transfer, *sample_conditions(body, cfg.val_samples, cfg.seed + 1), crit.edge.edges, 1)
     net = Resizer(len(outfit.vertices), body.num_shape_params + 2, cfg)
