@@ -1,2 +1,2 @@
-"""recon's version (also ``recon.__version__``; pyproject.toml holds the same)."""
-__version__ = "0.4.0"
+"""recon's version: ``recon.__version__``, and pyproject.toml reads it from here."""
+__version__ = "0.5.0"

@@ -11,7 +11,9 @@ from PIL import Image
 
 from recon.animate import animate, clip_name, load_motion, on_the_ground
 from recon.body import skeleton
+from recon.cli import main
 from recon.errors import ReconError
+from recon.keypoints import available as mediapipe_available
 from recon.poses.bvh import read_bvh, write_bvh
 from recon.poses.mocap import MocapPoses
 
@@ -111,3 +113,14 @@ def test_animate_refuses_before_working(tmp_path):
     assert not (tmp_path / "out").exists()
     with pytest.raises(ReconError, match="not a `recon run` result folder"):
         animate(tmp_path, "walk", tmp_path / "out")
+
+
+@pytest.mark.skipif(not mediapipe_available(), reason="needs mediapipe (scripts/setup.sh)")
+def test_animating_a_photo_without_a_person_says_so_once(tmp_path, capsys):
+    """One line naming the photo once, exit 2, and no animation written."""
+    Image.fromarray(np.full((200, 200, 3), 127, np.uint8)).save(tmp_path / "empty.png")
+    assert main(["animate", str(tmp_path / "empty.png"), "--motion", "walk", "--out", str(tmp_path / "o"),
+                 "--render", "none"]) == 2
+    err = capsys.readouterr().err
+    assert err.count(str(tmp_path / "empty.png")) == 1 and "no person found" in err and err.count("\n") == 1
+    assert not (tmp_path / "o" / "animated.glb").exists()
