@@ -3,12 +3,12 @@
 
     .venv/bin/python benchmarks/bench_pipeline.py [--repeats 5] [--threads 1]
 
-Stages: keypoints (MediaPipe Pose + adapter, with and without the mirror averaging; or our
-hourglass: 3 passes = the whole image through the first hourglass, then two metric crops; also
-with a flip on the last, 2 passes, the whole network in the first pass, and eager instead of the
-TorchScript trace), SMPLR (DAE + Omega + Psi + the full mesh) + placement, and the fit
-(``recon run``'s default: 30 steps to the keypoints and, with MediaPipe, its person mask; also
-to the keypoints only). SMPLR includes the camera-aware lifter (``recon run``'s default
+Stages: keypoints (MediaPipe Pose + adapter, its heavy, full and lite landmark models, with and
+without the mirror averaging; or our hourglass: 3 passes = the whole image through the first
+hourglass, then two metric crops; also with a flip on the last, 2 passes, the whole network in the
+first pass, and eager instead of the TorchScript trace), SMPLR (DAE + Omega + Psi + the full mesh)
++ placement, and the fit (``recon run``'s default: 30 steps to the keypoints and, with MediaPipe,
+its person mask; also to the keypoints only). SMPLR includes the camera-aware lifter (``recon run``'s default
 ``--lift blend``); a second MediaPipe row runs 0.2's route (``--lift source``) side by side.
 -> eval/results/bench-pipeline.{json,md}
 """
@@ -40,7 +40,9 @@ def main() -> None:
     torch.set_num_threads(a.threads)
     body = default_body()
     images = [io.load_image(p) for p in example_photos()]
-    sources = {"mediapipe (`recon run` default: + mirror averaging)": MediaPipeSource(),
+    sources = {"mediapipe (`recon run` default: full landmark model + mirror averaging)": MediaPipeSource(),
+               "mediapipe, heavy landmark model (`--keypoint-model heavy`)": MediaPipeSource(model="heavy"),
+               "mediapipe, lite landmark model (`--keypoint-model lite`)": MediaPipeSource(model="lite"),
                "mediapipe, no person guard (`--no-guard`)": MediaPipeSource(guard=False),
                "mediapipe, no mirror averaging (`--no-flip`)": MediaPipeSource(flip=False),
                "backbone, 3 passes (`--source backbone`)": BackboneSource(body),

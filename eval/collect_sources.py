@@ -86,7 +86,8 @@ def collect(source: str, n: int, data: str = "synth-val") -> Path:
     n = min(n, len(ds))
     body = default_body()
     if source == "mediapipe":
-        src = MediaPipeSource(retry=False, guard=False)  # its first answer; the rescues below are the retries' study
+        # its first answer (full landmark model, as committed); the rescues below are the retries' study
+        src = MediaPipeSource(retry=False, guard=False, model="full")
         mp = {c: MediaPipePose(segmentation=False, min_confidence=c) for c in (0.5, 0.3, 0.2)}
     elif source in ("backbone", "backbone-gtcrop"):
         src = BackboneSource(body)

@@ -12,6 +12,10 @@ on the 30 person-free images of the error budget (eval/error_budget.py, section 
 generator images, on the bundled photos and on synth-val. Writes eval/results/phantoms.md/.json.
 
     .venv/bin/python eval/phantoms.py             # ~25 min on 2 cores
+    .venv/bin/python eval/phantoms.py --keypoint-model heavy --bodies-only   # -> phantoms-heavy.md
+
+``--keypoint-model``: MediaPipe's landmark model throughout (the guard was fitted on full's answers);
+``--bodies-only``: only the bodies-found table, on the person-free images and the bundled photos.
 """
 from __future__ import annotations
 
@@ -135,12 +139,21 @@ def kept(rows: list[dict]) -> tuple[int, int]:
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--phantom-images", type=int, default=600)
-    ap.add_argument("--out", default=str(report.RESULTS / "phantoms"))
+    ap.add_argument("--keypoint-model", default="full", choices=("lite", "full", "heavy"))
+    ap.add_argument("--bodies-only", action="store_true", help="only the bodies found on person-free images")
+    ap.add_argument("--out", default=None, help="default: eval/results/phantoms[-<model>]")
     a = ap.parse_args()
     torch.set_num_threads(1)
-    detectors = {t: MediaPipePose(min_confidence=t) for t in (0.5, 0.3, 0.2, 0.1)}
-    people = cached("people-synth-val-v3", lambda: collect_people(detectors))
-    phantoms = cached(f"phantoms-generator-{a.phantom_images}-v3",
+    m = a.keypoint_model
+    out = Path(a.out or report.RESULTS / ("phantoms" if m == "full" else f"phantoms-{m}"))
+    sets = person_free_sets(a.phantom_images)
+    if a.bodies_only:
+        write(out, m, None, bodies_found(sets, m), None)
+        return
+    detectors = {t: MediaPipePose(m, min_confidence=t) for t in (0.5, 0.3, 0.2, 0.1)}
+    suffix = "" if m == "full" else f"-{m}"
+    people = cached(f"people-synth-val-v3{suffix}", lambda: collect_people(detectors))
+    phantoms = cached(f"phantoms-generator-{a.phantom_images}-v3{suffix}",
                       lambda: collect_phantoms(detectors, a.phantom_images))
     harvest = [r for r in phantoms if r["view"].startswith("image @")]  # the fit's phantoms
     default = [r for r in phantoms if not r["view"].startswith("image @")]  # MediaPipe's own answers
@@ -156,25 +169,45 @@ def main() -> None:
         ["person-free (generator): retry answers", pct(kept([r for r in default if r["view"] != "image"]))],
         ["person-free (generator): answers at thresholds 0.1-0.3 (the fit's)", pct(kept(harvest))],
     ]
-    off, on = MediaPipeSource(guard=False), MediaPipeSource(guard=True)
-    rng = np.random.default_rng(28)
-    sets = {"30 person-free images (error budget, section 4)": list(person_free_images().items()),
-            f"{a.phantom_images} person-free images (generator)":
-                [(str(i), person_free(rng, (256, 512)[i % 2])) for i in range(a.phantom_images)],
-            "bundled photos": [(f.path.name, load_image(f.path))
-                               for f in scan_inputs([paths.DATA_DIR / "examples"]).files if f.path.suffix != ".md"]}
     ds = SynthDataset(bench_dir("synth-val"))
     sets["synth-val (a person in every image)"] = [(str(i), ds[i]["rgb"]) for i in range(len(ds))]
+    write(out, m, tuning, bodies_found(sets, m), {"weights": weights, "bias": bias})
+
+
+def person_free_sets(n: int) -> dict[str, list]:
+    """The person-free image sets and the bundled photos, as (name, rgb) lists."""
+    rng = np.random.default_rng(28)
+    return {"30 person-free images (error budget, section 4)": list(person_free_images().items()),
+            f"{n} person-free images (generator)": [(str(i), person_free(rng, (256, 512)[i % 2])) for i in range(n)],
+            "bundled photos": [(f.path.name, load_image(f.path))
+                               for f in scan_inputs([paths.DATA_DIR / "examples"]).files if f.path.suffix != ".md"]}
+
+
+def bodies_found(sets: dict[str, list], model: str) -> list[list]:
+    """Per set: images, bodies found without and with the guard (retries on), and where."""
+    off, on = MediaPipeSource(guard=False, model=model), MediaPipeSource(guard=True, model=model)
     measured = []
     for name, images in sets.items():
         b_off = bodies(tqdm(images, desc=f"{name}, no guard"), off)
         b_on = bodies(tqdm(images, desc=f"{name}, guard"), on)
         measured.append([name, len(images), len(b_off), _few(b_off), len(b_on), _few(b_on)])
-    res = {"tuning": tuning, "measured": measured, "guard": {"weights": guard.WEIGHTS, "bias": guard.BIAS,
-                                                             "threshold": guard.THRESHOLD},
-           "refit": {"weights": weights, "bias": bias}}
-    out = Path(a.out)
+    return measured
+
+
+def write(out: Path, model: str, tuning: list | None, measured: list, refit: dict | None) -> None:
+    res = {"keypoint_model": model, "tuning": tuning, "measured": measured,
+           "guard": {"weights": guard.WEIGHTS, "bias": guard.BIAS, "threshold": guard.THRESHOLD}, "refit": refit}
     paths.write_text(out.with_suffix(".json"), json.dumps(res, indent=1))
+    bodies_table = ["## Bodies found (whole `MediaPipeSource`, retries on)", "",
+                    report.table(measured, ["images", "n", "bodies, no guard", "where", "bodies, guard", "where"]), ""]
+    if tuning is None:
+        md = [f"# No phantom bodies with MediaPipe's {model} landmark model", "",
+              f"`eval/phantoms.py --keypoint-model {model} --bodies-only`: the shipped guard "
+              f"(fitted on the full model's answers, [phantoms.md](phantoms.md)) on the {model} model's answers.", "",
+              *bodies_table]
+        paths.write_text(out.with_suffix(".md"), "\n".join(md))
+        print("\n".join(md))
+        return
     md = ["# No phantom bodies: the person guard (issue 28)", "",
           "`eval/phantoms.py`. MediaPipe Pose proposes a full skeleton on coffee cups, rockets, a horse or a logo; "
           f"`recon.keypoints.guard` scores each answer ({guard.describe()}) from its visibilities, its box, "
@@ -186,9 +219,7 @@ def main() -> None:
           "on) at detection thresholds 0.1-0.3. Thresholds: set on its default answers there. synth-val is a "
           "tuning set; the person-free sample photos share pictures with the generator's backgrounds.", "",
           "## Answers the score keeps (tuning sets; retry answers before the crop confirmation)", "",
-          report.table(tuning, ["answers", "kept"]), "",
-          "## Bodies found (whole `MediaPipeSource`, retries on)", "",
-          report.table(measured, ["images", "n", "bodies, no guard", "where", "bodies, guard", "where"]), ""]
+          report.table(tuning, ["answers", "kept"]), "", *bodies_table]
     paths.write_text(out.with_suffix(".md"), "\n".join(md))
     print("\n".join(md))
 

@@ -40,7 +40,7 @@ WEIGHTS = (0.25, 0.5, 0.75)  # of the backbone in the blend
 def collect(n: int, data: str = "synth-val") -> dict[str, np.ndarray]:
     ds = SynthDataset(bench_dir(data))
     n = min(n, len(ds))
-    mp, bb = MediaPipeSource(), BackboneSource(default_body())
+    mp, bb = MediaPipeSource(model="full"), BackboneSource(default_body())
     net, search = bb.search.net, bb.search
     out = {k: np.zeros((n, 42, 2)) for k in ("gt2", *(f"{s}2" for s in SOURCES))}
     out |= {k: np.zeros((n, 42, 3)) for k in ("gt3", *(f"{s}3" for s in SOURCES))}

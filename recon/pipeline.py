@@ -24,6 +24,7 @@ from recon.body import default_body, skeleton
 from recon.errors import ReconError
 from recon.fit import FitConfig, fit_body
 from recon.keypoints import Keypoints, make_source
+from recon.keypoints.mediapipe import MODELS
 from recon.smplr import SMPLR
 from recon.smplr.lifter import Lifter
 
@@ -101,6 +102,7 @@ class ReconstructorConfig:
     the fit's 3D prior follows the same points. denoise: SMPLR's 3D DAE on the J+ first.
     retry: MediaPipe asks again on other views when it finds nobody (more people found, more
     phantoms on person-free images). guard: MediaPipe's answers scored as phantoms are refused.
+    keypoint_model: MediaPipe's landmark model, "lite", "full" or "heavy".
     smplr_path / lifter_path: other weights than the shipped ones.
     """
 
@@ -113,6 +115,7 @@ class ReconstructorConfig:
     denoise: bool = True
     retry: bool = True
     guard: bool = True
+    keypoint_model: str = "full"
     smplr_path: str | None = None
     lifter_path: str | None = None
 
@@ -135,13 +138,16 @@ class Reconstructor:
         cfg = replace(config or ReconstructorConfig(), **overrides)
         if cfg.lift not in LIFTS:
             raise ReconError(f"lift must be one of {LIFTS}, got {cfg.lift!r}")
+        if cfg.keypoint_model not in MODELS:
+            raise ReconError(f"keypoint_model must be one of {tuple(MODELS)}, got {cfg.keypoint_model!r}")
         self.config = cfg
         self.body = body or default_body()
         self.device = torch.device(cfg.device)
         self.smplr = SMPLR.load(self.body, cfg.smplr_path).to(self.device)
         self.lifter = Lifter.load(cfg.lifter_path) if cfg.lift != "source" else None
         self.source = (source if source is not None and not isinstance(source, str)
-                       else make_source(cfg.source, self.body, cfg.device, cfg.flip, cfg.retry, cfg.guard))
+                       else make_source(cfg.source, self.body, cfg.device, cfg.flip, cfg.retry, cfg.guard,
+                                   cfg.keypoint_model))
 
     @property
     def fit(self) -> FitConfig:

@@ -31,6 +31,32 @@ if ! .venv/bin/python -c "import mediapipe" 2>/dev/null; then
   .venv/bin/pip install -q --disable-pip-version-check absl-py attrs flatbuffers "protobuf<5" matplotlib sounddevice
 fi
 
+# MediaPipe's lite and heavy landmark models, which the wheel lacks, from the npm package
+# @mediapipe/pose (Apache-2.0; its full model is byte-identical to the wheel's), checksums verified.
+MP_MODELS=$(.venv/bin/python -c "import mediapipe, os; print(os.path.dirname(mediapipe.__file__))")/modules/pose_landmark
+MP_NPM=.venv/mediapipe-pose
+declare -A MP_SHA=(
+  [lite]=f17bfbecadb61c3be1baa8b8d851cc6619c870a87167b32848ad20db306b9d61
+  [heavy]=59e42d71bcd44cbdbabc419f0ff76686595fd265419566bd4009ef703ea8e1fe
+)
+for m in lite heavy; do
+  f="$MP_MODELS/pose_landmark_$m.tflite"
+  [ -f "$f" ] && echo "${MP_SHA[$m]}  $f" | sha256sum -c --quiet 2>/dev/null && continue
+  if [ ! -f "$MP_NPM/package/pose_landmark_$m.tflite" ] && command -v npm >/dev/null; then
+    mkdir -p "$MP_NPM"
+    (cd "$MP_NPM" && npm pack @mediapipe/pose@0.5.1675469404 --silent >/dev/null 2>&1 \
+      && tar xzf mediapipe-pose-0.5.1675469404.tgz package/pose_landmark_lite.tflite \
+         package/pose_landmark_heavy.tflite package/package.json && rm -f mediapipe-pose-*.tgz) || true
+  fi
+  src="$MP_NPM/package/pose_landmark_$m.tflite"
+  if [ -f "$src" ] && echo "${MP_SHA[$m]}  $src" | sha256sum -c --quiet; then
+    install -m 644 "$src" "$f.part" && mv "$f.part" "$f"
+  else
+    echo "note: MediaPipe's $m landmark model not installed (npm @mediapipe/pose unreachable or its checksum" \
+         "differs); recon uses the full model in its place"
+  fi
+done
+
 # The Khronos glTF validator, for the tests that check every .glb we write (they skip without it).
 GLTF_VALIDATOR=.venv/gltf-validator/node_modules/gltf-validator
 if command -v npm >/dev/null && [ ! -d "$GLTF_VALIDATOR" ]; then

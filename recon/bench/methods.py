@@ -83,7 +83,7 @@ def mediapipe_to_joints(w: np.ndarray) -> np.ndarray:
 
 
 class MediaPipeBaseline:
-    """MediaPipe Pose (0.10.21, model_complexity=1): 3D world landmarks (metres, hip-centred,
+    """MediaPipe Pose (0.10.21, the full landmark model): 3D world landmarks (metres, hip-centred,
     image-aligned axes = our camera axes) mapped to our joints; its segmentation mask for IoU.
     Optional extra: installed by scripts/setup.sh."""
 
@@ -92,7 +92,7 @@ class MediaPipeBaseline:
     detects = True
 
     def __init__(self, body=None):
-        self.pose = MediaPipePose(complexity=1, segmentation=True)
+        self.pose = MediaPipePose("full", segmentation=True)
 
     def __call__(self, rgb: np.ndarray, k: np.ndarray) -> Prediction | None:
         r = self.pose(rgb)
@@ -158,19 +158,22 @@ class SMPLROracle2DOrthographic:
 
 
 class MediaPipeSMPLR:
-    """The shipped image pipeline (recon.Reconstructor): MediaPipe Pose -> adapter -> J+ ->
-    DAE -> SMPLR -> mesh placed by reprojection. Uses the benchmark's K, like every method.
-    Subclasses change the keypoint ``source`` and the fit after SMPLR."""
+    """The image pipeline (recon.Reconstructor) as 0.2 shipped it: MediaPipe Pose (full landmark
+    model) -> adapter -> J+ -> DAE -> SMPLR -> mesh placed by reprojection. Uses the benchmark's K,
+    like every method. Subclasses change the keypoint ``source``, the landmark model, the lifting
+    and the fit after SMPLR."""
 
     name = "mediapipe-smplr"
-    description = "recon.Reconstructor: MediaPipe (+ its mirror image) -> adapter -> DAE -> SMPLR, no fit"
+    description = "recon.Reconstructor: MediaPipe, full model (+ its mirror image) -> adapter -> DAE -> SMPLR, no fit"
     detects = True
 
-    source, fit, lift, retry, guard = "mediapipe", FitConfig(steps=0, silhouette=0.0), "source", False, False  # 0.2's
+    # 0.2's pipeline, with MediaPipe's full landmark model whatever recon run's default
+    source, fit, lift, retry, guard, keypoint_model = ("mediapipe", FitConfig(steps=0, silhouette=0.0), "source",
+                                                       False, False, "full")
 
     def __init__(self, body):
         self.rec = Reconstructor(body=body, source=self.source, fit=replace(self.fit), lift=self.lift, retry=self.retry,
-                                 guard=self.guard)
+                                 guard=self.guard, keypoint_model=self.keypoint_model)
 
     def __call__(self, rgb: np.ndarray, k: np.ndarray) -> Prediction | None:
         r = self.rec.batch([rgb], [k])[0]
@@ -199,6 +202,17 @@ class ReconRun(MediaPipeSMPLR):
 
     def __init__(self, body):
         self.rec = Reconstructor(body=body)
+
+
+class ReconRunHeavy(MediaPipeSMPLR):
+    """``recon run --keypoint-model heavy``: MediaPipe's heavy landmark model read by the adapter
+    and guarded by the guard that were both fitted on the full model's outputs."""
+
+    name = "recon-run-heavy"
+    description = "`recon run --keypoint-model heavy` (the adapter and guard fitted on the full model's outputs)"
+
+    def __init__(self, body):
+        self.rec = Reconstructor(body=body, keypoint_model="heavy")
 
 
 class MediaPipeLifterFit(MediaPipeSMPLR):
@@ -268,7 +282,7 @@ def _backbone(crop: str, stage: str, flip: bool = False) -> type:
 
 
 METHODS = {"mean": MeanBaseline, "mediapipe": MediaPipeBaseline, "smplr-gt2d": SMPLROracle2D,
-           "smplr-gt2d-dae2d": SMPLROracle2DOrthographic, "recon-run": ReconRun,
+           "smplr-gt2d-dae2d": SMPLROracle2DOrthographic, "recon-run": ReconRun, "recon-run-heavy": ReconRunHeavy,
            "mediapipe-lifter-fit": MediaPipeLifterFit, "mediapipe-smplr": MediaPipeSMPLR,
            "mediapipe-smplr-fit-kp": MediaPipeSMPLRFitKeypoints,
            "mediapipe-smplr-fit": MediaPipeSMPLRFit, "backbone-smplr-fit": BackboneSMPLRFit}

@@ -7,6 +7,8 @@ from pathlib import Path
 from recon import paths
 from recon.cli.parsing import COUNT, Parser, actions, default, number
 from recon.keypoints import train as keypoints_train
+from recon.keypoints.adapter import WEIGHTS
+from recon.keypoints.mediapipe import MODELS
 from recon.synth import dataset
 
 
@@ -17,19 +19,25 @@ def _synth_root(name: str) -> Path:
     return Path(name) if Path(name).exists() else paths.cache_dir() / "synth" / name
 
 
-def _collected(name: str) -> Path:
-    return paths.cache_dir() / "keypoints" / _synth_root(name).name
+def _collected(name: str, model: str) -> Path:
+    """MediaPipe's outputs on a synth folder; the full model's in <cache>/keypoints/<folder>, another's
+    in <cache>/keypoints/<folder>-<model>."""
+    folder = _synth_root(name).name
+    return paths.cache_dir() / "keypoints" / (folder if model == "full" else f"{folder}-{model}")
 
 
 def collect(args) -> None:
     for name in args.data:
-        keypoints_train.collect(_synth_root(name), _collected(name), truncate=args.truncate)
-        print(_collected(name))
+        out = _collected(name, args.keypoint_model)
+        keypoints_train.collect(_synth_root(name), out, truncate=args.truncate, model=args.keypoint_model)
+        print(out)
 
 
 def train(args) -> None:
     cfg = keypoints_train.AdapterTrainConfig(epochs=args.epochs)
-    meta = keypoints_train.train([_collected(n) for n in args.data], _collected(args.val), cfg=cfg)
+    m = args.keypoint_model
+    meta = keypoints_train.train([_collected(n, m) for n in args.data], _collected(args.val, m), out=Path(args.out),
+                                 cfg=cfg, keypoint_model=m)
     print(json.dumps({k: v for k, v in meta.items() if k != "curve"}, indent=1))
 
 
@@ -38,10 +46,14 @@ def add_keypoints(p: Parser) -> None:
     a = action("collect", collect, "run MediaPipe over synth folders (resumable per shard)")
     a.add_argument("--data", nargs="+", default=["synth-val"], help="synth folders or benchmark names")
     a.add_argument("--truncate", type=number(float, 0, 1), default=0.0, help="fraction of images cut to half-body")
+    a.add_argument("--keypoint-model", choices=tuple(MODELS), default="full", help="MediaPipe's landmark model")
     a = action("train", train, "train the adapter on collected folders")
     a.add_argument("--data", nargs="+", required=True, help="collected folders (as given to collect)")
     a.add_argument("--val", default="synth-val", help="collected folder for model selection")
     a.add_argument("--epochs", type=COUNT, default=default(keypoints_train.AdapterTrainConfig, "epochs"))
+    a.add_argument("--keypoint-model", choices=tuple(MODELS), default="full",
+                   help="MediaPipe's landmark model the folders were collected with")
+    a.add_argument("--out", default=str(WEIGHTS), help="weights file (default: the shipped adapter)")
 
 
 ADD = {"keypoints": add_keypoints}

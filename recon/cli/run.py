@@ -14,6 +14,7 @@ from recon.garment import store
 from recon.garment.resize import TIGHTNESS_RANGE
 from recon.garment.templates import PRESETS
 from recon.keypoints import SOURCES
+from recon.keypoints.mediapipe import MODELS
 from recon.pipeline import LIFTS, ReconstructorConfig
 from recon.run import RunOptions, run
 
@@ -23,7 +24,7 @@ TIGHTNESS = number(float, -1.0, 1.0)
 
 def run_images(args) -> int:
     config = ReconstructorConfig(source=args.source, device=args.device, flip=args.flip, lift=args.lift,
-                                 retry=args.retry, guard=args.guard,
+                                 retry=args.retry, guard=args.guard, keypoint_model=args.keypoint_model,
                                  fit=FitConfig(steps=args.refine_steps, silhouette=args.silhouette),
                                  **({} if args.focal is None else {"focal_factor": args.focal}))
     options = RunOptions(outfit=args.outfit, tightness=args.tightness, max_people=args.max_people,
@@ -78,6 +79,8 @@ def add_run(p: Parser) -> None:
                         "image folder holds person_0/, person_1/, ... and one overlay")
     p.add_argument("--source", choices=SOURCES, default=default(cfg, "source"),
                    help="keypoints: MediaPipe + adapter, or our volumetric hourglass alone")
+    p.add_argument("--keypoint-model", choices=tuple(MODELS), default=default(cfg, "keypoint_model"),
+                   help="MediaPipe's landmark model (heavy: more accurate, ~2x the time; without its file: full)")
     p.add_argument("--retry", action=argparse.BooleanOptionalAction, default=default(cfg, "retry"),
                    help="MediaPipe: when it finds nobody, ask again on padded/mirrored views and at a lower "
                         "threshold (more people found, and more phantoms on person-free images)")

@@ -16,13 +16,14 @@ SOURCES = ("mediapipe", "backbone")
 
 
 def make_source(name: str = "mediapipe", body=None, device: str = "cpu", flip: bool | None = None,
-                retry: bool = True, guard: bool = True) -> KeypointSource:
+                retry: bool = True, guard: bool = True, keypoint_model: str = "full") -> KeypointSource:
     """Keypoint source by name: "mediapipe" (default) or "backbone". ``flip`` (test-time mirror
     averaging, see each source): None = the source's default, on for MediaPipe (cheap next to
     the fit), off for the backbone (its 100 ms latency goal). ``retry``: MediaPipe's retries on
-    other views when it finds nobody; ``guard``: refuse MediaPipe's phantoms (``MediaPipeSource``)."""
+    other views when it finds nobody; ``guard``: refuse MediaPipe's phantoms; ``keypoint_model``:
+    MediaPipe's landmark model, "lite", "full" or "heavy" (``MediaPipeSource``)."""
     if name == "mediapipe":
-        return MediaPipeSource(flip=True if flip is None else flip, retry=retry, guard=guard)
+        return MediaPipeSource(flip=True if flip is None else flip, retry=retry, guard=guard, model=keypoint_model)
     if name == "backbone":
         return BackboneSource(body, device=device, flip=bool(flip))
     raise ReconError(f"unknown keypoint source {name!r}; choose one of {', '.join(SOURCES)}")

@@ -1,6 +1,7 @@
-"""MediaPipe Pose (0.10.21, offline models in the wheel) as a person detector and 2D/3D keypoint
-source. Optional extra: scripts/setup.sh installs it without its dependency pins (numpy<2,
-protobuf<5 and jax conflict with ours; docs/install.md)."""
+"""MediaPipe Pose (0.10.21) as a person detector and 2D/3D keypoint source, with one of its three
+landmark models. Optional extra: scripts/setup.sh installs it without its dependency pins (numpy<2,
+protobuf<5 and jax conflict with ours) and adds the lite and heavy models, which the wheel lacks,
+from the npm package @mediapipe/pose (docs/install.md)."""
 from __future__ import annotations
 
 import contextlib
@@ -9,12 +10,17 @@ import logging
 import os
 import sys
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
 from recon.errors import ReconError
 
 NUM_MP = 33  # MediaPipe Pose landmarks
+# The landmark models by name, as MediaPipe's model_complexity; the wheel ships only "full".
+MODELS = {"lite": 0, "full": 1, "heavy": 2}
+log = logging.getLogger(__name__)
+_WARNED: set[str] = set()  # models already reported missing: one line per process
 
 
 @dataclass
@@ -55,17 +61,40 @@ def available() -> bool:
     return importlib.util.find_spec("mediapipe") is not None
 
 
-class MediaPipePose:
-    """One person per image: ``MediaPipePose()(rgb) -> MPPose | None`` (None: nobody found)."""
+def model_file(model: str) -> Path:
+    """Where MediaPipe looks for a landmark model: inside its own package (without the file it
+    would try to download it, so ``resolve_model`` checks first)."""
+    if model not in MODELS:
+        raise ReconError(f"unknown MediaPipe landmark model {model!r}; choose one of {', '.join(MODELS)}")
+    package = Path(importlib.util.find_spec("mediapipe").origin).parent
+    return package / "modules" / "pose_landmark" / f"pose_landmark_{model}.tflite"
 
-    def __init__(self, complexity: int = 1, segmentation: bool = True, min_confidence: float = 0.5):
+
+def resolve_model(model: str) -> str:
+    """``model`` if its file is installed, else "full" (the wheel's own) with a one-line warning."""
+    if model_file(model).is_file():
+        return model
+    if model not in _WARNED:
+        _WARNED.add(model)
+        log.warning("MediaPipe's %s landmark model is not installed (scripts/setup.sh adds it): using full",
+                    model)
+    return "full"
+
+
+class MediaPipePose:
+    """One person per image: ``MediaPipePose()(rgb) -> MPPose | None`` (None: nobody found).
+    ``model``: the landmark model, "lite", "full" or "heavy" (``MODELS``); ``self.model`` is the one
+    used ("full" when the one asked for is not installed)."""
+
+    def __init__(self, model: str = "full", segmentation: bool = True, min_confidence: float = 0.5):
         if not available():
             raise ReconError("mediapipe is not installed: scripts/setup.sh installs mediapipe==0.10.21 "
                              "(or use `recon run --source backbone`)")
         import mediapipe as mp  # noqa: PLC0415 - optional extra, imported only when used
 
+        self.model = resolve_model(model)
         with quiet_native_logs():
-            self.pose = mp.solutions.pose.Pose(static_image_mode=True, model_complexity=complexity,
+            self.pose = mp.solutions.pose.Pose(static_image_mode=True, model_complexity=MODELS[self.model],
                                                enable_segmentation=segmentation,
                                                min_detection_confidence=min_confidence)
 

@@ -111,20 +111,23 @@ class MediaPipeSource:
     ``retry``: when MediaPipe finds nobody, ask it again on the views of ``RETRIES`` (only then:
     no cost on images where it finds the person at once). ``guard``: refuse answers that
     ``recon.keypoints.guard`` takes for phantoms (as if MediaPipe had found nobody there).
-    ``people(rgb, K, n)``: up to n people, one after the other."""
+    ``people(rgb, K, n)``: up to n people, one after the other. ``model``: MediaPipe's landmark
+    model (``recon.keypoints.mediapipe.MODELS``)."""
 
     name = "mediapipe"
 
-    def __init__(self, adapter_path=None, flip: bool = True, retry: bool = True, guard: bool = True):
+    def __init__(self, adapter_path=None, flip: bool = True, retry: bool = True, guard: bool = True,
+                 model: str = "full"):
         self.adapter = KeypointAdapter.load(adapter_path)
-        self.mp = MediaPipePose()
+        self.mp = MediaPipePose(model)
+        self.model = self.mp.model
         self.flip, self.retry, self.guard = flip, retry, guard
         self._by_threshold = {0.5: self.mp}
         self.last_view = None  # which view found the person in the last call (None: nobody)
 
     def _detector(self, threshold: float) -> MediaPipePose:
         if threshold not in self._by_threshold:
-            self._by_threshold[threshold] = MediaPipePose(min_confidence=threshold)
+            self._by_threshold[threshold] = MediaPipePose(self.model, min_confidence=threshold)
         return self._by_threshold[threshold]
 
     def _detect(self, rgb: np.ndarray, k: np.ndarray):

@@ -27,17 +27,21 @@ from recon.training import Schedule, Trainer, epoch_batches
 STORE_DTYPE = torch.float32  # float16 would move published numbers: eval/results/weights-float16.md
 
 
-def collect(root: Path, out: Path, shards: list[int] | None = None, truncate: float = 0.0) -> list[Path]:
+def collect(root: Path, out: Path, shards: list[int] | None = None, truncate: float = 0.0,
+            model: str = "full") -> list[Path]:
     """Run MediaPipe over ``recon synth`` shards of ``root``; one npz per shard in ``out``
     (written atomically, skipped when present: resumable and splittable over processes).
 
     ``truncate``: fraction of images cut below a random height between the chest and the knees
     (deterministic per index), so the adapter also learns half-body photos, where the legs are
-    out of the frame. Cutting rows keeps the intrinsics unchanged."""
+    out of the frame. Cutting rows keeps the intrinsics unchanged. ``model``: MediaPipe's landmark
+    model (the adapter is trained on the outputs of the one it will read)."""
     ds = SynthDataset(root)
     n_shards = -(-len(ds) // ds.shard_size)
     todo = [k for k in (shards if shards is not None else range(n_shards)) if not (out / f"mp-{k:05d}.npz").exists()]
-    mp = MediaPipePose(segmentation=False)
+    mp = MediaPipePose(model, segmentation=False)
+    if mp.model != model:
+        raise MissingFile(f"MediaPipe's {model} landmark model is not installed: scripts/setup.sh adds it")
     written = []
     for k in tqdm(todo, desc=f"mediapipe {root.name}", unit="shard"):
         rows = []
@@ -119,12 +123,14 @@ ONE_CYCLE = Schedule(warmup=0.3, start=1 / 25, floor=1 / 25 / 1e4)  # OneCycleLR
 
 
 def train(train_dirs: list[Path], val_dir: Path, out: Path = WEIGHTS, cfg: AdapterTrainConfig | None = None,
-          model_cfg: AdapterConfig | None = None, run_dir: Path | None = None, progress: bool = True) -> dict:
+          model_cfg: AdapterConfig | None = None, run_dir: Path | None = None, progress: bool = True,
+          keypoint_model: str = "full") -> dict:
     """Train on collected train folders, select on val (best validation MPJPE), write the weights
     (with the training record inside). Resumes from ``run_dir`` (default in the cache) if an
-    earlier run was interrupted; the folder is removed once the weights are written."""
+    earlier run was interrupted; the folder is removed once the weights are written.
+    ``keypoint_model``: the MediaPipe landmark model the folders were collected with (recorded)."""
     cfg, model_cfg = cfg or AdapterTrainConfig(), model_cfg or AdapterConfig()
-    run_dir = Path(run_dir or paths.cache_dir() / "runs" / "keypoint-adapter")
+    run_dir = Path(run_dir or paths.cache_dir() / "runs" / f"keypoint-adapter-{keypoint_model}")
     torch.manual_seed(cfg.seed)
     rng = np.random.default_rng(cfg.seed)
     x, p3, p2 = (np.concatenate(a) for a in zip(*[targets(load_collected(d)) for d in train_dirs], strict=True))
@@ -137,7 +143,7 @@ def train(train_dirs: list[Path], val_dir: Path, out: Path = WEIGHTS, cfg: Adapt
     opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=1e-4)
     per_epoch = len(x) // cfg.batch
     config = {"train": asdict(cfg), "model": asdict(model_cfg), "train_dirs": [str(d) for d in train_dirs],
-              "val_dir": str(val_dir)}
+              "val_dir": str(val_dir), "keypoint_model": keypoint_model}
     trainer = Trainer({"adapter": model}, opt, cfg.epochs * per_epoch, schedule=ONE_CYCLE, eval_every=per_epoch,
                       out_dir=run_dir, select="val_mpjpe_mm", generators=[rng], config=config, desc="adapter",
                       steps_per_epoch=per_epoch, progress=progress)
