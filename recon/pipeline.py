@@ -24,7 +24,7 @@ from recon.body import default_body, skeleton
 from recon.errors import ReconError
 from recon.fit import FitConfig, fit_body
 from recon.keypoints import Keypoints, make_source
-from recon.keypoints.mediapipe import MODELS
+from recon.keypoints.mediapipe import MODELS, available, resolve_model
 from recon.smplr import SMPLR
 from recon.smplr.lifter import Lifter
 
@@ -119,6 +119,13 @@ class ReconstructorConfig:
     smplr_path: str | None = None
     lifter_path: str | None = None
 
+    def as_installed(self) -> ReconstructorConfig:
+        """This config with the MediaPipe landmark model that will run: "full" when the one asked for
+        is not installed, so that a result records what it was made from."""
+        if self.source != "mediapipe" or not available() or self.keypoint_model not in MODELS:
+            return self
+        return replace(self, keypoint_model=resolve_model(self.keypoint_model))
+
     def to_json(self) -> dict:
         """What changes the result (not the device), for the record of what a result was made from."""
         return {k: v for k, v in asdict(self).items() if k != "device"}
@@ -133,6 +140,8 @@ class Reconstructor:
         source = overrides.pop("source", None)
         if source is not None and not isinstance(source, str):
             overrides["source"] = getattr(source, "name", type(source).__name__)
+            if hasattr(source, "model"):  # a MediaPipeSource: the landmark model it runs
+                overrides["keypoint_model"] = source.model
         elif source is not None:
             overrides["source"] = source
         cfg = replace(config or ReconstructorConfig(), **overrides)
@@ -140,7 +149,7 @@ class Reconstructor:
             raise ReconError(f"lift must be one of {LIFTS}, got {cfg.lift!r}")
         if cfg.keypoint_model not in MODELS:
             raise ReconError(f"keypoint_model must be one of {tuple(MODELS)}, got {cfg.keypoint_model!r}")
-        self.config = cfg
+        self.config = cfg.as_installed()
         self.body = body or default_body()
         self.device = torch.device(cfg.device)
         self.smplr = SMPLR.load(self.body, cfg.smplr_path).to(self.device)

@@ -138,7 +138,7 @@ def run(inputs: list[str | Path], out: str | Path, options: RunOptions | None = 
     options = options or RunOptions()
     if options.max_people < 1 or options.batch_size < 1:
         raise ReconError("max_people and batch_size must be at least 1")
-    config = reconstructor.config if reconstructor is not None else (config or ReconstructorConfig())
+    config = reconstructor.config if reconstructor is not None else (config or ReconstructorConfig()).as_installed()
     out = Path(out)
     dresser = _dresser(options)
     check_writable(out)

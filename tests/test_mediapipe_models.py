@@ -9,7 +9,7 @@ import skimage.data
 from recon.cli import build_parser
 from recon.errors import ReconError
 from recon.keypoints import mediapipe
-from recon.pipeline import Reconstructor
+from recon.pipeline import Reconstructor, ReconstructorConfig
 
 needs_mediapipe = pytest.mark.skipif(not mediapipe.available(), reason="needs mediapipe (scripts/setup.sh)")
 
@@ -64,3 +64,15 @@ def test_the_flag_chooses_the_model_and_refuses_others(capsys):
     with pytest.raises(SystemExit) as e:
         parser.parse_args(["run", "--out", "o", "--keypoint-model", "huge"])
     assert e.value.code == 2 and "--keypoint-model" in capsys.readouterr().err
+
+
+@needs_mediapipe
+def test_a_result_records_the_model_that_ran(monkeypatch, tmp_path):
+    """Asked for heavy without its file, a result says full: installing heavy later redoes it."""
+    real = mediapipe.model_file
+    monkeypatch.setattr(mediapipe, "model_file", lambda m: tmp_path / "absent.tflite" if m == "heavy" else real(m))
+    assert ReconstructorConfig(keypoint_model="heavy").as_installed().keypoint_model == "full"
+    assert ReconstructorConfig(keypoint_model="lite", source="backbone").as_installed().keypoint_model == "lite"
+    monkeypatch.undo()
+    if mediapipe.model_file("heavy").is_file():
+        assert ReconstructorConfig(keypoint_model="heavy").as_installed().keypoint_model == "heavy"
