@@ -208,8 +208,13 @@ def write(out: Path, model: str, tuning: list | None, measured: list, refit: dic
         paths.write_text(out.with_suffix(".md"), "\n".join(md))
         print("\n".join(md))
         return
-    md = ["# No phantom bodies: the person guard (issue 28)", "",
-          "`eval/phantoms.py`. MediaPipe Pose proposes a full skeleton on coffee cups, rockets, a horse or a logo; "
+    title = "" if model == "full" else f" on MediaPipe's {model} landmark model"
+    note = ("" if model == "full" else f"Here with `--keypoint-model {model}`: the shipped guard, fitted on the full "
+            "model's answers ([phantoms.md](phantoms.md)), on this model's; the logistic fit on them is the JSON's "
+            "`refit`. ")
+    md = [f"# No phantom bodies: the person guard (issue 28){title}", "",
+          note + "`eval/phantoms.py`. MediaPipe Pose proposes a full skeleton on coffee cups, rockets, a horse or "
+          "a logo; "
           f"`recon.keypoints.guard` scores each answer ({guard.describe()}) from its visibilities, its box, "
           "the support of MediaPipe's own person mask under the landmarks and whether its metric 3D landmarks "
           "form a body that projects onto its 2D ones. `recon run` applies it by default (`--no-guard`: off); "
