@@ -97,6 +97,9 @@ class MediaPipePose:
             self.pose = mp.solutions.pose.Pose(static_image_mode=True, model_complexity=MODELS[self.model],
                                                enable_segmentation=segmentation,
                                                min_detection_confidence=min_confidence)
+            # The graph opens its calculators (which log) on its own threads after the constructor
+            # returns: one image through it makes them finish inside this quiet window.
+            self.pose.process(np.zeros((64, 64, 3), np.uint8))
 
     def __call__(self, rgb: np.ndarray) -> MPPose | None:
         if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
