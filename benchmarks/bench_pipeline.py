@@ -8,8 +8,9 @@ without the mirror averaging; or our hourglass: 3 passes = the whole image throu
 hourglass, then two metric crops; also with a flip on the last, 2 passes, the whole network in the
 first pass, and eager instead of the TorchScript trace), SMPLR (DAE + Omega + Psi + the full mesh)
 + placement, and the fit (``recon run``'s default: 30 steps to the keypoints and, with MediaPipe,
-its person mask; also to the keypoints only). SMPLR includes the camera-aware lifter (``recon run``'s default
-``--lift blend``); a second MediaPipe row runs 0.2's route (``--lift source``) side by side.
+its person mask; also to the keypoints only). SMPLR includes the camera-aware lifter (``recon
+run``'s default ``--lift blend``); a second MediaPipe row runs 0.2's route (``--lift source``)
+side by side.
 -> eval/results/bench-pipeline.{json,md}
 """
 from __future__ import annotations

@@ -31,7 +31,7 @@ from tqdm import tqdm
 from recon import camera, paths, report
 from recon.io import load_image, scan_inputs
 from recon.keypoints import guard
-from recon.keypoints.mediapipe import MediaPipePose
+from recon.keypoints.mediapipe import MODELS, MediaPipePose
 from recon.keypoints.sources import RETRIES, MediaPipeSource, pad_image, unview
 from recon.keypoints.train import rgb_rows
 from recon.synth.dataset import SynthDataset, bench_dir
@@ -139,7 +139,7 @@ def kept(rows: list[dict]) -> tuple[int, int]:
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--phantom-images", type=int, default=600)
-    ap.add_argument("--keypoint-model", default="full", choices=("lite", "full", "heavy"))
+    ap.add_argument("--keypoint-model", default="full", choices=tuple(MODELS))
     ap.add_argument("--bodies-only", action="store_true", help="only the bodies found on person-free images")
     ap.add_argument("--out", default=None, help="default: eval/results/phantoms[-<model>]")
     a = ap.parse_args()

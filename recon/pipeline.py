@@ -122,7 +122,7 @@ class ReconstructorConfig:
     def as_installed(self) -> ReconstructorConfig:
         """This config with the MediaPipe landmark model that will run: "full" when the one asked for
         is not installed, so that a result records what it was made from."""
-        if self.source != "mediapipe" or not available() or self.keypoint_model not in MODELS:
+        if self.source != "mediapipe" or not available():
             return self
         return replace(self, keypoint_model=resolve_model(self.keypoint_model))
 
@@ -156,7 +156,7 @@ class Reconstructor:
         self.lifter = Lifter.load(cfg.lifter_path) if cfg.lift != "source" else None
         self.source = (source if source is not None and not isinstance(source, str)
                        else make_source(cfg.source, self.body, cfg.device, cfg.flip, cfg.retry, cfg.guard,
-                                   cfg.keypoint_model))
+                                   self.config.keypoint_model))
 
     @property
     def fit(self) -> FitConfig:

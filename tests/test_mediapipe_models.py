@@ -7,8 +7,8 @@ import pytest
 import skimage.data
 
 from recon.cli import build_parser
-from recon.errors import ReconError
-from recon.keypoints import mediapipe
+from recon.errors import MissingFile, ReconError
+from recon.keypoints import mediapipe, train
 from recon.pipeline import Reconstructor, ReconstructorConfig
 
 needs_mediapipe = pytest.mark.skipif(not mediapipe.available(), reason="needs mediapipe (scripts/setup.sh)")
@@ -76,3 +76,12 @@ def test_a_result_records_the_model_that_ran(monkeypatch, tmp_path):
     monkeypatch.undo()
     if mediapipe.model_file("heavy").is_file():
         assert ReconstructorConfig(keypoint_model="heavy").as_installed().keypoint_model == "heavy"
+
+
+@needs_mediapipe
+def test_collecting_with_a_missing_model_is_refused(monkeypatch, tmp_path):
+    """An adapter's training data from another model than the one asked for would be silently wrong."""
+    monkeypatch.setattr(train, "model_file", lambda m: tmp_path / "absent.tflite")
+    with pytest.raises(MissingFile, match="heavy"):
+        train.collect(tmp_path / "no-data", tmp_path / "out", model="heavy")
+    assert not (tmp_path / "out").exists()

@@ -20,7 +20,7 @@ from recon import camera, paths
 from recon.body import skeleton
 from recon.errors import MissingFile
 from recon.keypoints.adapter import MP_MIRROR, WEIGHTS, AdapterConfig, KeypointAdapter, assemble_features, normalise_2d
-from recon.keypoints.mediapipe import NUM_MP, MediaPipePose
+from recon.keypoints.mediapipe import NUM_MP, MediaPipePose, model_file
 from recon.synth.dataset import SynthDataset
 from recon.training import Schedule, Trainer, epoch_batches
 
@@ -36,12 +36,12 @@ def collect(root: Path, out: Path, shards: list[int] | None = None, truncate: fl
     (deterministic per index), so the adapter also learns half-body photos, where the legs are
     out of the frame. Cutting rows keeps the intrinsics unchanged. ``model``: MediaPipe's landmark
     model (the adapter is trained on the outputs of the one it will read)."""
+    if not model_file(model).is_file():  # training on another model's outputs would be silently wrong
+        raise MissingFile(f"MediaPipe's {model} landmark model is not installed: scripts/setup.sh adds it")
     ds = SynthDataset(root)
     n_shards = -(-len(ds) // ds.shard_size)
     todo = [k for k in (shards if shards is not None else range(n_shards)) if not (out / f"mp-{k:05d}.npz").exists()]
     mp = MediaPipePose(model, segmentation=False)
-    if mp.model != model:
-        raise MissingFile(f"MediaPipe's {model} landmark model is not installed: scripts/setup.sh adds it")
     written = []
     for k in tqdm(todo, desc=f"mediapipe {root.name}", unit="shard"):
         rows = []
