@@ -41,8 +41,8 @@ def main() -> None:
     torch.set_num_threads(a.threads)
     body = default_body()
     images = [io.load_image(p) for p in example_photos()]
-    sources = {"mediapipe (`recon run` default: full landmark model + mirror averaging)": MediaPipeSource(),
-               "mediapipe, heavy landmark model (`--keypoint-model heavy`)": MediaPipeSource(model="heavy"),
+    sources = {"mediapipe (`recon run` default: heavy landmark model + mirror averaging)": MediaPipeSource(),
+               "mediapipe, full landmark model (`--keypoint-model full`)": MediaPipeSource(model="full"),
                "mediapipe, lite landmark model (`--keypoint-model lite`)": MediaPipeSource(model="lite"),
                "mediapipe, no person guard (`--no-guard`)": MediaPipeSource(guard=False),
                "mediapipe, no mirror averaging (`--no-flip`)": MediaPipeSource(flip=False),

@@ -20,6 +20,7 @@ generator images, on the bundled photos and on synth-val. Writes eval/results/ph
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 from pathlib import Path
 
@@ -108,7 +109,7 @@ def bodies(images, src: MediaPipeSource) -> list[str]:
 
 def fit(people: list[dict], phantoms: list[dict], l2: float = 1e-2) -> tuple[dict[str, float], float]:
     """Logistic regression of person vs phantom on ``guard.features`` (classes weighted equally)."""
-    names = list(guard.WEIGHTS)
+    names = list(guard.FULL.weights)
     x = np.array([[guard.features(r)[k] for k in names] for r in people + phantoms])
     y = torch.tensor(np.r_[np.ones(len(people)), np.zeros(len(phantoms))])
     mu, sd = x.mean(0), x.std(0)
@@ -132,8 +133,8 @@ def _few(names: list[str]) -> str:
     return ", ".join(names) if len(names) <= 6 else "-"
 
 
-def kept(rows: list[dict]) -> tuple[int, int]:
-    return sum(guard.accept(r, r["view"] != "image") for r in rows), len(rows)
+def kept(rows: list[dict], g: guard.Guard) -> tuple[int, int]:
+    return sum(g.accept(r, r["view"] != "image") for r in rows), len(rows)
 
 
 def main() -> None:
@@ -158,16 +159,17 @@ def main() -> None:
     harvest = [r for r in phantoms if r["view"].startswith("image @")]  # the fit's phantoms
     default = [r for r in phantoms if not r["view"].startswith("image @")]  # MediaPipe's own answers
     weights, bias = fit(people, harvest)
-    print("fitted:", weights, bias, "\nshipped:", guard.WEIGHTS, guard.BIAS)
+    g = guard.for_model(m)
+    print("fitted:", weights, bias, "\nshipped:", g.weights, g.bias)
 
     def pct(k):
         return f"{k[0]} / {k[1]} ({100 * k[0] / max(k[1], 1):.1f} %)"
     tuning = [
-        ["synth-val people: MediaPipe's first answer", pct(kept([r for r in people if r["view"] == "image"]))],
-        ["synth-val people: a retry view's answer", pct(kept([r for r in people if r["view"] != "image"]))],
-        ["person-free (generator): first answers", pct(kept([r for r in default if r["view"] == "image"]))],
-        ["person-free (generator): retry answers", pct(kept([r for r in default if r["view"] != "image"]))],
-        ["person-free (generator): answers at thresholds 0.1-0.3 (the fit's)", pct(kept(harvest))],
+        ["synth-val people: MediaPipe's first answer", pct(kept([r for r in people if r["view"] == "image"], g))],
+        ["synth-val people: a retry view's answer", pct(kept([r for r in people if r["view"] != "image"], g))],
+        ["person-free (generator): first answers", pct(kept([r for r in default if r["view"] == "image"], g))],
+        ["person-free (generator): retry answers", pct(kept([r for r in default if r["view"] != "image"], g))],
+        ["person-free (generator): answers at thresholds 0.1-0.3 (the fit's)", pct(kept(harvest, g))],
     ]
     ds = SynthDataset(bench_dir("synth-val"))
     sets["synth-val (a person in every image)"] = [(str(i), ds[i]["rgb"]) for i in range(len(ds))]
@@ -195,27 +197,28 @@ def bodies_found(sets: dict[str, list], model: str) -> list[list]:
 
 
 def write(out: Path, model: str, tuning: list | None, measured: list, refit: dict | None) -> None:
+    g = guard.for_model(model)
     res = {"keypoint_model": model, "tuning": tuning, "measured": measured,
-           "guard": {"weights": guard.WEIGHTS, "bias": guard.BIAS, "threshold": guard.THRESHOLD}, "refit": refit}
+           "guard": dataclasses.asdict(g), "refit": refit}
     paths.write_text(out.with_suffix(".json"), json.dumps(res, indent=1))
     bodies_table = ["## Bodies found (whole `MediaPipeSource`, retries on)", "",
                     report.table(measured, ["images", "n", "bodies, no guard", "where", "bodies, guard", "where"]), ""]
     if tuning is None:
         md = [f"# No phantom bodies with MediaPipe's {model} landmark model", "",
-              f"`eval/phantoms.py --keypoint-model {model} --bodies-only`: the shipped guard "
-              f"(fitted on the full model's answers, [phantoms.md](phantoms.md)) on the {model} model's answers.", "",
+              f"`eval/phantoms.py --keypoint-model {model} --bodies-only`: the {model} model's guard "
+              f"({guard.for_model(model).describe()}).", "",
               *bodies_table]
         paths.write_text(out.with_suffix(".md"), "\n".join(md))
         print("\n".join(md))
         return
     title = "" if model == "full" else f" on MediaPipe's {model} landmark model"
-    note = ("" if model == "full" else f"Here with `--keypoint-model {model}`: the shipped guard, fitted on the full "
-            "model's answers ([phantoms.md](phantoms.md)), on this model's; the logistic fit on them is the JSON's "
-            "`refit`. ")
+    note = ("" if model == "full" else f"Here with `--keypoint-model {model}` and its guard (thresholds: "
+            f"[guard-thresholds-{model}](guard-thresholds-{model}.md)); the logistic fit on this model's answers is "
+            "the JSON's `refit` (not shipped: it lets more phantoms through there). ")
     md = [f"# No phantom bodies: the person guard (issue 28){title}", "",
           note + "`eval/phantoms.py`. MediaPipe Pose proposes a full skeleton on coffee cups, rockets, a horse or "
           "a logo; "
-          f"`recon.keypoints.guard` scores each answer ({guard.describe()}) from its visibilities, its box, "
+          f"`recon.keypoints.guard` scores each answer ({g.describe()}) from its visibilities, its box, "
           "the support of MediaPipe's own person mask under the landmarks and whether its metric 3D landmarks "
           "form a body that projects onto its 2D ones. `recon run` applies it by default (`--no-guard`: off); "
           "a refused first answer goes on to the retry views, as a miss does.", "",

@@ -24,7 +24,7 @@ from recon.body import default_body, skeleton
 from recon.errors import ReconError
 from recon.fit import FitConfig, fit_body
 from recon.keypoints import Keypoints, make_source
-from recon.keypoints.mediapipe import MODELS, available, resolve_model
+from recon.keypoints.mediapipe import DEFAULT_MODEL, MODELS, available, resolve_model
 from recon.smplr import SMPLR
 from recon.smplr.lifter import Lifter
 
@@ -102,7 +102,8 @@ class ReconstructorConfig:
     the fit's 3D prior follows the same points. denoise: SMPLR's 3D DAE on the J+ first.
     retry: MediaPipe asks again on other views when it finds nobody (more people found, more
     phantoms on person-free images). guard: MediaPipe's answers scored as phantoms are refused.
-    keypoint_model: MediaPipe's landmark model, "lite", "full" or "heavy".
+    keypoint_model: MediaPipe's landmark model, "lite", "full" or "heavy" (its own adapter and guard;
+    "full" when the file asked for is not installed).
     smplr_path / lifter_path: other weights than the shipped ones.
     """
 
@@ -115,7 +116,7 @@ class ReconstructorConfig:
     denoise: bool = True
     retry: bool = True
     guard: bool = True
-    keypoint_model: str = "full"
+    keypoint_model: str = DEFAULT_MODEL
     smplr_path: str | None = None
     lifter_path: str | None = None
 

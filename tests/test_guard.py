@@ -8,7 +8,7 @@ from recon.demo import EXAMPLES
 from recon.keypoints import available as mediapipe_available
 from recon.keypoints import guard
 from recon.keypoints.adapter import WEIGHTS as ADAPTER_WEIGHTS
-from recon.keypoints.mediapipe import MPPose
+from recon.keypoints.mediapipe import MODELS, MPPose
 from recon.keypoints.sources import MediaPipeSource
 
 needs_mediapipe = pytest.mark.skipif(not (mediapipe_available() and ADAPTER_WEIGHTS.exists()),
@@ -35,14 +35,24 @@ def _standing(scale=100.0, seen=1.0):
 def test_evidence_and_score_follow_the_answer():
     person = guard.evidence(_standing(), (320, 320))
     assert person["asym"] < 1e-6 and person["proj"] < 0.05 and 0.2 < person["aspect"] < 0.6
-    assert guard.accept(person) and guard.accept(person, retry=True)
     doubtful = guard.evidence(_standing(seen=0.2), (320, 320))  # MediaPipe unsure of every landmark
-    assert guard.score(doubtful) < guard.score(person) - 3 and not guard.accept(doubtful)
     tiny = guard.evidence(_standing(scale=8.0), (320, 320))  # a few pixels tall
-    assert guard.score(tiny) < guard.score(person)
     no_mask = guard.evidence(MPPose(*[getattr(_standing(), f) for f in ("image_xy", "visibility", "world")], None),
                              (320, 320))
-    assert no_mask["mask_box"] == -1.0 and guard.accept(no_mask)  # no mask: neutral, not a refusal
+    assert no_mask["mask_box"] == -1.0
+    for model in MODELS:
+        g = guard.for_model(model)
+        assert g.accept(person) and g.accept(person, retry=True)
+        assert g.score(doubtful) < g.score(person) - 3 and not g.accept(doubtful)
+        assert g.score(tiny) < g.score(person)
+        assert g.accept(no_mask)  # no mask: neutral, not a refusal
+
+
+def test_a_retry_answer_needs_more_than_a_first_answer():
+    for model in MODELS:
+        t = guard.for_model(model).threshold
+        assert t["retry"] > t["image"] and t["confirmed"] <= t["retry"]
+    assert guard.for_model("lite") is guard.FULL  # no guard of its own
 
 
 @needs_mediapipe
@@ -70,5 +80,6 @@ def test_the_guard_is_what_refuses_the_horse():
 @pytest.mark.parametrize("path", sorted(EXAMPLES.glob("*.jpg")), ids=lambda p: p.name)
 def test_people_in_the_bundled_photos_are_kept(path):
     img = io.load_image(path)
-    kp = MediaPipeSource()(img, camera.default_intrinsics(*img.shape[:2]))
-    assert kp is not None and kp.person_score >= guard.THRESHOLD["image"]
+    src = MediaPipeSource()
+    kp = src(img, camera.default_intrinsics(*img.shape[:2]))
+    assert kp is not None and kp.person_score >= src.person_guard.threshold["image"]

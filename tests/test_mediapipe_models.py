@@ -1,14 +1,19 @@
 """MediaPipe's three landmark models: chosen by name, a missing file falls back to full (one warning,
 no download attempt), an unknown name is refused before anything runs."""
+import json
 import logging
 
 import numpy as np
 import pytest
 import skimage.data
+import torch
 
+from recon import paths
 from recon.cli import build_parser
 from recon.errors import MissingFile, ReconError
-from recon.keypoints import mediapipe, train
+from recon.keypoints import guard, mediapipe, train
+from recon.keypoints.adapter import KeypointAdapter, weights_for
+from recon.keypoints.sources import MediaPipeSource
 from recon.pipeline import Reconstructor, ReconstructorConfig
 
 needs_mediapipe = pytest.mark.skipif(not mediapipe.available(), reason="needs mediapipe (scripts/setup.sh)")
@@ -60,7 +65,7 @@ def test_heavy_and_full_find_the_same_person():
 def test_the_flag_chooses_the_model_and_refuses_others(capsys):
     parser = build_parser()
     assert parser.parse_args(["run", "--out", "o", "--keypoint-model", "heavy"]).keypoint_model == "heavy"
-    assert parser.parse_args(["run", "--out", "o"]).keypoint_model == "full"
+    assert parser.parse_args(["run", "--out", "o"]).keypoint_model == mediapipe.DEFAULT_MODEL == "heavy"
     with pytest.raises(SystemExit) as e:
         parser.parse_args(["run", "--out", "o", "--keypoint-model", "huge"])
     assert e.value.code == 2 and "--keypoint-model" in capsys.readouterr().err
@@ -85,3 +90,47 @@ def test_collecting_with_a_missing_model_is_refused(monkeypatch, tmp_path):
     with pytest.raises(MissingFile, match="heavy"):
         train.collect(tmp_path / "no-data", tmp_path / "out", model="heavy")
     assert not (tmp_path / "out").exists()
+
+
+def test_each_landmark_model_reads_the_adapter_trained_on_its_answers():
+    """heavy's landmarks differ from full's (above): each has its adapter, whose training record names
+    the model it was collected with; lite, without one, reads full's."""
+    assert weights_for("lite") == weights_for("full") != weights_for("heavy")
+    for model in ("full", "heavy"):
+        meta = json.loads(paths.load_checkpoint(weights_for(model), "recon keypoints train")["meta_json"])
+        assert meta.get("keypoint_model", "full") == model
+    a, b = KeypointAdapter.load(model="full"), KeypointAdapter.load(model="heavy")
+    assert any(not torch.equal(x, y) for x, y in zip(a.state_dict().values(), b.state_dict().values(), strict=True))
+
+
+@needs_mediapipe
+def test_the_source_uses_the_adapter_and_guard_of_the_model_that_runs(monkeypatch, tmp_path):
+    real = mediapipe.model_file
+    monkeypatch.setattr(mediapipe, "model_file", lambda m: tmp_path / "absent.tflite" if m == "heavy" else real(m))
+    src = MediaPipeSource(model="heavy")  # heavy missing: full runs, with full's adapter and guard
+    assert src.model == "full" and src.person_guard is guard.for_model("full")
+    ref = KeypointAdapter.load(model="full").state_dict()
+    assert all(torch.equal(v, ref[k]) for k, v in src.adapter.state_dict().items())
+
+
+def test_adapter_evaluation_counts_found_images_and_measures_root_relative_joints(tmp_path):
+    """``recon keypoints eval``: only the images MediaPipe found count; an adapter that answers zeros
+    is off by the distance of each joint to the root."""
+    rng = np.random.default_rng(0)
+    n = 6
+    k = np.tile(np.array([[200.0, 0, 128], [0, 200.0, 128], [0, 0, 1]], np.float32), (n, 1, 1))
+    p3 = rng.normal(0, 0.3, (n, 42, 3)).astype(np.float32) + [0, 0, 3]
+    xy = rng.uniform(50, 200, (n, mediapipe.NUM_MP, 2)).astype(np.float32)
+    found = np.array([True, True, False, True, False, True])
+    np.savez(tmp_path / "mp-00000.npz", found=found, xy=xy, world=rng.normal(0, 0.3, (n, 33, 3)).astype(np.float32),
+             vis=np.ones((n, 33), np.float32), cut=np.full(n, 256), K=k, points3d=p3,
+             points2d=rng.uniform(50, 200, (n, 42, 2)).astype(np.float32))
+
+    class Zeros(torch.nn.Module):
+        def forward(self, x):
+            return torch.zeros(len(x), 42, 3), torch.zeros(len(x), 42, 2)
+
+    r = train.evaluate(Zeros(), tmp_path)
+    rel = (p3 - p3[:, :1])[found][:, :24]
+    assert r["samples"] == 4 and r["found_rate"] == pytest.approx(4 / 6)
+    assert r["mpjpe_mm"] == pytest.approx(1000 * np.linalg.norm(rel, axis=-1).mean(), rel=1e-5)

@@ -204,15 +204,15 @@ class ReconRun(MediaPipeSMPLR):
         self.rec = Reconstructor(body=body)
 
 
-class ReconRunHeavy(MediaPipeSMPLR):
-    """``recon run --keypoint-model heavy``: MediaPipe's heavy landmark model read by the adapter
-    and guarded by the guard that were both fitted on the full model's outputs."""
+class ReconRunFull(MediaPipeSMPLR):
+    """``recon run --keypoint-model full``: MediaPipe's full landmark model (the wheel's own) with its
+    own adapter and guard; ``recon run``'s default before 0.6."""
 
-    name = "recon-run-heavy"
-    description = "`recon run --keypoint-model heavy` (the adapter and guard fitted on the full model's outputs)"
+    name = "recon-run-full"
+    description = "`recon run --keypoint-model full` (the default before 0.6)"
 
     def __init__(self, body):
-        self.rec = Reconstructor(body=body, keypoint_model="heavy")
+        self.rec = Reconstructor(body=body, keypoint_model="full")
 
 
 class MediaPipeLifterFit(MediaPipeSMPLR):
@@ -282,7 +282,7 @@ def _backbone(crop: str, stage: str, flip: bool = False) -> type:
 
 
 METHODS = {"mean": MeanBaseline, "mediapipe": MediaPipeBaseline, "smplr-gt2d": SMPLROracle2D,
-           "smplr-gt2d-dae2d": SMPLROracle2DOrthographic, "recon-run": ReconRun, "recon-run-heavy": ReconRunHeavy,
+           "smplr-gt2d-dae2d": SMPLROracle2DOrthographic, "recon-run": ReconRun, "recon-run-full": ReconRunFull,
            "mediapipe-lifter-fit": MediaPipeLifterFit, "mediapipe-smplr": MediaPipeSMPLR,
            "mediapipe-smplr-fit-kp": MediaPipeSMPLRFitKeypoints,
            "mediapipe-smplr-fit": MediaPipeSMPLRFit, "backbone-smplr-fit": BackboneSMPLRFit}

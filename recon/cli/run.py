@@ -80,7 +80,7 @@ def add_run(p: Parser) -> None:
     p.add_argument("--source", choices=SOURCES, default=default(cfg, "source"),
                    help="keypoints: MediaPipe + adapter, or our volumetric hourglass alone")
     p.add_argument("--keypoint-model", choices=tuple(MODELS), default=default(cfg, "keypoint_model"),
-                   help="MediaPipe's landmark model (heavy: more accurate, ~2x the time; without its file: full)")
+                   help="MediaPipe's landmark model (full: ~half the time, less accurate; without heavy's file: full)")
     p.add_argument("--retry", action=argparse.BooleanOptionalAction, default=default(cfg, "retry"),
                    help="MediaPipe: when it finds nobody, ask again on padded/mirrored views and at a lower "
                         "threshold (more people found, and more phantoms on person-free images)")

@@ -9,14 +9,14 @@ from __future__ import annotations
 
 from recon.errors import ReconError
 from recon.keypoints.base import Keypoints, KeypointSource
-from recon.keypoints.mediapipe import MediaPipePose, MPPose, available
+from recon.keypoints.mediapipe import DEFAULT_MODEL, MediaPipePose, MPPose, available
 from recon.keypoints.sources import BackboneSource, MediaPipeSource
 
 SOURCES = ("mediapipe", "backbone")
 
 
 def make_source(name: str = "mediapipe", body=None, device: str = "cpu", flip: bool | None = None,
-                retry: bool = True, guard: bool = True, keypoint_model: str = "full") -> KeypointSource:
+                retry: bool = True, guard: bool = True, keypoint_model: str = DEFAULT_MODEL) -> KeypointSource:
     """Keypoint source by name: "mediapipe" (default) or "backbone". ``flip`` (test-time mirror
     averaging, see each source): None = the source's default, on for MediaPipe (cheap next to
     the fit), off for the backbone (its 100 ms latency goal). ``retry``: MediaPipe's retries on

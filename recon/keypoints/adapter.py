@@ -26,7 +26,14 @@ from recon.body import skeleton
 from recon.keypoints.mediapipe import NUM_MP, MPPose
 from recon.smplr.networks import NormResidualBlock
 
-WEIGHTS = Path(__file__).resolve().parent / "weights" / "mp_adapter.pt"
+WEIGHTS = Path(__file__).resolve().parent / "weights" / "mp_adapter.pt"  # trained on the full model's answers
+# The weights trained on each landmark model's answers; lite reads full's.
+WEIGHTS_BY_MODEL = {"full": WEIGHTS, "heavy": WEIGHTS.with_name("mp_adapter_heavy.pt")}
+
+
+def weights_for(model: str) -> Path:
+    """The shipped adapter for MediaPipe's ``model`` (``recon.keypoints.mediapipe.MODELS``)."""
+    return WEIGHTS_BY_MODEL.get(model, WEIGHTS)
 
 # Left/right flip map of MediaPipe Pose's 33 landmarks.
 MP_MIRROR = (0, 4, 5, 6, 1, 2, 3, 8, 7, 10, 9) + tuple(i + 1 if i % 2 else i - 1 for i in range(11, 33))
@@ -79,9 +86,10 @@ class KeypointAdapter(nn.Module):
         return y[..., :3], y[..., 3:]
 
     @classmethod
-    def load(cls, path: str | Path | None = None) -> KeypointAdapter:
-        """The shipped weights or a trained file (float16 files are read as float32)."""
-        ck = paths.load_checkpoint(path or WEIGHTS, "recon keypoints train")
+    def load(cls, path: str | Path | None = None, model: str = "full") -> KeypointAdapter:
+        """A trained file, else the shipped weights for MediaPipe's landmark ``model`` (float16
+        files are read as float32)."""
+        ck = paths.load_checkpoint(path or weights_for(model), "recon keypoints train")
         m = cls(AdapterConfig(**ck["cfg"]))
         m.load_state_dict(ck["state"])
         return m.eval()

@@ -9,6 +9,8 @@ eval/results/phantoms.md).
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import cv2
 import numpy as np
 
@@ -69,18 +71,8 @@ def evidence(r: MPPose, image_shape) -> dict[str, float]:
     return ev
 
 
-# A logistic score over the evidence (names -> weight), fitted by eval/phantoms.py on synth-val
-# people (every MediaPipe answer, whole and cut to half-body) against the phantoms MediaPipe gives on
-# the generator's person-free images at low detection thresholds. Thresholds, set on its default
-# answers there (eval/results/phantoms.md): a first answer needs -1; a retry view's answer, where
-# phantoms come from, needs 2 or, from -1, MediaPipe's confirmation on a crop around it
-# (``MediaPipeSource``).
-WEIGHTS = {"log_box_px": -0.284, "box_frac": 2.624, "conf": 1.458, "conf_core": 2.551, "log_proj": -0.554,
-           "mask_box": -1.364, "mask_lm": 2.477, "log_aspect": -0.296, "asym": -0.705, "seen": 1.146,
-           "inside": 1.552, "upright": 0.72}
-BIAS = -8.271
-THRESHOLD = {"image": -1.0, "retry": 2.0, "confirmed": -1.0}
-NO_MASK = {"mask_box": 0.47, "mask_lm": 1.0}  # the people's medians: no mask is no evidence either way
+# No mask is no evidence either way: the people's medians stand in for it.
+NO_MASK = {"mask_box": 0.47, "mask_lm": 1.0}
 
 
 def features(ev: dict[str, float]) -> dict[str, float]:
@@ -91,21 +83,50 @@ def features(ev: dict[str, float]) -> dict[str, float]:
             "seen": ev["seen"], "inside": ev["inside"], "upright": float(np.cos(np.radians(ev["tilt"])))}
 
 
-def score(ev: dict[str, float], weights: dict[str, float] | None = None, bias: float | None = None) -> float:
-    """The logistic score (log-odds of person) of one answer's evidence."""
-    w, b = weights or WEIGHTS, BIAS if bias is None else bias
-    return float(sum(w[k] * v for k, v in features(ev).items()) + b)
+@dataclass(frozen=True)
+class Guard:
+    """A logistic score over the evidence (``features`` name -> weight, plus a bias) and its
+    thresholds: a first answer needs ``image``; a retry view's answer, where phantoms come from,
+    needs ``retry`` or, from ``confirmed``, MediaPipe's confirmation on a crop around it
+    (``MediaPipeSource``)."""
+
+    weights: dict[str, float]
+    bias: float
+    threshold: dict[str, float]
+
+    def score(self, ev: dict[str, float]) -> float:
+        """The log-odds of person of one answer's evidence."""
+        return float(sum(self.weights[k] * v for k, v in features(ev).items()) + self.bias)
+
+    def accept(self, ev: dict[str, float], retry: bool = False, confirmed: bool = False) -> bool:
+        """Whether an answer's evidence says person; ``retry``: it came from a retry view,
+        ``confirmed``: MediaPipe found the same person again on a crop around it."""
+        s = self.score(ev)
+        t = self.threshold
+        return s >= t["image"] if not retry else s >= t["retry"] or (confirmed and s >= t["confirmed"])
+
+    def describe(self) -> str:
+        t = self.threshold
+        return (f"a logistic score of {len(self.weights)} evidence terms: at least {t['image']:g} for MediaPipe's "
+                f"first answer; for a retry view's, {t['retry']:g}, or {t['confirmed']:g} when MediaPipe "
+                "finds the same person again on a crop around it")
 
 
-def accept(ev: dict[str, float], retry: bool = False, confirmed: bool = False) -> bool:
-    """Whether an answer's evidence says person; ``retry``: it came from a retry view,
-    ``confirmed``: MediaPipe found the same person again on a crop around it."""
-    s = score(ev)
-    return s >= THRESHOLD["image"] if not retry else s >= THRESHOLD["retry"] or (
-        confirmed and s >= THRESHOLD["confirmed"])
+# The score fitted by eval/phantoms.py on synth-val people (every MediaPipe answer, whole and cut to
+# half-body) against the phantoms MediaPipe gives on the generator's person-free images at low
+# detection thresholds; thresholds set per landmark model on its default answers there and on the
+# person-free images (eval/results/phantoms[-<model>].md). lite has no guard of its own: full's.
+FULL = Guard(
+    weights={"log_box_px": -0.284, "box_frac": 2.624, "conf": 1.458, "conf_core": 2.551, "log_proj": -0.554,
+             "mask_box": -1.364, "mask_lm": 2.477, "log_aspect": -0.296, "asym": -0.705, "seen": 1.146,
+             "inside": 1.552, "upright": 0.72},
+    bias=-8.271, threshold={"image": -1.0, "retry": 2.0, "confirmed": -1.0})
+# heavy: full's score (a logistic fit on heavy's own answers lets more phantoms through), with a
+# higher bar for retry answers, where heavy's phantoms come from
+HEAVY = Guard(weights=FULL.weights, bias=FULL.bias, threshold={"image": -1.0, "retry": 2.5, "confirmed": 0.0})
+GUARDS = {"full": FULL, "heavy": HEAVY}
 
 
-def describe() -> str:
-    return (f"a logistic score of {len(WEIGHTS)} evidence terms: at least {THRESHOLD['image']:g} for MediaPipe's "
-            f"first answer; for a retry view's, {THRESHOLD['retry']:g}, or {THRESHOLD['confirmed']:g} when MediaPipe "
-            "finds the same person again on a crop around it")
+def for_model(model: str) -> Guard:
+    """The guard fitted on a landmark model's answers (full's for a model without one)."""
+    return GUARDS.get(model, FULL)

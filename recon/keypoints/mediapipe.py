@@ -19,6 +19,7 @@ from recon.errors import ReconError
 NUM_MP = 33  # MediaPipe Pose landmarks
 # The landmark models by name, as MediaPipe's model_complexity; the wheel ships only "full".
 MODELS = {"lite": 0, "full": 1, "heavy": 2}
+DEFAULT_MODEL = "heavy"  # recon run's: the most accurate (scripts/setup.sh installs it)
 log = logging.getLogger(__name__)
 _WARNED: set[str] = set()  # models already reported missing: one line per process
 

@@ -16,7 +16,7 @@ from recon.body import skeleton
 from recon.keypoints import guard as person_guard
 from recon.keypoints.adapter import MP_MIRROR, KeypointAdapter
 from recon.keypoints.base import Keypoints
-from recon.keypoints.mediapipe import MediaPipePose, MPPose
+from recon.keypoints.mediapipe import DEFAULT_MODEL, MediaPipePose, MPPose
 
 GRAY_TINT = (1.05, 0.85, 0.85)  # a warm tint for grayscale images; the choice: CHANGELOG 0.5.0
 GRAY_SMALL = 256  # grayscale images are also searched at this longer side
@@ -117,11 +117,12 @@ class MediaPipeSource:
     name = "mediapipe"
 
     def __init__(self, adapter_path=None, flip: bool = True, retry: bool = True, guard: bool = True,
-                 model: str = "full"):
-        self.adapter = KeypointAdapter.load(adapter_path)
+                 model: str = DEFAULT_MODEL):
         self.mp = MediaPipePose(model)
-        self.model = self.mp.model
+        self.model = self.mp.model  # the model that runs (full when the file asked for is missing)
+        self.adapter = KeypointAdapter.load(adapter_path, self.model)
         self.flip, self.retry, self.guard = flip, retry, guard
+        self.person_guard = person_guard.for_model(self.model)  # fitted on this landmark model's answers
         self._by_threshold = {0.5: self.mp}
         self.last_view = None  # which view found the person in the last call (None: nobody)
 
@@ -138,10 +139,10 @@ class MediaPipeSource:
         """The guard's score of an answer, None when the guard refuses it (a phantom). ``retry``:
         the answer needs a retry view's evidence."""
         ev = person_guard.evidence(r, rgb.shape)
-        s = person_guard.score(ev)
-        if not self.guard or person_guard.accept(ev, retry):
+        s = self.person_guard.score(ev)
+        if not self.guard or self.person_guard.accept(ev, retry):
             return s
-        if retry and s >= person_guard.THRESHOLD["confirmed"] and self._confirmed(rgb, r):
+        if retry and s >= self.person_guard.threshold["confirmed"] and self._confirmed(rgb, r):
             return s
         return None
 

@@ -99,6 +99,18 @@ def targets(d: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarra
     return x, p3.astype(np.float32), p2.astype(np.float32)
 
 
+@torch.no_grad()
+def evaluate(model: KeypointAdapter, folder: Path) -> dict[str, float]:
+    """An adapter on a collected folder: the images MediaPipe found, their 24 joints' 3D error
+    (root-relative, camera axes, no alignment; mm) and 2D error (scaled units), as in training."""
+    d = load_collected(folder)
+    x, p3, p2 = (torch.from_numpy(a) for a in targets(d))
+    y3, y2 = model.eval()(x)
+    return {"found_rate": float(d["found_rate"]), "samples": len(x),
+            "mpjpe_mm": float((y3 - p3)[:, :24].norm(dim=-1).mean()) * 1000,
+            "error_2d_scaled": float((y2 - p2).norm(dim=-1).mean())}
+
+
 def flip(x: np.ndarray, p3: np.ndarray, p2: np.ndarray):
     """Mirror a batch left/right (x -> -x, swap sides) for augmentation."""
     x = x.reshape(len(x), NUM_MP, 6)[:, list(MP_MIRROR)].copy()
