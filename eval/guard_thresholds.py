@@ -15,15 +15,14 @@ import argparse
 import dataclasses
 import hashlib
 import itertools
-import json
 import pickle
 
 import numpy as np
 import torch
-from phantoms import person_free_sets  # eval/ sibling
+from phantoms import bodies, person_free_sets  # eval/ sibling
 from tqdm import tqdm
 
-from recon import camera, paths, report
+from recon import paths, report
 from recon.keypoints import guard
 from recon.keypoints.mediapipe import MODELS, MediaPipePose
 from recon.keypoints.sources import RETRIES, MediaPipeSource
@@ -55,11 +54,6 @@ def memoised_source(model: str, answers: dict) -> MediaPipeSource:
     return src
 
 
-def found(src: MediaPipeSource, images: list, desc: str | None = None) -> list[str]:
-    it = tqdm(images, desc=desc) if desc else images
-    return [n for n, im in it if src(im, camera.default_intrinsics(*im.shape[:2])) is not None]
-
-
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--keypoint-model", default="heavy", choices=tuple(MODELS))
@@ -78,21 +72,20 @@ def main() -> None:
         for th in LOOSE:
             src.person_guard = dataclasses.replace(shipped, threshold=th)
             for name, images in sets.items():
-                found(src, images, name)
+                bodies(tqdm(images, desc=name), src)
         paths.atomic_write(memo, lambda t: t.write_bytes(pickle.dumps(answers)))
     rows = []
     for ti, tr, tc in itertools.product(*GRID.values()):
         if tc > tr:
             continue
         src.person_guard = dataclasses.replace(shipped, threshold={"image": ti, "retry": tr, "confirmed": tc})
-        counts = [len(found(src, images)) for images in sets.values()]
+        counts = [len(bodies(images, src)) for images in sets.values()]
         rows.append([ti, tr, tc, *counts, "shipped" if src.person_guard.threshold == shipped.threshold else ""])
     names = list(sets)
     short = ["person-free (error budget)", "person-free (generator)", "bundled photos", "synth-val people"]
     header = ["image", "retry", "confirmed", *[f"{s} ({len(sets[n])})" for s, n in zip(short, names, strict=True)], ""]
     res = {"keypoint_model": m, "guard": dataclasses.asdict(shipped), "sets": names, "rows": rows}
     out = report.RESULTS / f"guard-thresholds-{m}"
-    paths.write_text(out.with_suffix(".json"), json.dumps(res, indent=1))
     md = [f"# The person guard's thresholds on MediaPipe's {m} landmark model", "",
           f"`eval/guard_thresholds.py --keypoint-model {m}`: the whole `MediaPipeSource` with each setting "
           "(bodies on person-free images: fewer is better; bundled photos and synth-val people found: more is "
@@ -100,7 +93,7 @@ def main() -> None:
           "The rule of the choice: no body on the 30 images, none more than the full model's guard gives on the "
           "600 (5, [phantoms.md](phantoms.md)), then the most people.", "",
           report.table(rows, header), ""]
-    paths.write_text(out.with_suffix(".md"), "\n".join(md))
+    report.write(out, res, "\n".join(md))
     print("\n".join(md))
 
 

@@ -12,7 +12,6 @@ eval/results/multi-person.md and .json. Tuning data only (synth-val).
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import cv2
@@ -85,7 +84,6 @@ def main() -> None:
     headers = ["images", "n", "people", "found, one per image %", f"found, --max-people {a.max_people} %",
                "extra bodies"]
     out = Path(a.out)
-    paths.write_text(out.with_suffix(".json"), json.dumps({"rows": rows, "headers": headers}, indent=1))
     md = ["# Every person in a photo (issue 28)", "",
           "`eval/multi_person.py`: synth-val renders side by side (each person in its own 256 x 256 tile), "
           "through `MediaPipeSource.people` (find a person, paint it over, ask again, on the whole image and, "
@@ -93,7 +91,7 @@ def main() -> None:
           "(IoU > 0.3). In 3:1 strips MediaPipe often finds nobody in the whole image (it sees it at 224 px), "
           "and then no window is searched: on person-free images that is where phantoms would come from.", "",
           report.table(rows, headers), ""]
-    paths.write_text(out.with_suffix(".md"), "\n".join(md))
+    report.write(out, {"rows": rows, "headers": headers}, "\n".join(md))
     print("\n".join(md))
 
 

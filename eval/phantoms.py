@@ -200,15 +200,14 @@ def write(out: Path, model: str, tuning: list | None, measured: list, refit: dic
     g = guard.for_model(model)
     res = {"keypoint_model": model, "tuning": tuning, "measured": measured,
            "guard": dataclasses.asdict(g), "refit": refit}
-    paths.write_text(out.with_suffix(".json"), json.dumps(res, indent=1))
     bodies_table = ["## Bodies found (whole `MediaPipeSource`, retries on)", "",
                     report.table(measured, ["images", "n", "bodies, no guard", "where", "bodies, guard", "where"]), ""]
     if tuning is None:
         md = [f"# No phantom bodies with MediaPipe's {model} landmark model", "",
               f"`eval/phantoms.py --keypoint-model {model} --bodies-only`: the {model} model's guard "
-              f"({guard.for_model(model).describe()}).", "",
+              f"({g.describe()}).", "",
               *bodies_table]
-        paths.write_text(out.with_suffix(".md"), "\n".join(md))
+        report.write(out, res, "\n".join(md))
         print("\n".join(md))
         return
     title = "" if model == "full" else f" on MediaPipe's {model} landmark model"
@@ -228,7 +227,7 @@ def write(out: Path, model: str, tuning: list | None, measured: list, refit: dic
           "tuning set; the person-free sample photos share pictures with the generator's backgrounds.", "",
           "## Answers the score keeps (tuning sets; retry answers before the crop confirmation)", "",
           report.table(tuning, ["answers", "kept"]), "", *bodies_table]
-    paths.write_text(out.with_suffix(".md"), "\n".join(md))
+    report.write(out, res, "\n".join(md))
     print("\n".join(md))
 
 

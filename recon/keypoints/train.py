@@ -100,15 +100,19 @@ def targets(d: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarra
 
 
 @torch.no_grad()
+def errors(model: KeypointAdapter, x: torch.Tensor, p3: torch.Tensor, p2: torch.Tensor) -> tuple[float, float]:
+    """The 24 joints' 3D error (root-relative, camera axes, no alignment; mm) and the J+ 2D error
+    (scaled units) of an adapter in eval mode on ``targets``."""
+    y3, y2 = model.eval()(x)
+    return float((y3 - p3)[:, :24].norm(dim=-1).mean()) * 1000, float((y2 - p2).norm(dim=-1).mean())
+
+
 def evaluate(model: KeypointAdapter, folder: Path) -> dict[str, float]:
-    """An adapter on a collected folder: the images MediaPipe found, their 24 joints' 3D error
-    (root-relative, camera axes, no alignment; mm) and 2D error (scaled units), as in training."""
+    """An adapter on a collected folder: ``errors`` on the images MediaPipe found, as in training."""
     d = load_collected(folder)
     x, p3, p2 = (torch.from_numpy(a) for a in targets(d))
-    y3, y2 = model.eval()(x)
-    return {"found_rate": float(d["found_rate"]), "samples": len(x),
-            "mpjpe_mm": float((y3 - p3)[:, :24].norm(dim=-1).mean()) * 1000,
-            "error_2d_scaled": float((y2 - p2).norm(dim=-1).mean())}
+    mpjpe, err_2d = errors(model, x, p3, p2)
+    return {"found_rate": float(d["found_rate"]), "samples": len(x), "mpjpe_mm": mpjpe, "error_2d_scaled": err_2d}
 
 
 def flip(x: np.ndarray, p3: np.ndarray, p2: np.ndarray):
@@ -165,12 +169,9 @@ def train(train_dirs: list[Path], val_dir: Path, out: Path = WEIGHTS, cfg: Adapt
         y3, y2 = model(x[idx])
         return (y3 - p3[idx]).norm(dim=-1).mean() + cfg.weight_2d * (y2 - p2[idx]).norm(dim=-1).mean()
 
-    @torch.no_grad()
     def validate() -> dict:
-        model.eval()
-        y3, y2 = model(vx)
-        return {"val_mpjpe_mm": float((y3 - v3)[:, :24].norm(dim=-1).mean()) * 1000,
-                "val_2d_scaled": float((y2 - v2).norm(dim=-1).mean())}
+        mpjpe, err_2d = errors(model, vx, v3, v2)
+        return {"val_mpjpe_mm": mpjpe, "val_2d_scaled": err_2d}
 
     log = trainer.fit(epoch_batches(len(x), cfg.batch, trainer.step, rng), step, validate)
     trainer.load_best()
