@@ -7,10 +7,11 @@ Stages: keypoints (MediaPipe Pose + adapter, its heavy, full and lite landmark m
 without the mirror averaging; or our hourglass: 3 passes = the whole image through the first
 hourglass, then two metric crops; also with a flip on the last, 2 passes, the whole network in the
 first pass, and eager instead of the TorchScript trace), SMPLR (DAE + Omega + Psi + the full mesh)
-+ placement, and the fit (``recon run``'s default: 30 steps to the keypoints and, with MediaPipe,
-its person mask; also to the keypoints only). SMPLR includes the camera-aware lifter (``recon
++ placement (with MediaPipe, the shape head's reading of the mask too), and the fit (``recon
+run``'s default: 30 steps to the keypoints and, with MediaPipe, its person mask; also to the
+keypoints only). SMPLR includes the camera-aware lifter (``recon
 run``'s default ``--lift blend``); a second MediaPipe row runs 0.2's route (``--lift source``)
-side by side.
+side by side, and a third without the shape head.
 -> eval/results/bench-pipeline.{json,md}
 """
 from __future__ import annotations
@@ -53,8 +54,10 @@ def main() -> None:
                "backbone, 3 passes, eager (no TorchScript)": BackboneSource(body, jit=False)}
     recs = {s: Reconstructor(body=body, source=src) for s, src in sources.items()}
     old = "mediapipe, SMPLR on the adapter's 3D, no lifter (0.2's `recon run`: `--lift source`)"
-    recs = {**dict(list(recs.items())[:1]), old: Reconstructor(body=body, source=sources[next(iter(sources))],
-                                                                lift="source"), **dict(list(recs.items())[1:])}
+    headless = "mediapipe, SMPLR's shape, no shape head (`--no-shape-head`)"
+    first = sources[next(iter(sources))]
+    recs = {**dict(list(recs.items())[:1]), old: Reconstructor(body=body, source=first, lift="source"),
+            headless: Reconstructor(body=body, source=first, shape_head=False), **dict(list(recs.items())[1:])}
     sources = {s: r.source for s, r in recs.items()}
     fits = {"none": FitConfig(steps=0), "fit": FitConfig(), "fit, keypoints only": FitConfig(silhouette=0.0)}
     t = {s: {k: [] for k in ("keypoints", "one backbone pass", "smplr", "fit", "fit, keypoints only")} for s in sources}
@@ -86,7 +89,7 @@ def main() -> None:
         "# Image pipeline latency, batch 1 (median ms over the bundled photos)", "",
         f"`benchmarks/bench_pipeline.py --repeats {a.repeats} --threads {a.threads}`; {where}. "
         "x MediaPipe: the total without the fit, relative to the first row.", "",
-        report.table(rows, ["source", "keypoints", "of which one backbone pass", "SMPLR + mesh + place",
+        report.table(rows, ["source", "keypoints", "of which one backbone pass", "SMPLR (+ shape head) + mesh + place",
                             "total without fit", "x MediaPipe", "fit (30 steps; MediaPipe: + mask)",
                             "fit, keypoints only"], ["", ".1f", ".1f", ".1f", ".1f", ".2f", ".1f", ".1f"])])
     print(Path(report.write(OUT, data, md)).read_text())

@@ -2,6 +2,7 @@
 
     rgb --keypoint source--> J+ 2D (+ the source's own 3D guess)
         --camera-aware lifter (``recon.smplr.lifter``: 2D rays + K -> 3D J+)--> [DAE] --> SMPLR (Omega, Psi)
+        [gender and build from the person mask instead of Psi's: ``recon.shape.ShapeHead``]
         --> body mesh placed in the camera by least-squares reprojection onto the 2D J+ (``SMPLR.lift_and_place``)
         --> fitted to the 2D J+ and the person mask (``recon.fit``)
 
@@ -25,6 +26,7 @@ from recon.errors import ReconError
 from recon.fit import FitConfig, fit_body
 from recon.keypoints import Keypoints, make_source
 from recon.keypoints.mediapipe import DEFAULT_MODEL, MODELS, available, resolve_model
+from recon.shape import FROM_MASK, PHENOTYPES, ShapeHead
 from recon.smplr import SMPLR
 from recon.smplr.lifter import Lifter
 
@@ -104,7 +106,10 @@ class ReconstructorConfig:
     phantoms on person-free images). guard: MediaPipe's answers scored as phantoms are refused.
     keypoint_model: MediaPipe's landmark model, "lite", "full" or "heavy" (its own adapter and guard;
     "full" when the file asked for is not installed).
-    smplr_path / lifter_path: other weights than the shipped ones.
+    shape_head: the phenotypes ``recon.shape.FROM_MASK`` (gender, build) read from the person's mask
+    by ``recon.shape.ShapeHead`` instead of SMPLR's guess from the J+ (a source with masks and
+    anny-like phenotypes only).
+    smplr_path / lifter_path / shape_head_path: other weights than the shipped ones.
     """
 
     source: str = "mediapipe"
@@ -117,8 +122,10 @@ class ReconstructorConfig:
     retry: bool = True
     guard: bool = True
     keypoint_model: str = DEFAULT_MODEL
+    shape_head: bool = True
     smplr_path: str | None = None
     lifter_path: str | None = None
+    shape_head_path: str | None = None
 
     def as_installed(self) -> ReconstructorConfig:
         """This config with the MediaPipe landmark model that will run: "full" when the one asked for
@@ -155,6 +162,10 @@ class Reconstructor:
         self.device = torch.device(cfg.device)
         self.smplr = SMPLR.load(self.body, cfg.smplr_path).to(self.device)
         self.lifter = Lifter.load(cfg.lifter_path) if cfg.lift != "source" else None
+        names = tuple(getattr(self.body, "shape_names", ()))
+        self.shape_head = ShapeHead.load(cfg.shape_head_path).to(self.device) \
+            if cfg.shape_head and names == PHENOTYPES else None
+        self.phenotypes_from_mask = FROM_MASK  # what the head gives; the rest stays SMPLR's
         self.source = (source if source is not None and not isinstance(source, str)
                        else make_source(cfg.source, self.body, cfg.device, cfg.flip, cfg.retry, cfg.guard,
                                    self.config.keypoint_model))
@@ -232,12 +243,17 @@ class Reconstructor:
             lifted = self.lifter.lift(uv, kk, seen)[0]
             points = lifted if self.lift == "camera" else 0.5 * (lifted + points)
             kps = [replace(kp, points3d=p - p[:1]) for kp, p in zip(kps, points, strict=True)]
+        t1 = time.perf_counter()
+        known_shape = self._shape_from_masks(kps)
+        t_shape = (time.perf_counter() - t1) * 1000 / len(found)
         placed = self.smplr.lift_and_place(points, uv, kk, weights=np.where(seen, 1.0, camera.OUTSIDE_WEIGHT),
-                                           denoise=self.denoise)
-        t_smplr = (time.perf_counter() - t0) * 1000 / len(found)
+                                           denoise=self.denoise, shape=known_shape)
+        t_smplr = (time.perf_counter() - t0) * 1000 / len(found) - t_shape
         for n, i in enumerate(found):
             kp, k = kps[n], kmats[n]
             timings = {"keypoints": t_kp[i], "smplr": t_smplr}
+            if known_shape is not None:
+                timings["shape"] = t_shape
             rot, shape, t = placed.rotmats[n], placed.shape[n], placed.translation[n]
             v, j, lm = placed.vertices[n], placed.joints[n], placed.landmarks[n]
             silhouette = 0.0
@@ -253,6 +269,18 @@ class Reconstructor:
                 shape_names=tuple(getattr(self.body, "shape_names", ())), timings_ms=timings,
                 fit={"steps": self.fit.steps, "silhouette": silhouette}))
         return results
+
+    def _shape_from_masks(self, kps: list[Keypoints]) -> np.ndarray | None:
+        """(B, S) phenotypes ``phenotypes_from_mask`` read by the shape head from each person's mask,
+        NaN elsewhere (SMPLR keeps its own); None without a head or masks."""
+        with_mask = [n for n, kp in enumerate(kps) if kp.mask is not None]
+        if self.shape_head is None or not with_mask:
+            return None
+        pred = self.shape_head.predict([kps[n].mask for n in with_mask], [kps[n].points2d for n in with_mask])
+        cols = [PHENOTYPES.index(p) for p in self.phenotypes_from_mask]
+        shape = np.full((len(kps), len(PHENOTYPES)), np.nan)
+        shape[np.ix_(with_mask, cols)] = pred[:, cols]
+        return shape
 
     def posed_body(self, rec: Reconstruction):
         """Re-run the body model from the reconstruction's parameters (camera frame)."""

@@ -16,7 +16,7 @@ DOCS = sorted((ROOT / "docs").glob("*.md"))
 PAGES = [README, ROOT / "CHANGELOG.md", ROOT / "eval" / "README.md", *DOCS,
          *sorted(ROOT.glob("recon/*/weights/*CARD.md"))]
 # README rows -> the synth-test method they quote
-ROWS = {"`recon run` (MediaPipe": "recon-run", "`recon run --keypoint-model full`": "recon-run-full",
+ROWS = {"`recon run` (MediaPipe": "recon-run", "`recon run --keypoint-model full --no-shape-head`": "recon-run-full",
         "0.2's pipeline": "mediapipe-smplr-fit", "`recon run --source backbone`": "backbone-smplr-fit",
         "MediaPipe's own 3D": "mediapipe", "oracle:": "smplr-gt2d"}
 

@@ -20,6 +20,7 @@ STAGES = [
     ("recon.synth",),
     ("recon.backbone",),
     ("recon.keypoints",),
+    ("recon.shape",),
     ("recon.fit",),
     ("recon.pipeline",),
     ("recon.garment",),

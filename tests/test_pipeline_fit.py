@@ -9,6 +9,8 @@ from recon import camera
 from recon.fit import FitConfig, SilhouetteTarget, fit_body, linear_rest_geometry, mask_weight
 from recon.keypoints import Keypoints
 from recon.pipeline import Reconstructor
+from recon.shape import FROM_MASK, PHENOTYPES
+from recon.shape import WEIGHTS as SHAPE_WEIGHTS
 from recon.smplr.data import generate
 from recon.smplr.lifter import WEIGHTS as LIFTER_WEIGHTS
 
@@ -134,3 +136,40 @@ def test_reconstructor_lifts_a_sources_2d_in_each_lift_mode(body, mocap):
         err[lift] = np.linalg.norm((r.joints - r.joints[:1]) - (cam[:24] - cam[:1]), axis=1).mean()
         assert abs(r.translation[2] - 3.5) < 0.5, (lift, r.translation)
     assert err["camera"] < err["source"] and err["camera"] <= err["blend"] <= err["source"] + 1e-3, err
+
+
+@pytest.mark.skipif(not SHAPE_WEIGHTS.exists(), reason="no shipped shape head weights")
+def test_reconstructor_takes_gender_and_build_from_the_shape_head(body, mocap):
+    """A source that reports a body's exact J+ and its mask: with the shape head the body's
+    FROM_MASK phenotypes are the head's reading of that mask, the others SMPLR's; without it, all
+    SMPLR's. A source without a mask leaves SMPLR's shape."""
+    batch = generate(body, "test", 1, seed=6, noise_deg=0.0)
+    with torch.no_grad():
+        gt = body(batch["rotmats"], batch["shape"])
+    root, offset = gt.points[0, :1].double().numpy(), np.array([0.0, 0.1, 3.0])
+    cam = camera.to_opencv(gt.points[0].double().numpy() - root) + offset
+    verts = camera.to_opencv(gt.vertices[0].double().numpy() - root) + offset
+    k = camera.default_intrinsics(480, 640)
+    uv = camera.project(cam, k)
+    mask = _mask(verts, body.faces.numpy(), k, (480, 640))
+
+    def source(rgb, kk, with_mask=True):
+        return Keypoints(cam - cam[:1], uv, 1.0, (0.0, 0.0, 640.0, 480.0), mask if with_mask else None)
+    source.name = "fake"
+
+    def no_mask(rgb, kk):
+        return source(rgb, kk, with_mask=False)
+    no_mask.name = "fake"
+
+    img = np.zeros((480, 640, 3), np.uint8)
+    cols = [PHENOTYPES.index(p) for p in FROM_MASK]
+    others = [i for i in range(len(PHENOTYPES)) if i not in cols]
+    plain = Reconstructor(body=body, source=source, fit=FitConfig(steps=0), shape_head=False)(img, k)
+    headed = Reconstructor(body=body, source=source, fit=FitConfig(steps=0))
+    r = headed(img, k)
+    expect = headed.shape_head.predict([mask], [uv])[0]
+    np.testing.assert_allclose(r.shape[cols], expect[cols], atol=1e-5)
+    np.testing.assert_allclose(r.shape[others], plain.shape[others], atol=1e-5)
+    assert "shape" in r.timings_ms
+    bare = Reconstructor(body=body, source=no_mask, fit=FitConfig(steps=0))(img, k)
+    np.testing.assert_allclose(bare.shape, plain.shape, atol=1e-6)

@@ -167,13 +167,14 @@ class MediaPipeSMPLR:
     description = "recon.Reconstructor: MediaPipe, full model (+ its mirror image) -> adapter -> DAE -> SMPLR, no fit"
     detects = True
 
-    # 0.2's pipeline, with MediaPipe's full landmark model whatever recon run's default
+    # 0.2's pipeline, with MediaPipe's full landmark model and SMPLR's shape whatever recon run's default
     source, fit, lift, retry, guard, keypoint_model = ("mediapipe", FitConfig(steps=0, silhouette=0.0), "source",
                                                        False, False, "full")
+    shape_head = False
 
     def __init__(self, body):
         self.rec = Reconstructor(body=body, source=self.source, fit=replace(self.fit), lift=self.lift, retry=self.retry,
-                                 guard=self.guard, keypoint_model=self.keypoint_model)
+                                 guard=self.guard, keypoint_model=self.keypoint_model, shape_head=self.shape_head)
 
     def __call__(self, rgb: np.ndarray, k: np.ndarray) -> Prediction | None:
         r = self.rec.batch([rgb], [k])[0]
@@ -204,15 +205,25 @@ class ReconRun(MediaPipeSMPLR):
         self.rec = Reconstructor(body=body)
 
 
-class ReconRunFull(MediaPipeSMPLR):
-    """``recon run --keypoint-model full``: MediaPipe's full landmark model (the wheel's own) with its
-    own adapter and guard; ``recon run``'s default before 0.6."""
+class ReconRunNoShapeHead(MediaPipeSMPLR):
+    """``recon run --no-shape-head``: the body shape from SMPLR alone (the J+), not the person's mask."""
 
-    name = "recon-run-full"
-    description = "`recon run --keypoint-model full` (the default before 0.6)"
+    name = "recon-run-no-shape-head"
+    description = "`recon run --no-shape-head`: gender and build from SMPLR (the keypoints), not the mask"
 
     def __init__(self, body):
-        self.rec = Reconstructor(body=body, keypoint_model="full")
+        self.rec = Reconstructor(body=body, shape_head=False)
+
+
+class ReconRunFull(MediaPipeSMPLR):
+    """``recon run --keypoint-model full --no-shape-head``: MediaPipe's full landmark model (the
+    wheel's own) with its own adapter and guard; ``recon run``'s default before 0.6."""
+
+    name = "recon-run-full"
+    description = "`recon run --keypoint-model full --no-shape-head` (the default before 0.6)"
+
+    def __init__(self, body):
+        self.rec = Reconstructor(body=body, keypoint_model="full", shape_head=False)
 
 
 class MediaPipeLifterFit(MediaPipeSMPLR):
@@ -283,6 +294,7 @@ def _backbone(crop: str, stage: str, flip: bool = False) -> type:
 
 METHODS = {"mean": MeanBaseline, "mediapipe": MediaPipeBaseline, "smplr-gt2d": SMPLROracle2D,
            "smplr-gt2d-dae2d": SMPLROracle2DOrthographic, "recon-run": ReconRun, "recon-run-full": ReconRunFull,
+           "recon-run-no-shape-head": ReconRunNoShapeHead,
            "mediapipe-lifter-fit": MediaPipeLifterFit, "mediapipe-smplr": MediaPipeSMPLR,
            "mediapipe-smplr-fit-kp": MediaPipeSMPLRFitKeypoints,
            "mediapipe-smplr-fit": MediaPipeSMPLRFit, "backbone-smplr-fit": BackboneSMPLRFit}

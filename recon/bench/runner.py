@@ -89,6 +89,9 @@ def run_method(name: str, ds, body, n: int | None = None, progress: bool = True)
         res["body_shape"] = {"height_error_cm": float(np.mean(np.abs(hp - hg)) * 100),
                              "height_correlation": float(np.corrcoef(hp, hg)[0, 1]) if len(hp) > 2 else None,
                              "shape_error": dict(zip(names, map(float, np.mean(rows["shape"], 0)), strict=True))}
+        if "gender" in names:  # anny's gender is 0 or 1 in the benchmarks: right side of 0.5
+            res["body_shape"]["gender_accuracy"] = float(np.mean(np.stack(rows["shape"])[:, list(names).index("gender")]
+                                                                 < 0.5))
     return res
 
 
@@ -152,12 +155,13 @@ def camera_and_shape(rows: list[dict]) -> list[str]:
     names = next((list(r["body_shape"]["shape_error"]) for r in measured if "body_shape" in r), [])
     table = [[r["method"], r.get("root_depth_mm", {}).get("median"), r.get("root_depth_mm", {}).get("mean"),
               r.get("body_shape", {}).get("height_error_cm"), r.get("body_shape", {}).get("height_correlation"),
+              r.get("body_shape", {}).get("gender_accuracy"),
               *(r.get("body_shape", {}).get("shape_error", {}).get(n) for n in names)] for r in measured]
     return ["Camera and body shape: pelvis depth error (mm; the benchmark's K is given), standing height of the "
-            "predicted body against the true one (mean |error| cm, Pearson correlation), mean |error| per anny "
-            "phenotype (0-1 scale; gender 0/1):", "",
-            report.table(table, ["method", "depth median", "depth mean", "height cm", "height r", *names],
-                         ["", ".0f", ".0f", ".1f", ".2f", *[".3f"] * len(names)]), ""]
+            "predicted body against the true one (mean |error| cm, Pearson correlation), gender right (share, "
+            "measured since 0.6), mean |error| per anny phenotype (0-1 scale; gender 0/1):", "",
+            report.table(table, ["method", "depth median", "depth mean", "height cm", "height r", "gender right",
+                                 *names], ["", ".0f", ".0f", ".1f", ".2f", ".3f", *[".3f"] * len(names)]), ""]
 
 
 def render(data: dict) -> str:

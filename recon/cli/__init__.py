@@ -11,7 +11,8 @@ command runs, so ``recon --help`` is quick.
     recon poses build | stats
     recon smplr train | train-lifter | eval
     recon backbone recipe | train | export | calibrate
-    recon keypoints collect | train
+    recon keypoints collect | train | eval
+    recon shape crops | train | eval
     recon garment train | resize | eval | reference
 
 A flag out of its range is refused before anything runs (exit 2, one line). A user error
@@ -43,6 +44,7 @@ COMMANDS = {
     "smplr": ("recon.cli.smplr", "SMPLR (DAE, Omega, Psi) and the lifter: train on generated data, or evaluate"),
     "backbone": ("recon.cli.backbone", "the volumetric hourglass: GPU recipe, train, export, calibrate"),
     "keypoints": ("recon.cli.keypoints", "the MediaPipe -> J+ adapter: collect MediaPipe on synth folders, train"),
+    "shape": ("recon.cli.shape", "the shape head (gender and build from the person's mask): crops, train, eval"),
     "garment": ("recon.cli.garment", "PBNS and NCS outfits: train, resize, evaluate, compare with a physics drape"),
 }
 DESCRIPTION = "recon: 3D humans (pose and body shape) from photos, dressed in animated garments."

@@ -25,6 +25,7 @@ TIGHTNESS = number(float, -1.0, 1.0)
 def run_images(args) -> int:
     config = ReconstructorConfig(source=args.source, device=args.device, flip=args.flip, lift=args.lift,
                                  retry=args.retry, guard=args.guard, keypoint_model=args.keypoint_model,
+                                 shape_head=args.shape_head,
                                  fit=FitConfig(steps=args.refine_steps, silhouette=args.silhouette),
                                  **({} if args.focal is None else {"focal_factor": args.focal}))
     options = RunOptions(outfit=args.outfit, tightness=args.tightness, max_people=args.max_people,
@@ -86,6 +87,9 @@ def add_run(p: Parser) -> None:
                         "threshold (more people found, and more phantoms on person-free images)")
     p.add_argument("--guard", action=argparse.BooleanOptionalAction, default=default(cfg, "guard"),
                    help="MediaPipe: refuse answers scored as phantoms (bodies found where there is no person)")
+    p.add_argument("--shape-head", action=argparse.BooleanOptionalAction, default=default(cfg, "shape_head"),
+                   help="gender and build read from the person's mask (recon.shape) rather than guessed from the "
+                        "keypoints by SMPLR")
     p.add_argument("--lift", choices=LIFTS, default=default(cfg, "lift"),
                    help="SMPLR's 3D J+: the camera-aware lifter on the 2D keypoints, or the source's own 3D")
     p.add_argument("--flip", action=argparse.BooleanOptionalAction, default=None,

@@ -77,7 +77,7 @@ class SMPLR(nn.Module):
                 self.psi(features.relative_distances(points, self.template)))
 
     def forward(self, points: torch.Tensor, mode: str = "3d", denoise: bool = True, procrustes: bool = False,
-                points_only: bool = False) -> SMPLROutput:
+                points_only: bool = False, shape: torch.Tensor | None = None) -> SMPLROutput:
         """Reconstruct bodies from J+.
 
         Args:
@@ -87,6 +87,8 @@ class SMPLR(nn.Module):
                 lifts the (orthographic, metric) points to 3D.
             denoise: run the 3D DAE first (mode "3d").
             procrustes: similarity-align the output to the input J+ (ALL_Proc of the thesis).
+            shape: (B, S) body shape known from elsewhere (e.g. ``recon.shape.ShapeHead``): used
+                instead of Psi's; its NaN entries keep Psi's value.
         """
         if mode not in ("3d", "2d"):
             raise ValueError(f"mode must be '3d' or '2d', got {mode!r}")
@@ -103,15 +105,17 @@ class SMPLR(nn.Module):
         elif denoise and self.dae3d is not None:
             x = self.dae3d(features.centre(x))
         x = x - x[:, :1]  # the DAE works centroid-centred; SMPLR takes pelvis-centred J+
-        rot, shape = self.regress(x)
-        out = self.body(rot, shape, transl=root[:, 0], points_only=points_only)
+        rot, psi = self.regress(x)
+        if shape is not None:
+            psi = torch.where(torch.isnan(shape), psi, shape.to(psi))
+        out = self.body(rot, psi, transl=root[:, 0], points_only=points_only)
         if procrustes:
             out = align_body(out, x + root)
-        return SMPLROutput(rot, shape, out, x + root)
+        return SMPLROutput(rot, psi, out, x + root)
 
     @torch.no_grad()
     def lift_and_place(self, points, points2d, k, weights=None, mode: str = "3d", denoise: bool = True,
-                       points_only: bool = False) -> PlacedBodies:
+                       points_only: bool = False, shape: np.ndarray | None = None) -> PlacedBodies:
         """Camera-frame J+ -> SMPLR -> bodies placed in the camera.
 
         Args:
@@ -121,12 +125,14 @@ class SMPLR(nn.Module):
             points2d: (B, 42, 2) the same points in pixels; the body's translation minimises its
                 reprojection error onto them (``recon.camera.place``), weighted by ``weights`` (B, 42).
             k: (3, 3) or (B, 3, 3) intrinsics.
+            shape: (B, S) body shape to use instead of Psi's where not NaN (``forward``).
         """
         pts = np.asarray(points, dtype=np.float64)
         uv = np.asarray(points2d, dtype=np.float64)
         ks = np.broadcast_to(np.asarray(k, dtype=np.float64), (len(pts), 3, 3))
         x = torch.tensor(camera.to_view(pts - pts[:, :1]), dtype=torch.float32, device=self.template.device)
-        o = self(x, mode=mode, denoise=denoise, points_only=points_only)
+        known = None if shape is None else torch.tensor(np.asarray(shape), dtype=torch.float32, device=x.device)
+        o = self(x, mode=mode, denoise=denoise, points_only=points_only, shape=known)
         j = camera.to_opencv(o.body.joints.cpu().numpy())
         lm = camera.to_opencv(o.body.landmarks.cpu().numpy())
         v = None if points_only else camera.to_opencv(o.body.vertices.cpu().numpy())
