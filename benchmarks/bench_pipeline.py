@@ -9,9 +9,9 @@ hourglass, then two metric crops; also with a flip on the last, 2 passes, the wh
 first pass, and eager instead of the TorchScript trace), SMPLR (DAE + Omega + Psi + the full mesh)
 + placement (with MediaPipe, the shape head's reading of the mask too), and the fit (``recon
 run``'s default: 30 steps to the keypoints and, with MediaPipe, its person mask; also to the
-keypoints only). SMPLR includes the camera-aware lifter (``recon
-run``'s default ``--lift blend``); a second MediaPipe row runs 0.2's route (``--lift source``)
-side by side, and a third without the shape head.
+keypoints only). SMPLR includes the camera-aware lifter (``recon run``'s default ``--lift
+blend``); a second MediaPipe row runs 0.2's route (``--lift source``) side by side, and a third
+without the shape head.
 -> eval/results/bench-pipeline.{json,md}
 """
 from __future__ import annotations

@@ -32,7 +32,7 @@ class ShapeHeadConfig:
     dropout: float = 0.2
 
 
-def crop_box(points2d: np.ndarray, margin: float = 1.25) -> np.ndarray:
+def crop_box(points2d: np.ndarray, margin: float) -> np.ndarray:
     """The square crop around J+ 2D (P, 2): (centre x, centre y, side) in pixels."""
     lo, hi = points2d.min(0), points2d.max(0)
     return np.array([*(0.5 * (lo + hi)), max(float((hi - lo).max()) * margin, 1.0)])
@@ -77,18 +77,20 @@ class ShapeHead(nn.Module):
         return torch.cat([torch.sigmoid(raw[:, :1]), raw[:, 1:].clamp(0.0, 1.0)], 1)
 
     @torch.no_grad()
-    def predict(self, masks: list[np.ndarray], points2d: list[np.ndarray]) -> np.ndarray:
-        """Full-image person masks and their J+ 2D -> (B, 6) phenotypes; the raw outputs are
+    def read(self, crops: np.ndarray) -> np.ndarray:
+        """(B, size, size) uint8 mask crops -> (B, 6) phenotypes (eval mode); the raw outputs are
         averaged with the mirrored crop's (gender and build do not change in a mirror)."""
-        if not masks:
-            return np.zeros((0, len(PHENOTYPES)))
         self.eval()
-        dev = next(self.parameters()).device
-        crops = np.stack([crop_mask(m, crop_box(p, self.cfg.margin), self.cfg.size)
-                          for m, p in zip(masks, points2d, strict=True)])
-        x = torch.tensor(crops, dtype=torch.float32, device=dev)[:, None] / 255.0
+        x = torch.tensor(crops, dtype=torch.float32, device=next(self.parameters()).device)[:, None] / 255.0
         raw = 0.5 * (self(x) + self(x.flip(3)))
         return self.phenotypes(raw).cpu().numpy().astype(np.float64)
+
+    def predict(self, masks: list[np.ndarray], points2d: list[np.ndarray]) -> np.ndarray:
+        """Full-image person masks and their J+ 2D -> (B, 6) phenotypes (``read`` of their crops)."""
+        if not masks:
+            return np.zeros((0, len(PHENOTYPES)))
+        return self.read(np.stack([crop_mask(m, crop_box(p, self.cfg.margin), self.cfg.size)
+                                   for m, p in zip(masks, points2d, strict=True)]))
 
     @classmethod
     def load(cls, path: str | Path | None = None) -> ShapeHead:

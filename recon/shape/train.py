@@ -11,7 +11,6 @@ Two kinds of crops, both with the truth's phenotypes:
 from __future__ import annotations
 
 import itertools
-import json
 import shutil
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -25,7 +24,7 @@ from tqdm import tqdm
 from recon import paths
 from recon.body import default_body
 from recon.keypoints import make_source
-from recon.shape.head import WEIGHTS, ShapeHead, ShapeHeadConfig, crop_box, crop_mask
+from recon.shape.head import PHENOTYPES, WEIGHTS, ShapeHead, ShapeHeadConfig, crop_box, crop_mask
 from recon.synth.dataset import SynthDataset
 from recon.training import Schedule, Trainer
 
@@ -105,17 +104,11 @@ def loss_terms(raw: torch.Tensor, shape: torch.Tensor, weight: float) -> tuple[t
     return gender, weight * F.smooth_l1_loss(raw[:, 1:], shape[:, 1:], beta=0.1)
 
 
-@torch.no_grad()
 def metrics(model: ShapeHead, masks: np.ndarray, shape: np.ndarray) -> dict[str, float]:
-    """Gender accuracy, per-phenotype mean |error| and Pearson r of a head on crops (mirror-averaged)."""
-    model.eval()
-    out = []
-    for i in range(0, len(masks), 256):
-        x = torch.from_numpy(masks[i:i + 256]).float()[:, None] / 255.0
-        out.append(ShapeHead.phenotypes(0.5 * (model(x) + model(x.flip(3)))))
-    p = torch.cat(out).numpy().astype(np.float64)
+    """Gender accuracy, per-phenotype mean |error| and Pearson r of a head on crops (``ShapeHead.read``)."""
+    p = np.concatenate([model.read(masks[i:i + 256]) for i in range(0, len(masks), 256)])
     res = {"gender_acc": float(((p[:, 0] > 0.5) == (shape[:, 0] > 0.5)).mean())}
-    for j, name in enumerate(("gender", "age", "muscle", "weight", "height", "proportions")):
+    for j, name in enumerate(PHENOTYPES):
         res[f"{name}_mae"] = float(np.abs(p[:, j] - shape[:, j]).mean())
         if j and shape[:, j].std() > 0:
             res[f"{name}_r"] = float(np.corrcoef(p[:, j], shape[:, j])[0, 1])
@@ -194,6 +187,3 @@ def evaluate(model: ShapeHead, crops: Path) -> dict[str, float]:
     d = np.load(crops)
     return {"samples": int(len(d["masks"]))} | metrics(model, d["masks"], d["shape"].astype(np.float32))
 
-
-def write_record(meta: dict, path: Path) -> None:
-    paths.write_text(path, json.dumps(meta, indent=1))
