@@ -3,8 +3,10 @@
 
     .venv/bin/python benchmarks/bench_pipeline.py [--repeats 5] [--threads 1]
 
-Stages: keypoints (MediaPipe Pose + adapter, its heavy, full and lite landmark models, with and
-without the mirror averaging; or our hourglass: 3 passes = the whole image through the first
+Stages: keypoints (MediaPipe Pose + adapter, with ``recon run``'s backbone blend and fallback (on
+these photos the blend's two backbone passes run, but the backbone is not trusted there) and
+without, its heavy, full and lite landmark models, with and without the mirror averaging; or our
+hourglass: 3 passes = the whole image through the first
 hourglass, then two metric crops; also with a flip on the last, 2 passes, the whole network in the
 first pass, and eager instead of the TorchScript trace), SMPLR (DAE + Omega + Psi + the full mesh)
 + placement (with MediaPipe, the shape head's reading of the mask too), and the fit (``recon
@@ -29,7 +31,7 @@ from recon.body import default_body
 from recon.demo import example_photos
 from recon.fit import FitConfig
 from recon.keypoints import BackboneSource, MediaPipeSource
-from recon.pipeline import Reconstructor
+from recon.pipeline import Reconstructor, ReconstructorConfig
 
 OUT = Path(__file__).resolve().parent.parent / "eval" / "results" / "bench-pipeline"
 
@@ -42,11 +44,18 @@ def main() -> None:
     torch.set_num_threads(a.threads)
     body = default_body()
     images = [io.load_image(p) for p in example_photos()]
-    sources = {"mediapipe (`recon run` default: heavy landmark model + mirror averaging)": MediaPipeSource(),
-               "mediapipe, full landmark model (`--keypoint-model full`)": MediaPipeSource(model="full"),
-               "mediapipe, lite landmark model (`--keypoint-model lite`)": MediaPipeSource(model="lite"),
-               "mediapipe, no person guard (`--no-guard`)": MediaPipeSource(guard=False),
-               "mediapipe, no mirror averaging (`--no-flip`)": MediaPipeSource(flip=False),
+    cfg = ReconstructorConfig()  # recon run's: MediaPipe with our backbone where it is confident
+
+    def mediapipe(**changes) -> MediaPipeSource:
+        return MediaPipeSource(**({"fallback": cfg.fallback, "backbone_weight": cfg.backbone_weight} | changes))
+
+    sources = {"mediapipe (`recon run` default: heavy landmark model + mirror averaging + backbone)": mediapipe(),
+               "mediapipe alone, no backbone (`--no-fallback --backbone-weight 0`)":
+                   mediapipe(fallback=False, backbone_weight=0.0),
+               "mediapipe, full landmark model (`--keypoint-model full`)": mediapipe(model="full"),
+               "mediapipe, lite landmark model (`--keypoint-model lite`)": mediapipe(model="lite"),
+               "mediapipe, no person guard (`--no-guard`)": mediapipe(guard=False),
+               "mediapipe, no mirror averaging (`--no-flip`)": mediapipe(flip=False),
                "backbone, 3 passes (`--source backbone`)": BackboneSource(body),
                "backbone, 3 passes, flip on the last (`--flip`)": BackboneSource(body, flip=True),
                "backbone, 2 passes": BackboneSource(body, passes=2),

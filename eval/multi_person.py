@@ -1,8 +1,9 @@
 """Every person in a photo (issue 28): how many people `recon run --max-people` finds.
 
 Composites of synth-val renders side by side (2 or 3 people, each in its own 256 x 256 tile,
-its own background, occluders and framing) go through ``MediaPipeSource.people`` (MediaPipe
-finds a person, the person is painted over, MediaPipe is asked again). A found person counts
+its own background, occluders and framing) go through ``recon run``'s ``MediaPipeSource.people``
+(MediaPipe finds a person, the person is painted over, MediaPipe is asked again; where it finds
+nobody at all, the backbone's fallback). A found person counts
 when its box overlaps a true person's box (IoU > 0.3, each true person matched once); other
 finds are extra bodies. Also the photos: the bundled examples side by side. Writes
 eval/results/multi-person.md and .json. Tuning data only (synth-val).
@@ -22,6 +23,7 @@ from tqdm import tqdm
 from recon import camera, paths, report
 from recon.io import load_image, scan_inputs
 from recon.keypoints.sources import MediaPipeSource, box_iou
+from recon.pipeline import ReconstructorConfig
 from recon.synth.dataset import SynthDataset, bench_dir
 
 
@@ -61,7 +63,8 @@ def main() -> None:
     a = ap.parse_args()
     torch.set_num_threads(1)
     ds = SynthDataset(bench_dir("synth-val"))
-    src = MediaPipeSource(model="full")  # the landmark model of the committed results
+    cfg = ReconstructorConfig()  # recon run's source: heavy, with the backbone's fallback (the blend moves no box)
+    src = MediaPipeSource(model=cfg.keypoint_model, fallback=cfg.fallback)
     rows = []
     for n_people in (1, 2, 3):
         rng = np.random.default_rng(n_people)
@@ -86,10 +89,12 @@ def main() -> None:
     out = Path(a.out)
     md = ["# Every person in a photo (issue 28)", "",
           "`eval/multi_person.py`: synth-val renders side by side (each person in its own 256 x 256 tile), "
-          "through `MediaPipeSource.people` (find a person, paint it over, ask again, on the whole image and, "
-          "once someone is found there, on windows of it), a person found when a box overlaps the true one "
-          "(IoU > 0.3). In 3:1 strips MediaPipe often finds nobody in the whole image (it sees it at 224 px), "
-          "and then no window is searched: on person-free images that is where phantoms would come from.", "",
+          "through `recon run`'s `MediaPipeSource.people` (heavy landmark model; find a person, paint it over, "
+          "ask again, on the whole image and, once someone is found there, on windows of it; where MediaPipe "
+          "finds nobody at all, the backbone's fallback answers for one person), a person found when a box "
+          "overlaps the true one (IoU > 0.3). In 3:1 strips MediaPipe often finds nobody in the whole image (it "
+          "sees it at 224 px), and then no window is searched: on person-free images that is where phantoms "
+          "would come from.", "",
           report.table(rows, headers), ""]
     report.write(out, {"rows": rows, "headers": headers}, "\n".join(md))
     print("\n".join(md))

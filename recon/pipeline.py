@@ -74,6 +74,7 @@ class Reconstruction:
             "camera": {"K": r(self.K, 3)},
             "confidence": round(self.keypoints.confidence, 4),
             "person_score": None if self.keypoints.person_score is None else round(self.keypoints.person_score, 3),
+            "found_by": self.keypoints.found_by,
             "box": r(self.keypoints.box, 1),
             "reprojection_error_px": round(self.reprojection_error_px, 2),
             "joint_names": list(skeleton.JOINT_NAMES),
@@ -105,7 +106,10 @@ class ReconstructorConfig:
     retry: MediaPipe asks again on other views when it finds nobody (more people found, more
     phantoms on person-free images). guard: MediaPipe's answers scored as phantoms are refused.
     keypoint_model: MediaPipe's landmark model, "lite", "full" or "heavy" (its own adapter and guard;
-    "full" when the file asked for is not installed).
+    "full" when the file asked for is not installed). fallback: where MediaPipe finds nobody, our
+    backbone answers when it is confident; backbone_weight: the weight of our backbone's J+ on
+    MediaPipe's person where it is confident (0: MediaPipe's alone; both ``MediaPipeSource``: on
+    photos the backbone is not confident, so neither happens there).
     shape_head: the phenotypes ``recon.shape.FROM_MASK`` (gender, build) read from the person's mask
     by ``recon.shape.ShapeHead`` instead of SMPLR's guess from the J+ (a source with masks and
     anny-like phenotypes only).
@@ -122,6 +126,8 @@ class ReconstructorConfig:
     retry: bool = True
     guard: bool = True
     keypoint_model: str = DEFAULT_MODEL
+    fallback: bool = True
+    backbone_weight: float = 0.5
     shape_head: bool = True
     smplr_path: str | None = None
     lifter_path: str | None = None
@@ -168,7 +174,7 @@ class Reconstructor:
         self.phenotypes_from_mask = FROM_MASK  # what the head gives; the rest stays SMPLR's
         self.source = (source if source is not None and not isinstance(source, str)
                        else make_source(cfg.source, self.body, cfg.device, cfg.flip, cfg.retry, cfg.guard,
-                                   self.config.keypoint_model))
+                                   self.config.keypoint_model, cfg.fallback, cfg.backbone_weight))
 
     @property
     def fit(self) -> FitConfig:

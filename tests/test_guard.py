@@ -4,12 +4,17 @@ import pytest
 import skimage.data
 
 from recon import camera, io
+from recon.body import default_body
 from recon.demo import EXAMPLES
 from recon.keypoints import available as mediapipe_available
 from recon.keypoints import guard
 from recon.keypoints.adapter import WEIGHTS as ADAPTER_WEIGHTS
+from recon.keypoints.base import Keypoints
 from recon.keypoints.mediapipe import MODELS, MPPose
-from recon.keypoints.sources import MediaPipeSource
+from recon.keypoints.sources import TRUSTED_CONFIDENCE, MediaPipeSource
+from recon.pipeline import ReconstructorConfig
+from recon.synth.dataset import BENCHMARKS
+from recon.synth.scene import SceneSampler
 
 needs_mediapipe = pytest.mark.skipif(not (mediapipe_available() and ADAPTER_WEIGHTS.exists()),
                                      reason="needs mediapipe (scripts/setup.sh) and the adapter weights")
@@ -61,7 +66,7 @@ def test_no_body_on_person_free_images(name):
     img = np.asarray(getattr(skimage.data, name)())
     img = np.ascontiguousarray(np.repeat(img[..., None], 3, 2) if img.ndim == 2 else img[..., :3]).astype(np.uint8)
     k = camera.default_intrinsics(*img.shape[:2])
-    src = MediaPipeSource()
+    src = MediaPipeSource(fallback=True)  # recon run's: nor does the backbone stand in there
     assert src(img, k) is None
     assert src.people(img, k, 4) == []  # nor when asked for several people
 
@@ -80,6 +85,51 @@ def test_the_guard_is_what_refuses_the_horse():
 @pytest.mark.parametrize("path", sorted(EXAMPLES.glob("*.jpg")), ids=lambda p: p.name)
 def test_people_in_the_bundled_photos_are_kept(path):
     img = io.load_image(path)
-    src = MediaPipeSource()
+    src = MediaPipeSource(fallback=True, backbone_weight=ReconstructorConfig.backbone_weight)  # recon run's
     kp = src(img, camera.default_intrinsics(*img.shape[:2]))
     assert kp is not None and kp.person_score >= src.person_guard.threshold["image"]
+    assert kp.found_by == "mediapipe"  # the backbone, which learnt our renders, is not trusted on photos
+
+
+@needs_mediapipe
+def test_the_backbone_stands_in_only_where_mediapipe_finds_nobody(monkeypatch):
+    """synth-val image 27 (a person behind an occluder): with MediaPipe finding nobody, the fallback's
+    backbone answers, says so, and puts the joints where the person is; without it, nobody."""
+    body = default_body()
+    s = SceneSampler(body, BENCHMARKS["synth-val"]["split"], BENCHMARKS["synth-val"]["seed"]).sample(27)
+    rgb, k = s["rgb"], s["K"].astype(np.float64)
+    src = MediaPipeSource(fallback=True)
+    monkeypatch.setattr(src, "_find", lambda *args, **kwargs: None)  # MediaPipe finds nobody, whatever the CPU
+    kp = src(rgb, k)
+    assert kp is not None and kp.found_by == "backbone" and kp.mask is None and src.last_view == "backbone"
+    assert kp.confidence >= TRUSTED_CONFIDENCE
+    height = np.ptp(s["points2d"][:24, 1])
+    assert np.median(np.linalg.norm(kp.points2d - s["points2d"], axis=1)) < 0.1 * height
+    assert [p.found_by for p in src.people(rgb, k, 3)] == ["backbone"]  # one person, not one per window
+    src.fallback = False
+    assert src(rgb, k) is None and src.people(rgb, k, 3) == []
+
+
+@needs_mediapipe
+def test_the_backbone_blends_into_mediapipe_people_where_it_is_confident(monkeypatch):
+    """The same rendered person, with MediaPipe's answer standing in as the true J+ shifted 6 px:
+    the backbone on its crop finds the person, and the J+ become the weighted mean; at weight 0 they
+    stay MediaPipe's."""
+    body = default_body()
+    s = SceneSampler(body, BENCHMARKS["synth-val"]["split"], BENCHMARKS["synth-val"]["seed"]).sample(27)
+    rgb, k = s["rgb"], s["K"].astype(np.float64)
+    p3 = s["points3d"].astype(np.float64)
+    given = Keypoints(p3 - p3[:1], s["points2d"].astype(np.float64) + 6.0, 0.9, (0.0, 0.0, 256.0, 256.0),
+                      found_by="mediapipe")
+    src = MediaPipeSource(backbone_weight=0.75)
+    monkeypatch.setattr(src, "_find", lambda *args, **kwargs: given)
+    b = src.backbone.on_crop(rgb, k, given)
+    height = np.ptp(s["points2d"][:24, 1])
+    assert b.confidence >= TRUSTED_CONFIDENCE
+    assert np.median(np.linalg.norm(b.points2d - s["points2d"], axis=1)) < 0.1 * height
+    kp = src(rgb, k)
+    assert kp.found_by == "mediapipe+backbone"
+    np.testing.assert_allclose(kp.points2d, 0.25 * given.points2d + 0.75 * b.points2d, atol=1e-6)
+    np.testing.assert_allclose(kp.points3d, 0.25 * given.points3d + 0.75 * b.points3d, atol=1e-9)
+    src.backbone_weight = 0.0
+    assert src(rgb, k) is given

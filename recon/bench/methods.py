@@ -170,11 +170,12 @@ class MediaPipeSMPLR:
     # 0.2's pipeline, with MediaPipe's full landmark model and SMPLR's shape whatever recon run's default
     source, fit, lift, retry, guard, keypoint_model = ("mediapipe", FitConfig(steps=0, silhouette=0.0), "source",
                                                        False, False, "full")
-    shape_head = False
+    shape_head, fallback, backbone_weight = False, False, 0.0
 
     def __init__(self, body):
         self.rec = Reconstructor(body=body, source=self.source, fit=replace(self.fit), lift=self.lift, retry=self.retry,
-                                 guard=self.guard, keypoint_model=self.keypoint_model, shape_head=self.shape_head)
+                                 guard=self.guard, keypoint_model=self.keypoint_model, shape_head=self.shape_head,
+                                 fallback=self.fallback, backbone_weight=self.backbone_weight)
 
     def __call__(self, rgb: np.ndarray, k: np.ndarray) -> Prediction | None:
         r = self.rec.batch([rgb], [k])[0]
@@ -205,25 +206,49 @@ class ReconRun(MediaPipeSMPLR):
         self.rec = Reconstructor(body=body)
 
 
-class ReconRunNoShapeHead(MediaPipeSMPLR):
-    """``recon run --no-shape-head``: the body shape from SMPLR alone (the J+), not the person's mask."""
+class ReconRunFallbackOnly(MediaPipeSMPLR):
+    """``recon run --backbone-weight 0``: MediaPipe's keypoints, the backbone only where it finds nobody."""
 
-    name = "recon-run-no-shape-head"
-    description = "`recon run --no-shape-head`: gender and build from SMPLR (the keypoints), not the mask"
+    name = "recon-run-fallback-only"
+    description = "`recon run --backbone-weight 0`: MediaPipe's keypoints alone, the backbone where it finds nobody"
 
     def __init__(self, body):
-        self.rec = Reconstructor(body=body, shape_head=False)
+        self.rec = Reconstructor(body=body, backbone_weight=0.0)
+
+
+class ReconRunMediaPipeOnly(MediaPipeSMPLR):
+    """``recon run --no-fallback --backbone-weight 0``: MediaPipe's people and keypoints alone."""
+
+    name = "recon-run-mediapipe-only"
+    description = "`recon run --no-fallback --backbone-weight 0`: MediaPipe's people and keypoints, no backbone"
+
+    def __init__(self, body):
+        self.rec = Reconstructor(body=body, fallback=False, backbone_weight=0.0)
+
+
+class ReconRunNoShapeHead(MediaPipeSMPLR):
+    """``recon run --no-shape-head --no-fallback --backbone-weight 0``: the body shape from SMPLR alone
+    (the J+), not the person's mask."""
+
+    name = "recon-run-no-shape-head"
+    description = ("`recon run --no-shape-head --no-fallback --backbone-weight 0`: gender and build from SMPLR (the "
+                   "keypoints), not the mask")
+
+    def __init__(self, body):
+        self.rec = Reconstructor(body=body, shape_head=False, fallback=False, backbone_weight=0.0)
 
 
 class ReconRunFull(MediaPipeSMPLR):
-    """``recon run --keypoint-model full --no-shape-head``: MediaPipe's full landmark model (the
-    wheel's own) with its own adapter and guard; ``recon run``'s default before 0.6."""
+    """``recon run --keypoint-model full --no-shape-head --no-fallback --backbone-weight 0``: MediaPipe's
+    full landmark model (the wheel's own) with its own adapter and guard; ``recon run``'s default
+    before 0.6."""
 
     name = "recon-run-full"
-    description = "`recon run --keypoint-model full --no-shape-head` (the default before 0.6)"
+    description = "`recon run --keypoint-model full --no-shape-head`, no backbone (the default before 0.6)"
 
     def __init__(self, body):
-        self.rec = Reconstructor(body=body, keypoint_model="full", shape_head=False)
+        self.rec = Reconstructor(body=body, keypoint_model="full", shape_head=False, fallback=False,
+                                 backbone_weight=0.0)
 
 
 class MediaPipeLifterFit(MediaPipeSMPLR):
@@ -294,7 +319,8 @@ def _backbone(crop: str, stage: str, flip: bool = False) -> type:
 
 METHODS = {"mean": MeanBaseline, "mediapipe": MediaPipeBaseline, "smplr-gt2d": SMPLROracle2D,
            "smplr-gt2d-dae2d": SMPLROracle2DOrthographic, "recon-run": ReconRun, "recon-run-full": ReconRunFull,
-           "recon-run-no-shape-head": ReconRunNoShapeHead,
+           "recon-run-no-shape-head": ReconRunNoShapeHead, "recon-run-mediapipe-only": ReconRunMediaPipeOnly,
+           "recon-run-fallback-only": ReconRunFallbackOnly,
            "mediapipe-lifter-fit": MediaPipeLifterFit, "mediapipe-smplr": MediaPipeSMPLR,
            "mediapipe-smplr-fit-kp": MediaPipeSMPLRFitKeypoints,
            "mediapipe-smplr-fit": MediaPipeSMPLRFit, "backbone-smplr-fit": BackboneSMPLRFit}

@@ -25,6 +25,7 @@ TIGHTNESS = number(float, -1.0, 1.0)
 def run_images(args) -> int:
     config = ReconstructorConfig(source=args.source, device=args.device, flip=args.flip, lift=args.lift,
                                  retry=args.retry, guard=args.guard, keypoint_model=args.keypoint_model,
+                                 fallback=args.fallback, backbone_weight=args.backbone_weight,
                                  shape_head=args.shape_head,
                                  fit=FitConfig(steps=args.refine_steps, silhouette=args.silhouette),
                                  **({} if args.focal is None else {"focal_factor": args.focal}))
@@ -87,6 +88,12 @@ def add_run(p: Parser) -> None:
                         "threshold (more people found, and more phantoms on person-free images)")
     p.add_argument("--guard", action=argparse.BooleanOptionalAction, default=default(cfg, "guard"),
                    help="MediaPipe: refuse answers scored as phantoms (bodies found where there is no person)")
+    p.add_argument("--fallback", action=argparse.BooleanOptionalAction, default=default(cfg, "fallback"),
+                   help="where MediaPipe finds nobody, our backbone answers when confident (people behind occluders "
+                        "in synthetic-like images; on photos it rarely is)")
+    p.add_argument("--backbone-weight", type=number(float, 0.0, 1.0), default=default(cfg, "backbone_weight"),
+                   help="share of our backbone's keypoints (on MediaPipe's person) where it is confident; 0: "
+                        "MediaPipe's alone")
     p.add_argument("--shape-head", action=argparse.BooleanOptionalAction, default=default(cfg, "shape_head"),
                    help="gender and build read from the person's mask (recon.shape) rather than guessed from the "
                         "keypoints by SMPLR")

@@ -1,17 +1,19 @@
 """The image pipeline's keypoint sources: ``source(rgb, K) -> Keypoints | None``.
 
 ``MediaPipeSource`` (the default): MediaPipe Pose finds the person and its 33 landmarks and
-person mask, the learned adapter maps the landmarks to our J+. ``BackboneSource``: our
-volumetric hourglass alone, which finds its own crop (``recon.backbone.search``); trained on
-synthetic renders only.
+person mask, the learned adapter maps the landmarks to our J+; where it finds nobody, optionally
+our backbone (``fallback``). ``BackboneSource``: our volumetric hourglass alone, which finds its
+own crop (``recon.backbone.search``); trained on synthetic renders only.
 """
 from __future__ import annotations
+
+from dataclasses import replace
 
 import cv2
 import numpy as np
 
 from recon import camera
-from recon.backbone.search import CropSearch
+from recon.backbone.search import CropSearch, crop_from_keypoints
 from recon.body import skeleton
 from recon.keypoints import guard as person_guard
 from recon.keypoints.adapter import MP_MIRROR, KeypointAdapter
@@ -25,6 +27,10 @@ GRAY_SMALL = 256  # grayscale images are also searched at this longer side
 # the frame. Chosen on synth-val (eval/results/error-budget.md, section 3); the default threshold
 # is 0.5.
 RETRIES = (("plain", 2.0, 0.5), ("plain", 1.5, 0.3), ("mirror", 1.5, 0.5), ("plain", 1.0, 0.3))
+# The backbone's mean peak confidence from which recon run trusts it (the fallback's answers, the
+# blend): above every person-free image's and far above photos', where it fails (it learnt our
+# renders). Chosen on synth-val (eval/results/backbone-fallback.md, source-blend.md).
+TRUSTED_CONFIDENCE = 0.65
 
 
 def is_grayscale(rgb: np.ndarray) -> bool:
@@ -112,12 +118,18 @@ class MediaPipeSource:
     no cost on images where it finds the person at once). ``guard``: refuse answers that
     ``recon.keypoints.guard`` takes for phantoms (as if MediaPipe had found nobody there).
     ``people(rgb, K, n)``: up to n people, one after the other. ``model``: MediaPipe's landmark
-    model (``recon.keypoints.mediapipe.MODELS``)."""
+    model (``recon.keypoints.mediapipe.MODELS``). Our backbone (``BackboneSource``, loaded at its
+    first use) where it is confident (mean peak confidence >= ``TRUSTED_CONFIDENCE``; on photos it
+    stays far lower: it learnt our renders): ``fallback``: where MediaPipe finds nobody, its own
+    crop search answers instead (people behind occluders; no person mask); ``backbone_weight``:
+    each person's J+ become that weight of the backbone's on MediaPipe's crop (``on_crop``) plus
+    the rest of MediaPipe's (``found_by`` "mediapipe+backbone"). ``last_view`` says which view (or
+    "backbone") found the person of the last call."""
 
     name = "mediapipe"
 
     def __init__(self, adapter_path=None, flip: bool = True, retry: bool = True, guard: bool = True,
-                 model: str = DEFAULT_MODEL):
+                 model: str = DEFAULT_MODEL, fallback: bool = False, backbone_weight: float = 0.0):
         self.mp = MediaPipePose(model)
         self.model = self.mp.model  # the model that runs (full when the file asked for is missing)
         self.adapter = KeypointAdapter.load(adapter_path, self.model)
@@ -125,6 +137,34 @@ class MediaPipeSource:
         self.person_guard = person_guard.for_model(self.model)  # fitted on this landmark model's answers
         self._by_threshold = {0.5: self.mp}
         self.last_view = None  # which view found the person in the last call (None: nobody)
+        self.fallback, self.backbone_weight = fallback, backbone_weight
+        self._backbone: BackboneSource | None = None
+
+    @property
+    def backbone(self) -> BackboneSource:
+        if self._backbone is None:
+            self._backbone = BackboneSource(min_confidence=TRUSTED_CONFIDENCE)
+        return self._backbone
+
+    def _fallback(self, rgb: np.ndarray, k: np.ndarray) -> Keypoints | None:
+        """The backbone's answer when it is confident enough (``fallback``), else None."""
+        if not self.fallback:
+            return None
+        kp = self.backbone(rgb, k)
+        self.last_view = None if kp is None else "backbone"
+        return kp
+
+    def _with_backbone(self, rgb: np.ndarray, k: np.ndarray, kp: Keypoints) -> Keypoints:
+        """A MediaPipe person's J+ blended with the backbone's on its crop (``backbone_weight``)
+        where the backbone is confident, else as they are."""
+        if not self.backbone_weight or kp.found_by != self.name:
+            return kp
+        b = self.backbone.on_crop(rgb, k, kp)
+        if b.confidence < TRUSTED_CONFIDENCE:
+            return kp
+        w = self.backbone_weight
+        return replace(kp, points3d=(1 - w) * kp.points3d + w * b.points3d,
+                       points2d=(1 - w) * kp.points2d + w * b.points2d, found_by=f"{self.name}+{b.found_by}")
 
     def _detector(self, threshold: float) -> MediaPipePose:
         if threshold not in self._by_threshold:
@@ -182,7 +222,8 @@ class MediaPipeSource:
         return None
 
     def __call__(self, rgb: np.ndarray, k: np.ndarray) -> Keypoints | None:
-        return self._find(rgb, k, self.retry, strict=False)
+        kp = self._find(rgb, k, self.retry, strict=False)
+        return self._fallback(rgb, k) if kp is None else self._with_backbone(rgb, k, kp)
 
     def _find(self, rgb: np.ndarray, k: np.ndarray, retry: bool, strict: bool) -> Keypoints | None:
         """``__call__`` with its retries on or off; ``strict``: even the first answer needs a retry
@@ -211,7 +252,7 @@ class MediaPipeSource:
             found = self._retry(rgb, k)
             if found is not None:  # a view found the person: no mirror averaging on top
                 r, p3, uv, score = found
-                return Keypoints(p3, uv, float(np.mean(r.visibility)), r.box(), r.mask, score)
+                return Keypoints(p3, uv, float(np.mean(r.visibility)), r.box(), r.mask, score, self.name)
         if found is None:
             return None
         r, p3, uv = found
@@ -231,21 +272,22 @@ class MediaPipeSource:
                 d = np.linalg.norm(uvm - uv, axis=1)[inside if inside.any() else slice(None)]
                 if np.median(d) < 0.25 * size:  # the same person (another one would be far off)
                     p3, uv = 0.5 * (p3 + p3m), 0.5 * (uv + uvm)
-        return Keypoints(p3, uv, float(np.mean(r.visibility)), box, r.mask, score)
+        return Keypoints(p3, uv, float(np.mean(r.visibility)), box, r.mask, score, self.name)
 
     def people(self, rgb: np.ndarray, k: np.ndarray, max_people: int) -> list[Keypoints]:
         """Up to ``max_people`` people: MediaPipe Pose finds one person per call, so each person it
         finds is painted over (``blank_person``) and it is asked again, first on the whole image,
         then, once someone is found, on windows of it (``windows``: its detector sees a whole image
         at 224 px, where the people of a wide group photo are too small), until it finds nobody
-        new. Only the first person may come from the retries; window answers need the guard's
-        retry evidence."""
+        new. Only the first person may come from the retries or the ``fallback``; window answers need
+        the guard's retry evidence."""
         found: list[Keypoints] = []
         work = rgb
         views = [(0, 0, rgb.shape[1], rgb.shape[0])] + windows(*rgb.shape[:2])
         for n_view, (x0, y0, x1, y1) in enumerate(views):
             if n_view > 0 and not found:
-                break  # nobody in the whole image: no windows (where phantoms would get a second chance)
+                # nobody in the whole image: no windows (where phantoms would get a second chance)
+                return [kp] if (kp := self._fallback(rgb, k)) is not None else []
             while len(found) < max_people:
                 kw = np.array(k, float)
                 kw[:2, 2] -= (x0, y0)
@@ -260,7 +302,7 @@ class MediaPipeSource:
                     break
                 found.append(kp)
                 work = blank_person(work, kp)
-        return found
+        return [self._with_backbone(rgb, k, kp) for kp in found]
 
 
 def windows(h: int, w: int) -> list[tuple[int, int, int, int]]:
@@ -293,7 +335,7 @@ def _scaled(kp: Keypoints, factor: float, shape) -> Keypoints:
     if kp.mask is not None:
         mask = cv2.resize(kp.mask.astype(np.uint8), (shape[1], shape[0]), interpolation=cv2.INTER_NEAREST) > 0
     return Keypoints(kp.points3d, kp.points2d * factor, kp.confidence, tuple(float(b) * factor for b in kp.box),
-                     mask, kp.person_score)
+                     mask, kp.person_score, kp.found_by)
 
 
 def _shifted(kp: Keypoints, x0: int, y0: int, shape) -> Keypoints:
@@ -307,7 +349,7 @@ def _shifted(kp: Keypoints, x0: int, y0: int, shape) -> Keypoints:
         mask[y0:y0 + mh, x0:x0 + mw] = kp.mask
     b = kp.box
     return Keypoints(kp.points3d, kp.points2d + [x0, y0], kp.confidence, (b[0] + x0, b[1] + y0, b[2] + x0, b[3] + y0),
-                     mask, kp.person_score)
+                     mask, kp.person_score, kp.found_by)
 
 
 class BackboneSource:
@@ -335,4 +377,17 @@ class BackboneSource:
         h, w = rgb.shape[:2]
         x0, y0 = np.clip(uv.min(0), 0, [w, h])
         x1, y1 = np.clip(uv.max(0), 0, [w, h])
-        return Keypoints(pts - pts[:1], uv, c, (float(x0), float(y0), float(x1), float(y1)))
+        return Keypoints(pts - pts[:1], uv, c, (float(x0), float(y0), float(x1), float(y1)), found_by=self.name)
+
+    def on_crop(self, rgb: np.ndarray, k: np.ndarray, kp: Keypoints, passes: int = 2) -> Keypoints:
+        """The network on the metric crop of another source's keypoints ``kp`` (then ``passes`` - 1
+        more passes, each on the crop of the previous): its J+ where ``kp`` says the person is,
+        with its mean peak confidence; ``kp``'s box and mask."""
+        search = self.search
+        crop = crop_from_keypoints(kp.points2d, k, search.template, 1.0, kp.points3d)
+        for p in range(passes):
+            pts, uv, conf = search.net.predict([rgb], [crop])
+            if p < passes - 1:
+                crop = crop_from_keypoints(uv[0], k, search.template, search.net.depth_scale[-1],
+                                           search.depth_points(pts[0]))
+        return Keypoints(pts[0] - pts[0][:1], uv[0], float(conf[0].mean()), kp.box, kp.mask, found_by=self.name)
