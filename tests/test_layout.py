@@ -28,6 +28,7 @@ STAGES = [
     ("recon.bench",),
     ("recon.run",),
     ("recon.animate",),
+    ("recon.video",),
     ("recon.demo",),
     ("recon.cli",),
 ]
