@@ -1,9 +1,10 @@
 """The image pipeline's keypoint sources: ``source(rgb, K) -> Keypoints | None``.
 
 ``MediaPipeSource`` (the default): MediaPipe Pose finds the person and its 33 landmarks and
-person mask, the learned adapter maps the landmarks to our J+; where it finds nobody, optionally
-our backbone (``fallback``). ``BackboneSource``: our volumetric hourglass alone, which finds its
-own crop (``recon.backbone.search``); trained on synthetic renders only.
+person mask, the learned adapter maps the landmarks to our J+; our backbone, where it is
+confident, answers where MediaPipe finds nobody (``fallback``) and takes a share of each person's
+J+ (``backbone_weight``). ``BackboneSource``: our volumetric hourglass alone, which finds its own
+crop (``recon.backbone.search``); trained on synthetic renders only.
 """
 from __future__ import annotations
 
