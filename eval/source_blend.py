@@ -27,7 +27,6 @@ import torch
 from tqdm import tqdm
 
 from recon import report
-from recon.backbone.search import crop_from_keypoints
 from recon.body import default_body
 from recon.keypoints.sources import TRUSTED_CONFIDENCE, BackboneSource, MediaPipeSource
 from recon.smplr.lifter_train import box_height
@@ -44,7 +43,7 @@ def collect(n: int, data: str = "synth-val") -> dict[str, np.ndarray]:
     ds = SynthDataset(bench_dir(data))
     n = min(n, len(ds))
     mp, bb = MediaPipeSource(), BackboneSource(default_body())
-    net, search = bb.search.net, bb.search
+    search = bb.search
     out = {k: np.zeros((n, 42, 2)) for k in ("gt2", *(f"{s}2" for s in SOURCES))}
     out |= {k: np.zeros((n, 42, 3)) for k in ("gt3", *(f"{s}3" for s in SOURCES))}
     out["found"] = np.zeros(n, bool)
@@ -61,12 +60,10 @@ def collect(n: int, data: str = "synth-val") -> dict[str, np.ndarray]:
             continue
         out["found"][i] = True
         out["mediapipe2"][i], out["mediapipe3"][i] = kp.points2d, kp.points3d
-        crop = crop_from_keypoints(kp.points2d, k, search.template, 1.0, kp.points3d)
-        for p in (1, 2):
-            pts, uv, conf = net.predict([rgb], [crop])
-            out[f"backbone-mpcrop{p}2"][i], out[f"backbone-mpcrop{p}3"][i] = uv[0], pts[0] - pts[0][:1]
-            out[f"backbone-mpcrop{p}-conf"][i] = conf[0].mean()
-            crop = crop_from_keypoints(uv[0], k, search.template, net.depth_scale[-1], search.depth_points(pts[0]))
+        for p in (1, 2):  # recon run's own code for the blend (pass 1 run again for p = 2)
+            b = bb.on_crop(rgb, k, kp, passes=p)
+            out[f"backbone-mpcrop{p}2"][i], out[f"backbone-mpcrop{p}3"][i] = b.points2d, b.points3d
+            out[f"backbone-mpcrop{p}-conf"][i] = b.confidence
     return out
 
 
