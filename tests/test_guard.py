@@ -91,12 +91,17 @@ def test_people_in_the_bundled_photos_are_kept(path):
     assert kp.found_by == "mediapipe"  # the backbone, which learnt our renders, is not trusted on photos
 
 
+@pytest.fixture(scope="module")
+def occluded_person() -> dict:
+    """synth-val image 27, rendered: a person behind an occluder, whom MediaPipe's answers miss."""
+    return SceneSampler(default_body(), BENCHMARKS["synth-val"]["split"], BENCHMARKS["synth-val"]["seed"]).sample(27)
+
+
 @needs_mediapipe
-def test_the_backbone_stands_in_only_where_mediapipe_finds_nobody(monkeypatch):
+def test_the_backbone_stands_in_only_where_mediapipe_finds_nobody(monkeypatch, occluded_person):
     """synth-val image 27 (a person behind an occluder): with MediaPipe finding nobody, the fallback's
     backbone answers, says so, and puts the joints where the person is; without it, nobody."""
-    body = default_body()
-    s = SceneSampler(body, BENCHMARKS["synth-val"]["split"], BENCHMARKS["synth-val"]["seed"]).sample(27)
+    s = occluded_person
     rgb, k = s["rgb"], s["K"].astype(np.float64)
     src = MediaPipeSource(fallback=True)
     monkeypatch.setattr(src, "_find", lambda *args, **kwargs: None)  # MediaPipe finds nobody, whatever the CPU
@@ -111,12 +116,11 @@ def test_the_backbone_stands_in_only_where_mediapipe_finds_nobody(monkeypatch):
 
 
 @needs_mediapipe
-def test_the_backbone_blends_into_mediapipe_people_where_it_is_confident(monkeypatch):
+def test_the_backbone_blends_into_mediapipe_people_where_it_is_confident(monkeypatch, occluded_person):
     """The same rendered person, with MediaPipe's answer standing in as the true J+ shifted 6 px:
     the backbone on its crop finds the person, and the J+ become the weighted mean; at weight 0 they
     stay MediaPipe's."""
-    body = default_body()
-    s = SceneSampler(body, BENCHMARKS["synth-val"]["split"], BENCHMARKS["synth-val"]["seed"]).sample(27)
+    s = occluded_person
     rgb, k = s["rgb"], s["K"].astype(np.float64)
     p3 = s["points3d"].astype(np.float64)
     given = Keypoints(p3 - p3[:1], s["points2d"].astype(np.float64) + 6.0, 0.9, (0.0, 0.0, 256.0, 256.0),
