@@ -1,0 +1,219 @@
+"""Synthetic videos with ground truth: held-out mocap clips played by generated people in front of a
+static camera, rendered like the image benchmarks (``recon.synth.scene``).
+
+A clip is a ``ClipSpec``: one or two people, each a mocap clip of the pose set from a start frame,
+with its own body shape, clothing colours and place on the ground; a static camera at head height
+looks at the scene from a random side; ``aim`` says where: the middle of the people's paths
+("middle"), or the end or the start of the first person's path, so that a walker enters or
+leaves the frame ("enter", "leave"). Frames are 640 x 480 at the pose set's 30 fps, with a fixed
+background and light and fresh sensor noise each frame. Every random choice comes from the clip's
+seed. World frame: +Y up, metres, the ground at y = 0; camera: OpenCV, X_cam = R @ X_world + t.
+
+``render_clip(spec) -> (frames, truth)``; ``write_clip`` stores the frames as an MP4 (what
+``recon video`` reads) and the truth as .npz; ``VIDEO_BENCHMARKS`` are the fixed sets.
+"""
+from __future__ import annotations
+
+import copy
+import json
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+from scipy.spatial.transform import Rotation
+
+from recon import camera, paths
+from recon.poses.mocap import FPS, MocapPoses
+from recon.poses.sampler import ShapeSampler
+from recon.synth.raster import Rasterizer
+from recon.synth.scene import background, vertex_colours
+
+SIZE = (480, 640)  # (H, W)
+VIDEO_GENERATOR = 1
+
+
+@dataclass(frozen=True)
+class Actor:
+    clip: str  # a clip name of the pose set (``MocapPoses.clips``)
+    start: int = 0  # its first frame
+    offset: tuple[float, float] = (0.0, 0.0)  # (x, z) metres added to its path, after centring it
+    heading: float | None = None  # degrees: the path turned about the vertical to run this way (0: +x, 90: -z)
+
+
+@dataclass(frozen=True)
+class ClipSpec:
+    name: str
+    actors: tuple[Actor, ...]
+    frames: int
+    seed: int
+    aim: str = "middle"  # "middle", "enter" or "leave"
+    distance: float = 5.0  # camera to the aimed point, metres
+    focal: float = 600.0  # pixels
+    yaw: float | None = None  # degrees: where the camera stands around the aimed point (0: on +z); None: random
+
+
+# The fixed sets: clips of the held-out subjects of the pose set's val and test splits.
+VIDEO_BENCHMARKS: dict[str, list[ClipSpec]] = {
+    "synth-video-val": [
+        ClipSpec("walk-02_01", (Actor("02_01"),), 80, 11, "middle", 5.5),
+        ClipSpec("enter-06_01", (Actor("06_01"),), 90, 12, "enter", 4.5),
+        ClipSpec("fight-02_05", (Actor("02_05", 60),), 90, 13, "middle", 4.5),
+        ClipSpec("pickup-02_06", (Actor("02_06", 100),), 90, 14, "middle", 4.0),
+        ClipSpec("ball-06_02", (Actor("06_02", 20),), 90, 15, "middle", 5.0),
+        ClipSpec("two-cross-10_04-02_02", (Actor("10_04", 0, (0.0, 0.6), 0.0), Actor("02_02", 0, (0.0, -0.6), 180.0)),
+                 75, 16, "middle", 6.5, yaw=0.0),
+    ],
+    "synth-video-test": [
+        ClipSpec("walk-03_03", (Actor("03_03", 200),), 90, 21, "middle", 6.0),
+        ClipSpec("enter-12_01", (Actor("12_01", 20),), 90, 22, "enter", 4.5),
+        ClipSpec("leave-09_12", (Actor("09_12", 100),), 90, 23, "leave", 4.5),
+        ClipSpec("jump-14_07", (Actor("14_07", 60),), 90, 24, "middle", 4.5),
+        ClipSpec("gesture-14_12", (Actor("14_12", 150),), 90, 25, "middle", 4.0),
+        ClipSpec("sit-14_27", (Actor("14_27", 120),), 90, 26, "middle", 4.0),
+        ClipSpec("climb-14_21", (Actor("14_21", 40),), 90, 27, "middle", 4.5),
+        ClipSpec("two-03_01-14_17", (Actor("03_01", 0, (0.0, 0.8), 0.0), Actor("14_17", 100, (1.2, -0.8))), 90, 28,
+                 "middle", 6.0, yaw=20.0),
+        ClipSpec("two-cross-03_02-12_01", (Actor("03_02", 0, (0.0, 0.6), 0.0), Actor("12_01", 0, (0.0, -0.6), 180.0)),
+                 90, 29, "middle", 6.5, yaw=0.0),
+    ],
+}
+
+
+@dataclass
+class ClipTruth:
+    """Ground truth of one clip, person p at frame f. Camera frame: OpenCV, metres."""
+
+    K: np.ndarray  # (3, 3)
+    R: np.ndarray  # (3, 3) world -> camera
+    t: np.ndarray  # (3,)
+    joints: np.ndarray  # (P, F, 24, 3) camera frame
+    points: np.ndarray  # (P, F, 42, 3) J+ in the camera frame
+    vertices: np.ndarray  # (P, F, V, 3) float16, camera frame minus the pelvis
+    joints_world: np.ndarray  # (P, F, 24, 3)
+    pose: np.ndarray  # (P, F, 24, 3) axis-angle, root in the world frame
+    shape: np.ndarray  # (P, S)
+    visible: np.ndarray  # (P, F) bool: in front of the camera with at least 12 J+ inside the frame
+    fps: float = FPS
+    meta: dict = field(default_factory=dict)
+
+    def save(self, path: Path) -> None:
+        arrays = {k: v for k, v in asdict(self).items() if k != "meta"}
+        arrays["meta"] = np.array(json.dumps(self.meta))
+        paths.atomic_write(path, lambda tmp: np.savez_compressed(open(tmp, "wb"), **arrays))
+
+    @classmethod
+    def load(cls, path: Path) -> ClipTruth:
+        with np.load(path, allow_pickle=False) as z:
+            d = {k: z[k] for k in z.files}
+        d["meta"] = json.loads(str(d["meta"]))
+        d["fps"] = float(d["fps"])
+        return cls(**d)
+
+
+def look_at(eye: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """World -> OpenCV camera (R, t) of a camera at ``eye`` looking at ``target``, world +Y up."""
+    fwd = (target - eye) / np.linalg.norm(target - eye)
+    right = np.cross(fwd, [0.0, 1.0, 0.0])
+    right /= np.linalg.norm(right)
+    down = np.cross(fwd, right)
+    r = np.stack([right, down, fwd])
+    return r, -r @ eye
+
+
+class ClipRenderer:
+    """Renders ``ClipSpec`` clips with one body model and rasteriser (reuse it across clips)."""
+
+    def __init__(self, body, poses: MocapPoses | None = None):
+        self.body = copy.deepcopy(body).double()  # float64 geometry, as the image generator
+        self.poses = poses or MocapPoses.load()
+        self.by_name = {c["name"]: i for i, c in enumerate(self.poses.clips)}
+        self.faces = body.faces.numpy()
+        self.parts = body.weights.argmax(1).numpy()
+        self.raster = Rasterizer(SIZE[1], SIZE[0])
+
+    def _motion(self, actor: Actor, frames: int) -> tuple[np.ndarray, np.ndarray]:
+        """(F, 24, 3) axis-angle and (F, 3) pelvis path of an actor: its clip from ``start``, held on
+        its last frame past the clip's end, centred on the ground at the origin plus ``offset``."""
+        if actor.clip not in self.by_name:
+            raise KeyError(f"no clip {actor.clip!r} in the pose set")
+        sel = np.flatnonzero(self.poses.clip == self.by_name[actor.clip])
+        idx = sel[np.minimum(actor.start + np.arange(frames), len(sel) - 1)]
+        rot, tr = self.poses.rotvec[idx].astype(np.float64), self.poses.transl[idx].astype(np.float64)
+        tr[:, [0, 2]] -= tr[:, [0, 2]].mean(0)
+        if actor.heading is not None:
+            way = tr[-1] - tr[0]
+            turn = Rotation.from_euler("y", np.radians(actor.heading) + np.arctan2(way[2], way[0]))
+            rot[:, 0] = (turn * Rotation.from_rotvec(rot[:, 0])).as_rotvec()
+            tr = turn.apply(tr)
+        tr[:, [0, 2]] += np.asarray(actor.offset)
+        return rot, tr
+
+    def render(self, spec: ClipSpec) -> tuple[list[np.ndarray], ClipTruth]:
+        rng = np.random.default_rng([VIDEO_GENERATOR, spec.seed])
+        torch.manual_seed(spec.seed)
+        shapes = ShapeSampler(self.body, seed=spec.seed).sample(len(spec.actors)).double()
+        joints, points, verts, colours = [], [], [], []
+        poses = []
+        for p, actor in enumerate(spec.actors):
+            rot, tr = self._motion(actor, spec.frames)
+            with torch.no_grad():
+                out = self.body(torch.from_numpy(rot), shapes[p:p + 1].expand(spec.frames, -1),
+                                transl=torch.from_numpy(tr))
+            v = out.vertices.numpy()
+            lift = -v[..., 1].min()  # the lowest point over the clip on the ground
+            joints.append(out.joints.numpy() + [0, lift, 0])
+            points.append(out.points.numpy() + [0, lift, 0])
+            verts.append(v + [0, lift, 0])
+            colours.append(vertex_colours(rng, out.rest_vertices[0].numpy(), self.parts))
+            poses.append(rot)
+        path = joints[0][:, 0]
+        target = {"middle": np.concatenate([j[:, 0] for j in joints]).mean(0), "enter": path[-1],
+                  "leave": path[0]}[spec.aim].copy()
+        target[1] = 1.0
+        yaw = rng.uniform(0, 2 * np.pi) if spec.yaw is None else np.radians(spec.yaw)
+        eye = target + spec.distance * np.array([np.sin(yaw), 0.0, np.cos(yaw)])
+        eye[1] = rng.uniform(1.2, 1.7)
+        r, t = look_at(eye, target)
+        k = np.array([[spec.focal, 0, SIZE[1] / 2], [0, spec.focal, SIZE[0] / 2], [0, 0, 1.0]])
+        bg = background(rng, SIZE[1])[:SIZE[0]]
+        light = rng.normal(0, 1, 3) * [1, 1, 0.3] + [0, 0, 1.0]
+        ambient = rng.uniform(0.35, 0.6)
+        noise = rng.uniform(1, 5)
+        to_cam = lambda x: x @ r.T + t  # noqa: E731
+        faces = np.concatenate([self.faces + p * len(colours[0]) for p in range(len(spec.actors))])
+        cols = np.concatenate(colours)
+        frames = []
+        for f in range(spec.frames):
+            vc = np.concatenate([to_cam(v[f]) for v in verts])
+            rgb, labels, _ = self.raster.render(vc, faces, k, cols, None, light_dir=-light, ambient=ambient)
+            img = bg.copy()
+            img[labels >= 0] = rgb[labels >= 0]
+            grain = rng.standard_normal(img.shape, dtype=np.float32) * np.float32(noise)
+            frames.append(np.clip(img.astype(np.float32) + grain, 0, 255).astype(np.uint8))
+        pts_cam = np.stack([to_cam(p) for p in points])
+        uv = camera.project(pts_cam.reshape(-1, 3), k).reshape(pts_cam.shape[:-1] + (2,))
+        inside = camera.inside_image(uv.reshape(-1, 2), SIZE).reshape(uv.shape[:-1]) & (pts_cam[..., 2] > 0.1)
+        jc = np.stack([to_cam(j) for j in joints])
+        vc = np.stack([to_cam(v) for v in verts]) - jc[:, :, :1]
+        world_pose = np.stack(poses)
+        truth = ClipTruth(K=k, R=r, t=t, joints=jc, points=pts_cam, vertices=vc.astype(np.float16),
+                          joints_world=np.stack(joints), pose=world_pose.astype(np.float32),
+                          shape=shapes.numpy().astype(np.float32), visible=inside.sum(-1) >= 12,
+                          meta={"spec": asdict(spec), "generator": VIDEO_GENERATOR})
+        return frames, truth
+
+
+def write_clip(frames: list[np.ndarray], path: Path, fps: float = FPS) -> Path:
+    """The frames as an MP4 (OpenCV's MPEG-4 part 2 at high quality), atomically."""
+    def write(tmp):
+        vw = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"mp4v"), fps, frames[0].shape[1::-1])
+        if not vw.isOpened():
+            raise OSError("OpenCV has no MP4 encoder here")
+        vw.set(cv2.VIDEOWRITER_PROP_QUALITY, 100)
+        for f in frames:
+            vw.write(cv2.cvtColor(f, cv2.COLOR_RGB2BGR))
+        vw.release()
+    paths.atomic_write(path, write)
+    return path
