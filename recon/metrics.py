@@ -59,3 +59,38 @@ def bone_length_error(pred: torch.Tensor, gt: torch.Tensor, per_sample: bool = F
     lg = (gt[:, 1:24] - gt[:, par]).norm(dim=-1)
     err = (lp - lg).abs().mean(dim=1)
     return err if per_sample else err.mean()
+
+
+# Temporal metrics of a sequence (T, N, 3), as VIBE/TCMR report them.
+
+def acceleration(x: torch.Tensor) -> torch.Tensor:
+    """(T-2, N, 3) second differences in time (per frame squared)."""
+    if x.ndim != 3 or x.shape[0] < 3:
+        raise ValueError(f"expected a sequence (T >= 3, N, 3), got {tuple(x.shape)}")
+    return x[2:] - 2 * x[1:-1] + x[:-2]
+
+
+def acceleration_error(pred: torch.Tensor, gt: torch.Tensor, root: int | None = 0) -> torch.Tensor:
+    """Mean distance between predicted and true accelerations of the points (VIBE's "accel
+    error"), after subtracting point ``root`` in every frame (None: as they are)."""
+    _check(pred, gt)
+    if root is not None:
+        pred, gt = pred - pred[:, root:root + 1], gt - gt[:, root:root + 1]
+    return (acceleration(pred) - acceleration(gt)).norm(dim=-1).mean()
+
+
+def jitter(x: torch.Tensor, root: int | None = 0) -> torch.Tensor:
+    """Mean magnitude of the third differences in time (jerk, per frame cubed) of root-relative points."""
+    if root is not None:
+        x = x - x[:, root:root + 1]
+    a = acceleration(x)
+    return (a[1:] - a[:-1]).norm(dim=-1).mean()
+
+
+def foot_skating(pred_feet: torch.Tensor, planted: torch.Tensor) -> torch.Tensor:
+    """Mean distance a foot point moves between consecutive frames where it is planted in the
+    ground truth: ``pred_feet`` (T, F, 3) in a world frame (a static camera's), ``planted`` (T, F)
+    bool; NaN when nothing is planted."""
+    both = planted[1:] & planted[:-1]
+    step = (pred_feet[1:] - pred_feet[:-1]).norm(dim=-1)
+    return step[both].mean() if both.any() else torch.tensor(float("nan"))

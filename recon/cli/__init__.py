@@ -5,6 +5,7 @@ command runs, so ``recon --help`` is quick.
     recon run photos/ --out out/run        reconstruct the people in photos (recon.run)
     recon demo --out out/demo              the bundled photos, bodies and an outfit (recon.demo)
     recon animate photo.jpg --motion walk --out out/anim    a person moved by a mocap clip
+    recon video clip.mp4 --out out/clip    the people of a video, one motion each (recon.video)
     recon eval --bench synth-test --method ...              methods on a synthetic benchmark
     recon synth bench NAME | generate --out DIR             render benchmarks / training data
     recon body build-cache | info | export
@@ -37,6 +38,8 @@ COMMANDS = {
     "demo": ("recon.cli.run", "the bundled photos through `recon run` (+ contact sheet), body and outfit renders"),
     "animate": ("recon.cli.run", "move a reconstructed person (shape, outfit) with a mocap clip: animated .glb + "
                                  "video"),
+    "video": ("recon.cli.video", "a video (or frame folder) -> one motion per person: BVH, animated .glb, JSON, "
+                                 "overlay video"),
     "eval": ("recon.cli.synth", "run methods on a synthetic benchmark; merge into its JSON + Markdown"),
     "synth": ("recon.cli.synth", "render SURREAL-like synthetic samples or a fixed benchmark"),
     "body": ("recon.cli.body", "the body model: build its cache, print its facts, export the rest body"),

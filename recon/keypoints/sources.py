@@ -110,6 +110,17 @@ def blank_person(rgb: np.ndarray, kp: Keypoints) -> np.ndarray:
     return out
 
 
+def blend_backbone(backbone: BackboneSource, rgb: np.ndarray, k: np.ndarray, kp: Keypoints, weight: float
+                   ) -> Keypoints:
+    """``kp``'s J+ as ``weight`` x the backbone's on its crop + the rest of its own, where the backbone
+    is confident (``TRUSTED_CONFIDENCE``); else ``kp`` as it is."""
+    b = backbone.on_crop(rgb, k, kp)
+    if b.confidence < TRUSTED_CONFIDENCE:
+        return kp
+    return replace(kp, points3d=(1 - weight) * kp.points3d + weight * b.points3d,
+                   points2d=(1 - weight) * kp.points2d + weight * b.points2d, found_by=f"{kp.found_by}+{b.found_by}")
+
+
 class MediaPipeSource:
     """MediaPipe Pose landmarks -> our J+ via the learned adapter (recon.keypoints.adapter).
     ``flip``: also run on the mirrored image and average the two J+ (mirrored back, left and
@@ -160,12 +171,7 @@ class MediaPipeSource:
         where the backbone is confident, else as they are."""
         if not self.backbone_weight or kp.found_by != self.name:
             return kp
-        b = self.backbone.on_crop(rgb, k, kp)
-        if b.confidence < TRUSTED_CONFIDENCE:
-            return kp
-        w = self.backbone_weight
-        return replace(kp, points3d=(1 - w) * kp.points3d + w * b.points3d,
-                       points2d=(1 - w) * kp.points2d + w * b.points2d, found_by=f"{self.name}+{b.found_by}")
+        return blend_backbone(self.backbone, rgb, k, kp, self.backbone_weight)
 
     def _detector(self, threshold: float) -> MediaPipePose:
         if threshold not in self._by_threshold:
@@ -298,8 +304,8 @@ class MediaPipeSource:
                                 strict=n_view > 0)
                 if kp is None:
                     break
-                kp = _shifted(kp, x0, y0, work.shape)
-                if any(_same_person(kp, f) for f in found):
+                kp = shifted(kp, x0, y0, work.shape)
+                if any(same_person(kp, f) for f in found):
                     break
                 found.append(kp)
                 work = blank_person(work, kp)
@@ -321,7 +327,7 @@ def windows(h: int, w: int) -> list[tuple[int, int, int, int]]:
     return out
 
 
-def _same_person(new: Keypoints, old: Keypoints) -> bool:
+def same_person(new: Keypoints, old: Keypoints) -> bool:
     """A find that is someone found already: most of its keypoints inside the first one's box
     (a limb left over by the painting), or most of the smaller box inside the other."""
     x0, y0, x1, y1 = old.box
@@ -339,7 +345,7 @@ def _scaled(kp: Keypoints, factor: float, shape) -> Keypoints:
                      mask, kp.person_score, kp.found_by)
 
 
-def _shifted(kp: Keypoints, x0: int, y0: int, shape) -> Keypoints:
+def shifted(kp: Keypoints, x0: int, y0: int, shape) -> Keypoints:
     """Keypoints found on a window -> the same in the whole image."""
     if x0 == 0 and y0 == 0 and (kp.mask is None or kp.mask.shape == tuple(shape[:2])):
         return kp

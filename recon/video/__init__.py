@@ -1,7 +1,17 @@
-"""Video input (issue 53, in progress): ``frames`` reads the frames of a video file or a folder of
-images, with a frame range; the per-track reconstruction is not built yet."""
+"""Video in, one motion per person out: ``recon video`` (``recon.video.run.video``).
+
+``frames`` reads the frames of a video file or a folder of images, with a frame range;
+``perframe`` runs the image pipeline on each frame (MediaPipe in video mode), stored batch by
+batch; ``track`` follows people across frames; ``smooth`` optimises each track's motion over all
+its frames (motion prior, foot contact, ground plane); ``outputs`` writes BVH, animated .glb,
+JSON and the overlay video; ``run`` puts them together.
+"""
 from __future__ import annotations
 
 from recon.video.frames import Frame, FrameRange, FrameSource, VideoError
+from recon.video.run import VideoOptions, VideoResult, video
+from recon.video.smooth import SmoothConfig
+from recon.video.track import TrackerConfig
 
-__all__ = ["Frame", "FrameRange", "FrameSource", "VideoError"]
+__all__ = ["Frame", "FrameRange", "FrameSource", "SmoothConfig", "TrackerConfig", "VideoError", "VideoOptions",
+           "VideoResult", "video"]

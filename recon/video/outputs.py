@@ -1,0 +1,188 @@
+"""What ``recon video`` writes for a track, and the overlay video of the clip.
+
+Per track (``write_track``): ``motion.bvh`` (the motion on the track's own skeleton, centimetres),
+``animated.glb`` (skinned body with the track's shape, dressed with an outfit when asked; NCS
+dynamics where the outfit has them) and ``motion.json``, all in the track's world frame (+Y up
+from the estimated ground, feet on y = 0, Z towards the camera; ``recon.video.smooth.to_world``).
+``write_overlay`` streams ``overlay.mp4``: each frame with every track's body drawn over it, side
+by side with a 3D view of the bodies on the ground.
+"""
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+import roma
+import torch
+
+from recon import paths
+from recon.body import skeleton
+from recon.garment.gltf import write_glb
+from recon.poses.bvh import write_bvh
+from recon.synth.raster import Rasterizer
+from recon.synth.video import look_at
+
+COLOURS = ((0.45, 0.62, 0.92, 1.0), (0.92, 0.55, 0.45, 1.0), (0.5, 0.82, 0.5, 1.0), (0.85, 0.75, 0.4, 1.0),
+           (0.7, 0.5, 0.85, 1.0))
+
+
+@dataclass
+class WorldMotion:
+    """One track's motion in its world frame over positions first..first+T-1 of the frames taken."""
+
+    id: int
+    first: int
+    rotmats: np.ndarray  # (T, 24, 3, 3) local; the root into the world frame
+    translation: np.ndarray  # (T, 3) pelvis, world frame
+    shape: np.ndarray  # (S,)
+    seen: np.ndarray  # (T,) bool
+    planted: np.ndarray  # (T, 2) bool
+    to_world: tuple[np.ndarray, np.ndarray]  # (R, o): X_world = R @ (X_cam - o)
+
+    def camera_frame(self, body, f: int) -> np.ndarray:
+        """(V, 3) the body at track frame ``f`` in the camera frame."""
+        return self.to_camera(self.vertices(body, f))
+
+    def vertices(self, body, f: int) -> np.ndarray:
+        with torch.no_grad():
+            o = body(torch.tensor(self.rotmats[f:f + 1], dtype=torch.float32),
+                     torch.tensor(self.shape[None], dtype=torch.float32),
+                     transl=torch.tensor(self.translation[f:f + 1], dtype=torch.float32))
+        return o.vertices[0].numpy().astype(np.float64)
+
+    def to_camera(self, x: np.ndarray) -> np.ndarray:
+        r, o = self.to_world
+        return x @ r + o
+
+
+def write_track(folder: Path, body, m: WorldMotion, fps: float, frame_index: list[int], frame_time: list[float],
+                camera: dict, dresser=None, tightness=None) -> list[str]:
+    """The track's files (module doc) in ``folder``; motion.json last. Returns their names."""
+    folder.mkdir(parents=True, exist_ok=True)
+    shape = torch.tensor(m.shape, dtype=torch.float32)
+    with torch.no_grad():
+        rest = body(shape=shape[None]).joints[0].numpy()
+    write_bvh(folder / "motion.bvh", list(skeleton.JOINT_NAMES), list(skeleton.JOINT_PARENTS), rest, m.rotmats,
+              m.translation, fps=fps)
+    write_glb(folder / "animated.glb", body, shape, torch.tensor(m.rotmats, dtype=torch.float32),
+              torch.tensor(m.translation, dtype=torch.float32), fps, dresser, tightness=tightness,
+              animation_name=f"track_{m.id}")
+    with torch.no_grad():
+        joints = body(torch.tensor(m.rotmats, dtype=torch.float32), shape[None],
+                      transl=torch.tensor(m.translation, dtype=torch.float32)).joints.numpy()
+    r = lambda a, d=4: np.round(np.asarray(a, float), d).tolist()  # noqa: E731
+    span = slice(m.first, m.first + len(m.rotmats))
+    info = {
+        "frame": "world: +Y up from the estimated ground (feet on y = 0), Z towards the camera, metres",
+        "track": m.id, "fps": fps, "frames": len(m.rotmats),
+        "source_frames": frame_index[span], "times": r(frame_time[span], 4),
+        "seen": m.seen.astype(int).tolist(), "planted": m.planted.astype(int).tolist(),
+        "shape": dict(zip(getattr(body, "shape_names", None) or [f"s{i}" for i in range(len(m.shape))],
+                          r(m.shape), strict=True)),
+        "camera": {**camera, "world_to_camera": {"R": r(m.to_world[0].T, 6), "t": r(m.to_world[1], 5)},
+                   "note": "X_camera = R @ X_world + t (OpenCV camera)"},
+        "joint_names": list(skeleton.JOINT_NAMES),
+        "joints3d": r(joints),
+        "pose_axis_angle": r(roma.rotmat_to_rotvec(torch.tensor(m.rotmats)).numpy()),
+        "translation": r(m.translation),
+        "files": ["motion.bvh", "animated.glb", "motion.json"],
+    }
+    paths.write_text(folder / "motion.json", json.dumps(info, indent=1))
+    return info["files"]
+
+
+class VideoFileWriter:
+    """Frames streamed into an MP4 written under a temporary name and renamed at ``close()``:
+    readers never see a partial file. ``abort()`` drops it."""
+
+    def __init__(self, path: Path, fps: float, size: tuple[int, int]):
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        fd, self.tmp = tempfile.mkstemp(dir=self.path.parent, prefix=f".{self.path.name}.", suffix=".mp4")
+        os.close(fd)
+        self.writer = cv2.VideoWriter(self.tmp, cv2.VideoWriter_fourcc(*"mp4v"), fps, (size[1], size[0]))
+        if not self.writer.isOpened():
+            self.abort()
+            raise OSError("OpenCV has no MP4 encoder here")
+
+    def write(self, rgb: np.ndarray) -> None:
+        self.writer.write(cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+
+    def close(self) -> Path:
+        self.writer.release()
+        os.chmod(self.tmp, 0o644)
+        os.replace(self.tmp, self.path)
+        return self.path
+
+    def abort(self) -> None:
+        self.writer.release()
+        if os.path.exists(self.tmp):
+            os.unlink(self.tmp)
+
+
+class OverlayFrames:
+    """``overlay(rgb, position) -> frame``: the bodies of the tracks at that position over the
+    frame, beside a 3D view of them on the ground of the first track's world frame (a fixed camera
+    above and in front). Drawn by the fast rasteriser of the synthetic benchmark (flat shading)."""
+
+    def __init__(self, body, tracks: list[WorldMotion], k: np.ndarray, size: tuple[int, int]):
+        self.body, self.tracks, self.k = body, tracks, np.asarray(k, float)
+        self.faces = body.faces.cpu().numpy()
+        self.raster = Rasterizer(size[1], size[0])
+        self.world = tracks[0].to_world if tracks else (np.eye(3), np.zeros(3))
+        r, o = self.world
+        pelvis = np.concatenate([(t.to_camera(t.translation) - o) @ r.T for t in tracks] or [np.zeros((1, 3))])
+        lo, hi = pelvis.min(0), pelvis.max(0)
+        centre = np.array([(lo[0] + hi[0]) / 2, 0.9, (lo[2] + hi[2]) / 2])
+        extent = float(max(hi[0] - lo[0], hi[2] - lo[2], 1.0))
+        yaw = np.radians(25.0)
+        eye = centre + (0.8 * extent + 2.5) * np.array([np.sin(yaw), 0.35, np.cos(yaw)])
+        self.view = look_at(eye, centre)
+        self.view_k = np.array([[0.9 * size[0], 0, size[1] / 2], [0, 0.9 * size[0], size[0] / 2], [0, 0, 1.0]])
+        half = 2.0 * extent + 4.0
+        corners = np.array([[-half, 0, -half], [half, 0, -half], [half, 0, half], [-half, 0, half]])
+        self.floor = (corners + centre * [1, 0, 1], np.array([[0, 2, 1], [0, 3, 2]]))
+
+    def __call__(self, rgb: np.ndarray, position: int) -> np.ndarray:
+        r, o = self.world
+        cam_v, world_v, colours = [], [], []
+        for t in self.tracks:
+            f = position - t.first
+            if 0 <= f < len(t.rotmats):
+                v = t.camera_frame(self.body, f)
+                cam_v.append(v)
+                world_v.append((v - o) @ r.T)
+                colours.append(COLOURS[t.id % len(COLOURS)][:3])
+        left = rgb.copy()
+        if cam_v:
+            img, labels, _ = self._draw(cam_v, colours, self.k)
+            hit = labels >= 0
+            left[hit] = (0.25 * rgb[hit] + 0.75 * img[hit] + 0.5).astype(np.uint8)
+        fv, ff = self.floor
+        vr, vt = self.view
+        img, labels, _ = self._draw([*world_v, fv], [*colours, (0.8, 0.8, 0.78)], self.view_k, vr, vt,
+                                    extra_faces=ff)
+        right = np.full_like(rgb, 255)
+        right[labels >= 0] = img[labels >= 0]
+        return np.concatenate([left, right], 1)
+
+    def _draw(self, meshes: list[np.ndarray], colours, k, rot=None, tr=None, extra_faces=None):
+        """Bodies (and last, with ``extra_faces``, the floor) through the rasteriser; (R, t): the
+        world -> camera transform of the 3D view."""
+        verts, faces, cols, n = [], [], [], 0
+        for i, (v, c) in enumerate(zip(meshes, colours, strict=True)):
+            f = extra_faces if (extra_faces is not None and i == len(meshes) - 1) else self.faces
+            verts.append(v if rot is None else v @ rot.T + tr)
+            faces.append(f + n)
+            cols.append(np.tile(np.asarray(c, np.float32), (len(v), 1)))
+            n += len(v)
+        return self.raster.render(np.concatenate(verts), np.concatenate(faces), k, np.concatenate(cols),
+                                  light_dir=(0.3, -0.6, -1.0), ambient=0.45)  # towards the light: up, front
+
+    def close(self) -> None:
+        pass

@@ -1,0 +1,268 @@
+"""``recon video``: the people of a video, each one motion (BVH, rigged animated .glb, JSON), and
+an overlay video of the clip. Static camera assumed.
+
+1. Per frame (``recon.video.perframe``): keypoints (MediaPipe in video mode for one person;
+   found one after the other for several), the lifter and SMPLR, without the per-image fit; stored
+   batch by batch under ``<out>/.work`` so that a killed run continues from its last batch.
+2. Tracks (``recon.video.track``): people followed across frames, one id each.
+3. Per track (``recon.video.smooth``): one body shape (the median over its frames) and one
+   optimisation of the pose and position of every frame; gaps bridged; the ground from the
+   planted feet.
+4. Outputs (``recon.video.outputs``): ``<out>/track_<id>/`` motion.bvh, animated.glb, motion.json;
+   ``<out>/overlay.mp4``; ``<out>/video.json`` last (frames, skipped frames, tracks, timings).
+
+A frame that cannot be decoded is reported and skipped (its track frames are bridged). A finished
+output folder made from the same file, options and recon version is left as it is.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import shutil
+import time
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from recon import camera, paths
+from recon.errors import ReconError
+from recon.fit import FitConfig
+from recon.garment.dress import Dresser
+from recon.io import file_digest
+from recon.keypoints.video import MediaPipeVideoSource, PeopleVideoSource
+from recon.pipeline import Reconstructor, ReconstructorConfig
+from recon.run import check_writable
+from recon.version import __version__
+from recon.video.frames import FrameRange, FrameSource
+from recon.video.outputs import OverlayFrames, VideoFileWriter, WorldMotion, write_track
+from recon.video.perframe import Detections, FrameLog, PerFrame, same_work, stamp
+from recon.video.smooth import SmoothConfig, TrackInput, smooth_track, to_world
+from recon.video.track import Detection, Track, TrackerConfig, track
+
+WORK = ".work"
+log_ = logging.getLogger(__name__)
+
+
+@dataclass
+class VideoOptions:
+    """frames: which frames; max_people: tracks kept (1: MediaPipe's video mode); smooth: the track
+    optimisation (``SmoothConfig(steps=0)``: the per-frame estimates, gaps interpolated); tracker:
+    how people are followed; outfit / tightness: dress the animated bodies; overlay: write
+    overlay.mp4; batch: frames per stored batch; force: start again even if finished."""
+
+    frames: FrameRange = field(default_factory=FrameRange)
+    max_people: int = 1
+    smooth: SmoothConfig = field(default_factory=SmoothConfig)
+    tracker: TrackerConfig = field(default_factory=TrackerConfig)
+    outfit: str | None = None
+    tightness: tuple[float, float] | None = None
+    overlay: bool = True
+    batch: int = 30
+    force: bool = False
+
+    def per_frame_json(self) -> dict:
+        """What changes the per-frame pass."""
+        return {"frames": asdict(self.frames), "max_people": self.max_people}
+
+    def to_json(self) -> dict:
+        d = asdict(self)
+        d["tightness"] = None if self.tightness is None else [float(t) for t in self.tightness]
+        return {k: v for k, v in d.items() if k not in ("batch", "force")}
+
+
+@dataclass
+class VideoResult:
+    out: Path
+    tracks: list[WorldMotion]
+    frames: FrameLog
+    detections: Detections
+    fps: float
+    seconds: dict
+    unchanged: bool = False
+
+
+def video_config(config: ReconstructorConfig | None = None) -> ReconstructorConfig:
+    """The reconstruction of each frame: ``recon run``'s, without its per-image fit (the track
+    optimisation replaces it)."""
+    return replace(config or ReconstructorConfig(), fit=FitConfig(steps=0)).as_installed()
+
+
+def input_digest(path: Path) -> str:
+    """sha256 of a video's bytes, or of a frame folder's names, sizes and times."""
+    if path.is_file():
+        return file_digest(path)
+    h = hashlib.sha256()
+    for p in sorted(path.iterdir()):
+        if p.is_file():
+            st = p.stat()
+            h.update(f"{p.name}\0{st.st_size}\0{st.st_mtime_ns}\n".encode())
+    return h.hexdigest()
+
+
+def video(path: str | Path, out: str | Path, options: VideoOptions | None = None,
+          config: ReconstructorConfig | None = None, reconstructor: Reconstructor | None = None,
+          progress: bool = True, log=print) -> VideoResult:
+    """Reconstruct the people of the video (or frame folder) ``path`` into ``out`` (module doc)."""
+    options = options or VideoOptions()
+    if options.max_people < 1 or options.batch < 1:
+        raise ReconError("max_people and batch must be at least 1")
+    src = FrameSource(path, options.frames)
+    out = Path(out)
+    check_writable(out)
+    dresser = Dresser(options.outfit) if options.outfit else None
+    config = reconstructor.config if reconstructor is not None else video_config(config)
+    made_from = stamp(input_digest(Path(path)), options.to_json(), config.to_json(), __version__)
+    if not options.force and _finished(out) == json.loads(json.dumps(made_from)):
+        log(f"{out}: already made from the same video and options (--force makes it again)")
+        return VideoResult(out, [], FrameLog([], [], []), Detections.empty(0), 0.0, {}, unchanged=True)
+    work = out / WORK
+    per_frame_from = stamp(made_from["input"], options.per_frame_json(), config.to_json(), __version__)
+    if options.force or not same_work(work, per_frame_from):
+        shutil.rmtree(work, ignore_errors=True)
+        work.mkdir(parents=True)
+        paths.write_text(work / "made_from.json", json.dumps(per_frame_from, indent=1))
+    k = camera.default_intrinsics(*src.size, config.focal_factor)
+    seconds, t0 = {}, time.perf_counter()
+    rec = reconstructor or _reconstructor(config, options.max_people)
+    bar = tqdm(total=_expected(src), desc="recon video", unit="frame", disable=not progress)
+    resumed = []
+
+    def on_batch(batch, was_stored):
+        bar.update(len(batch))
+        if was_stored:
+            resumed.append(len(batch))
+        for f in batch:
+            if f.error:
+                log(f"skipped frame {f.index}: {f.error}")
+    try:
+        dets, frames = PerFrame(rec, k, work, options.max_people, options.batch).run(src, on_batch)
+    finally:
+        bar.close()
+    if resumed:
+        log(f"resumed: {sum(resumed)} frames read back from {work}")
+    seconds["per_frame"] = time.perf_counter() - t0
+    fps = _output_fps(src, options.frames)
+    t0 = time.perf_counter()
+    tracks = track(_detections(dets, len(frames.index)), replace(options.tracker, max_people=options.max_people))
+    motions = [_world_motion(rec.body, t, dets, k, src.size, options.smooth) for t in tracks]
+    seconds["tracks"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    cam = {"K": np.round(k, 3).tolist(), "image_size": list(src.size), "focal_from": "default"}
+    track_files = {}
+    for m in motions:
+        track_files[m.id] = write_track(out / f"track_{m.id}", rec.body, m, fps, frames.index, frames.time, cam,
+                                        dresser, options.tightness)
+    seconds["outputs"] = time.perf_counter() - t0
+    if options.overlay:
+        t0 = time.perf_counter()
+        _write_overlay(out / "overlay.mp4", src, rec.body, motions, k, fps, progress)
+        seconds["overlay"] = time.perf_counter() - t0
+    summary = {
+        "recon": __version__, "source": str(path), "fps": fps, "source_fps": src.fps, "image_size": list(src.size),
+        "frames": len(frames.index), "first_frame": frames.index[0] if frames.index else None,
+        "skipped": {str(i): e for i, e in zip(frames.index, frames.error, strict=True) if e},
+        "people_found_in": int(len(np.unique(dets.frame))),
+        "tracks": [{"id": m.id, "folder": f"track_{m.id}", "first": m.first, "frames": len(m.rotmats),
+                    "seen": int(m.seen.sum()), "files": track_files[m.id]} for m in motions],
+        "seconds": {k_: round(v, 2) for k_, v in seconds.items()},
+        "frames_per_second": round(len(frames.index) / max(sum(seconds.values()), 1e-9), 2),
+        "static_camera": True, "made_from": made_from,
+    }
+    paths.write_text(out / "video.json", json.dumps(summary, indent=1))
+    log(f"{len(frames.index)} frames, {len(motions)} track(s), {summary['frames_per_second']} frames/s -> {out}")
+    return VideoResult(out, motions, frames, dets, fps, seconds)
+
+
+def _reconstructor(config: ReconstructorConfig, max_people: int) -> Reconstructor:
+    if config.source != "mediapipe":
+        return Reconstructor(config)
+    if max_people == 1:
+        source = MediaPipeVideoSource(config.keypoint_model, config.guard, config.backbone_weight)
+    else:
+        source = PeopleVideoSource(config.keypoint_model, config.guard, config.backbone_weight)
+    return Reconstructor(config, source=source)
+
+
+def _finished(out: Path) -> dict | None:
+    try:
+        return json.loads((out / "video.json").read_text()).get("made_from")
+    except (OSError, ValueError):
+        return None
+
+
+def _expected(src: FrameSource) -> int | None:
+    if not src.count:
+        return None
+    r = src.range
+    n = src.count - int(round(r.start * src.fps))
+    if r.end is not None:
+        n = min(n, int(round((r.end - r.start) * src.fps)))
+    n = -(-max(n, 0) // r.every)
+    if r.fps is not None:
+        n = min(n, int(np.ceil((n * r.every / src.fps) * r.fps)))
+    return n
+
+
+def _output_fps(src: FrameSource, r: FrameRange) -> float:
+    fps = src.fps / r.every
+    return min(fps, r.fps) if r.fps is not None else fps
+
+
+def _detections(dets: Detections, frames: int) -> list[list[Detection]]:
+    per_frame: list[list[Detection]] = [[] for _ in range(frames)]
+    for n in range(len(dets)):
+        f = int(dets.frame[n])
+        hist = dets.appearance[n]
+        per_frame[f].append(Detection(f, dets.box[n].astype(float), dets.points2d[n].astype(float),
+                                      None if np.isnan(hist).any() else hist.astype(np.float32), n))
+    return per_frame
+
+
+def _world_motion(body, t: Track, dets: Detections, k: np.ndarray, size, cfg: SmoothConfig) -> WorldMotion:
+    """The track's one optimisation (``smooth_track``) and its motion in the world frame."""
+    rows = np.array([d.index for d in t.detections])
+    first, last = int(dets.frame[rows].min()), int(dets.frame[rows].max())
+    n = last - first + 1
+    pos = dets.frame[rows] - first
+    seen = np.zeros(n, bool)
+    seen[pos] = True
+
+    def spread(a, fill=0.0):
+        x = np.full((n, *a.shape[1:]), fill, np.float64)
+        x[pos] = a[rows]
+        return x
+    rot = spread(dets.rotmats)
+    rot[~seen] = np.eye(3)
+    shape = np.median(dets.shape[rows], 0)
+    inp = TrackInput(seen, spread(dets.points2d), spread(dets.points3d), spread(dets.box), rot,
+                     spread(dets.translation), shape, k, tuple(size))
+    m = smooth_track(body, inp, cfg)
+    r, o = to_world(m.ground, m.translation[np.flatnonzero(seen)[0]])
+    rotw = m.rotmats.copy()
+    rotw[:, 0] = r @ m.rotmats[:, 0]
+    return WorldMotion(t.id, first, rotw, (m.translation - o) @ r.T, shape, seen, m.planted, (r, o))
+
+
+def _write_overlay(path: Path, src: FrameSource, body, motions: list[WorldMotion], k, fps: float,
+                   progress: bool) -> None:
+    h, w = src.size
+    draw = OverlayFrames(body, motions, k, (h, w))
+    writer = VideoFileWriter(path, fps, (h, 2 * w))
+    bar = tqdm(total=_expected(src), desc="overlay.mp4", unit="frame", disable=not progress)
+    try:
+        last = None
+        for position, frame in enumerate(src):
+            rgb = frame.rgb if frame.rgb is not None else (last if last is not None else np.zeros((h, w, 3), np.uint8))
+            writer.write(draw(rgb, position))
+            last = rgb
+            bar.update(1)
+        writer.close()
+    except BaseException:
+        writer.abort()
+        raise
+    finally:
+        bar.close()
+        draw.close()

@@ -1,0 +1,236 @@
+"""One track's motion as one optimisation over all its frames (static camera).
+
+The per-frame estimates (SMPLR's pose and placement on each frame's keypoints) start it; the
+body's joint rotations and pelvis positions of every frame then move together, with the track's
+one body shape fixed, to minimise (``SmoothConfig`` weights):
+
+* reprojection: the body's J+ projected against the frame's detected 2D J+ (frames where the
+  person was seen, points inside the image);
+* depth: the root-relative 3D J+ near the per-frame lifted ones (what 2D cannot fix);
+* acceleration: the J+'s second differences in time, in the camera frame divided by their depth
+  (units of the image, like the reprojection): the motion prior. Frames where the person was not
+  seen have only this term and so are bridged smoothly;
+* contact: a foot found planted in the image (its 2D keypoints still, and low: ``planted``) does
+  not move in 3D between planted frames;
+* a small prior keeping the rotations near the per-frame ones.
+
+The ground is the plane through the planted feet (``ground_plane``, held near the mean direction
+of the torso, pelvis to neck); ``to_world`` gives the frame in which the motion is written: +Y up from the ground,
+feet on y = 0, Z towards the camera.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import roma
+import torch
+
+from recon import camera
+from recon.body import skeleton
+from recon.fit import linear_rest_geometry
+
+FOOT_POINTS = {  # per foot: ankle, foot joint, toe tip landmark (J+ indices)
+    "left": (skeleton.JOINT_NAMES.index("left_ankle"), skeleton.JOINT_NAMES.index("left_foot"),
+             skeleton.NUM_JOINTS + skeleton.LANDMARK_NAMES.index("left_toe_tip")),
+    "right": (skeleton.JOINT_NAMES.index("right_ankle"), skeleton.JOINT_NAMES.index("right_foot"),
+              skeleton.NUM_JOINTS + skeleton.LANDMARK_NAMES.index("right_toe_tip")),
+}
+
+
+@dataclass
+class SmoothConfig:
+    steps: int = 120  # optimiser iterations over the whole track (0: the per-frame estimates, gaps interpolated)
+    acceleration: float = 100.0  # of the root-relative J+
+    root_acceleration: float = 30.0  # of the pelvis' path (its depth is the noisiest)
+    contact: float = 30.0
+    depth_prior: float = 20.0  # as ``recon.fit.FitConfig``'s
+    pose_prior: float = 0.05
+    pose_lr: float = 0.02  # Adam's step sizes: rotations (radians) ...
+    translation_lr: float = 0.1  # ... and pelvis positions (metres)
+    optimizer: str = "lbfgs"  # or "adam" (``pose_lr``, ``translation_lr``)
+    planted_speed: float = 0.012  # a foot moving less than this (units of the box height a frame) in 2D ...
+    planted_low: float = 0.06  # ... within this of the lowest foot point of the frame is planted
+
+
+@dataclass
+class TrackInput:
+    """One track over frames first..last (T of them), from the per-frame estimates."""
+
+    seen: np.ndarray  # (T,) bool: detected in that frame
+    points2d: np.ndarray  # (T, 42, 2) pixels (anything where not seen)
+    points3d: np.ndarray  # (T, 42, 3) root-relative lifted J+
+    boxes: np.ndarray  # (T, 4)
+    rotmats: np.ndarray  # (T, 24, 3, 3) per-frame local rotations, root into the camera frame
+    translation: np.ndarray  # (T, 3) per-frame pelvis positions, camera frame
+    shape: np.ndarray  # (S,) the track's body shape
+    K: np.ndarray  # (3, 3)
+    image_shape: tuple[int, int]
+
+
+@dataclass
+class TrackMotion:
+    rotmats: np.ndarray  # (T, 24, 3, 3), root into the camera frame
+    translation: np.ndarray  # (T, 3) camera frame
+    joints: np.ndarray  # (T, 24, 3) camera frame
+    points: np.ndarray  # (T, 42, 3) camera frame
+    planted: np.ndarray  # (T, 2) bool: left, right foot planted
+    ground: tuple[np.ndarray, float]  # plane (n, d): n . x = d, n up, camera frame
+
+
+def fill_gaps(seen: np.ndarray, rotmats: np.ndarray, translation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Frames not seen get rotations slerped and positions interpolated between the nearest seen
+    frames (held beyond the first and last)."""
+    seen_idx = np.flatnonzero(seen)
+    if len(seen_idx) == 0:
+        raise ValueError("a track needs at least one seen frame")
+    rot, tr = rotmats.copy(), translation.copy()
+    q = roma.rotmat_to_unitquat(torch.as_tensor(rotmats, dtype=torch.float64))
+    for f in np.flatnonzero(~seen):
+        after = seen_idx[seen_idx > f]
+        before = seen_idx[seen_idx < f]
+        if not len(before) or not len(after):
+            g = after[0] if len(after) else before[-1]
+            rot[f], tr[f] = rotmats[g], translation[g]
+            continue
+        a, b = before[-1], after[0]
+        w = (f - a) / (b - a)
+        rot[f] = roma.unitquat_to_rotmat(roma.unitquat_slerp(q[a], q[b], torch.tensor([w], dtype=torch.float64))[0])
+        tr[f] = (1 - w) * translation[a] + w * translation[b]
+    return rot, tr
+
+
+def planted(inp: TrackInput, cfg: SmoothConfig) -> np.ndarray:
+    """(T, 2) whether each foot (left, right) is planted: seen, its 2D points nearly still between
+    the frames around, and near the lowest foot point of the frame (image y grows downwards)."""
+    t = len(inp.seen)
+    height = np.maximum(inp.boxes[:, 3] - inp.boxes[:, 1], 1.0)
+    out = np.zeros((t, 2), bool)
+    feet = [list(FOOT_POINTS[s]) for s in ("left", "right")]
+    lowest = inp.points2d[:, sum(feet, []), 1].max(1)
+    inside = camera.inside_image(inp.points2d.reshape(-1, 2), inp.image_shape).reshape(t, -1)
+    for f in range(1, t - 1):
+        if not (inp.seen[f - 1] and inp.seen[f] and inp.seen[f + 1]):
+            continue
+        for s, ids in enumerate(feet):
+            speed = np.linalg.norm(inp.points2d[f + 1, ids] - inp.points2d[f - 1, ids], axis=1).mean() / 2
+            low = inp.points2d[f, ids, 1].max() >= lowest[f] - cfg.planted_low * height[f]
+            out[f, s] = inside[f, ids].all() and low and speed < cfg.planted_speed * height[f]
+    return out
+
+
+def ground_plane(points: np.ndarray, up: np.ndarray, sole: float, stiffness: float = 0.05
+                 ) -> tuple[np.ndarray, float]:
+    """Plane n . x = d under planted foot joints ``points`` (N, 3): n is the direction of least
+    spread, held near ``up`` (a line of footsteps does not fix the plane's tilt about it); d puts
+    the sole ``sole`` metres under the points' median."""
+    up = up / np.linalg.norm(up)
+    if len(points) < 3:
+        n = up
+    else:
+        c = points - points.mean(0)
+        cov = c.T @ c / len(points) + stiffness * (np.eye(3) - np.outer(up, up))
+        n = np.linalg.eigh(cov)[1][:, 0]
+        n = n if n @ up > 0 else -n
+    d = float(np.median(points @ n)) - sole if len(points) else 0.0
+    return n, d
+
+
+def to_world(ground: tuple[np.ndarray, float], origin: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(R, o): X_world = R @ (X_cam - o). +Y the ground's normal, Z towards the camera (level),
+    the origin on the ground under ``origin``."""
+    n, d = ground
+    fwd = np.array([0.0, 0.0, 1.0]) - n[2] * n
+    z = -fwd / max(np.linalg.norm(fwd), 1e-9)
+    x = np.cross(n, z)
+    r = np.stack([x, n, z])
+    return r, origin - (origin @ n - d) * n
+
+
+def smooth_track(body, inp: TrackInput, cfg: SmoothConfig | None = None) -> TrackMotion:
+    """The track's motion (module doc), camera frame, and its ground plane."""
+    cfg = cfg or SmoothConfig()
+    rot0, tr0 = fill_gaps(inp.seen, inp.rotmats, inp.translation)
+    contact = planted(inp, cfg)
+    t = len(rot0)
+    dtype = torch.float32
+    k = torch.tensor(inp.K, dtype=dtype)
+    shape = torch.tensor(inp.shape, dtype=dtype)[None]
+    rest = tuple(x.expand(t, -1, -1) for x in linear_rest_geometry(body, shape, None, with_jacobian=False)[0])
+    r0 = torch.tensor(rot0, dtype=dtype)
+    uv = torch.tensor(inp.points2d, dtype=dtype)
+    p3 = torch.tensor(inp.points3d, dtype=dtype)
+    w = torch.tensor(camera.inside_image(inp.points2d.reshape(-1, 2), inp.image_shape).reshape(t, -1)
+                     & inp.seen[:, None], dtype=dtype)
+    seen = torch.tensor(inp.seen, dtype=dtype)
+    delta = torch.zeros(t, 24, 3, requires_grad=True)
+    tr = torch.tensor(tr0, dtype=dtype).requires_grad_(True)
+    ids = [list(FOOT_POINTS[s]) for s in ("left", "right")]
+    both = torch.tensor(contact[1:] & contact[:-1], dtype=dtype)  # (T-1, 2) planted in f and f+1
+
+    def pose(d):
+        return r0 @ roma.rotvec_to_rotmat(d)
+
+    def objective():
+        pts = body(pose(delta), transl=tr, points_only=True, rest=rest).points
+        depth = pts[:, :1, 2:].detach().clamp_min(0.5)
+        e2d = (((camera.project(pts, k, min_depth=1e-3) - uv) / k[0, 0]) ** 2).sum(-1)
+        loss = (w * e2d).sum() / w.sum().clamp_min(1)
+        e3d = ((pts - pts[:, :1]) - p3).pow(2).sum(-1).mean(-1)
+        loss = loss + cfg.depth_prior * 1e-3 * (seen * e3d).sum() / seen.sum().clamp_min(1)
+        loss = loss + cfg.pose_prior * 1e-3 * delta.pow(2).sum() / t
+        if t >= 3:
+            acc = (pts[2:] - 2 * pts[1:-1] + pts[:-2]) / depth[1:-1]
+            root = acc[:, :1]
+            loss = loss + cfg.acceleration * (acc - root).pow(2).sum(-1).mean() \
+                + cfg.root_acceleration * root.pow(2).sum(-1).mean()
+        if t >= 2 and both.any():
+            for s in range(2):
+                step = (pts[1:, ids[s]] - pts[:-1, ids[s]]) / depth[1:]
+                loss = loss + cfg.contact * (both[:, s, None] * step.pow(2).sum(-1)).sum() / (both.sum() * 3)
+        return loss
+
+    if cfg.optimizer == "lbfgs":
+        opt = torch.optim.LBFGS([delta, tr], lr=1.0, max_iter=cfg.steps, history_size=20,
+                                line_search_fn="strong_wolfe")
+
+        def closure():
+            opt.zero_grad()
+            loss = objective()
+            loss.backward()
+            return loss
+        if cfg.steps:
+            opt.step(closure)
+    else:
+        opt = torch.optim.Adam([{"params": [delta], "lr": cfg.pose_lr}, {"params": [tr], "lr": cfg.translation_lr}])
+        for _ in range(cfg.steps):
+            loss = objective()
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+    with torch.no_grad():
+        r = pose(delta)
+        out = body(r, transl=tr, points_only=True, rest=rest)
+    pts = out.points.numpy().astype(np.float64)
+    rot = r.numpy().astype(np.float64)
+    neck = skeleton.JOINT_NAMES.index("neck")
+    torso = pts[:, neck] - pts[:, 0]
+    up = (torso / np.linalg.norm(torso, axis=1, keepdims=True)).mean(0)  # people hold the torso upright
+    feet = np.concatenate([pts[contact[:, s], FOOT_POINTS[side][1]] for s, side in enumerate(("left", "right"))])
+    sole = _sole_height(body, shape)
+    ground = ground_plane(feet, up, sole) if len(feet) else _lowest_plane(pts, up)
+    return TrackMotion(rot, tr.detach().numpy().astype(np.float64), pts[:, :24], pts, contact, ground)
+
+
+def _sole_height(body, shape: torch.Tensor) -> float:
+    """How high the foot joint is above the sole in the rest pose (metres)."""
+    with torch.no_grad():
+        o = body(shape=shape)
+    j = skeleton.JOINT_NAMES.index("left_foot")
+    return float(o.joints[0, j, 1] - o.vertices[0, :, 1].min())
+
+
+def _lowest_plane(points: np.ndarray, up: np.ndarray) -> tuple[np.ndarray, float]:
+    """Without planted feet: the plane normal to ``up`` under the lowest J+ of the track."""
+    n = up / np.linalg.norm(up)
+    return n, float(np.percentile(points.reshape(-1, 3) @ n, 1))

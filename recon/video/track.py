@@ -1,0 +1,166 @@
+"""People followed across the frames of a video: per-frame detections -> tracks.
+
+``track(detections)`` assigns each frame's detections to the tracks alive (Hungarian assignment,
+``scipy.optimize.linear_sum_assignment``) on a cost that mixes the box overlap with the track's
+box moved by its velocity, the keypoints' distance in units of the box size and the distance of
+the colour histograms of the person's pixels (which tells two people apart where they cross); a track missing
+for up to ``max_gap`` frames keeps waiting (the gap is bridged later), after that it is retired. A
+detection that matches no live track takes the id of a retired track whose appearance (the colour
+histogram of the person's pixels) it matches, else starts a new track. Tracks shorter than
+``min_frames`` are dropped (flickering phantoms), and at most ``max_people`` tracks are kept, the
+longest ones.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from recon.keypoints.sources import box_iou
+
+HIST_BINS = (12, 8)  # hue, saturation
+
+
+@dataclass
+class Detection:
+    """One person found in one frame: its box (x0, y0, x1, y1), J+ 2D (42, 2), and the colour
+    histogram of its pixels (``appearance``), None where it has none."""
+
+    frame: int
+    box: np.ndarray
+    points2d: np.ndarray
+    appearance: np.ndarray | None = None
+    index: int = 0  # its place among the frame's detections
+
+
+@dataclass
+class Track:
+    id: int
+    detections: list[Detection] = field(default_factory=list)
+
+    @property
+    def frames(self) -> list[int]:
+        return [d.frame for d in self.detections]
+
+    @property
+    def last(self) -> Detection:
+        return self.detections[-1]
+
+    def predicted_box(self, frame: int) -> np.ndarray:
+        """The last box moved on by the velocity of the last two detections."""
+        box = self.last.box
+        if len(self.detections) < 2:
+            return box
+        a, b = self.detections[-2], self.last
+        v = (b.box - a.box) / max(b.frame - a.frame, 1)
+        return box + v * min(frame - b.frame, 5)
+
+    def appearance(self) -> np.ndarray | None:
+        hs = [d.appearance for d in self.detections[-30:] if d.appearance is not None]
+        return None if not hs else np.mean(hs, 0).astype(np.float32)
+
+
+def appearance(rgb: np.ndarray, box, mask: np.ndarray | None = None) -> np.ndarray | None:
+    """Normalised hue-saturation histogram of the person's pixels (its mask inside its box, or
+    the middle of the box without a mask); None when too few pixels."""
+    h, w = rgb.shape[:2]
+    x0, y0, x1, y1 = (int(round(v)) for v in box)
+    x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, w), min(y1, h)
+    if x1 - x0 < 4 or y1 - y0 < 4:
+        return None
+    crop = np.ascontiguousarray(rgb[y0:y1, x0:x1])
+    if mask is not None:
+        m = np.ascontiguousarray(mask[y0:y1, x0:x1]).astype(np.uint8)
+    else:
+        m = np.zeros(crop.shape[:2], np.uint8)
+        cy, cx = (y1 - y0) // 2, (x1 - x0) // 2
+        m[cy - (y1 - y0) // 4:cy + (y1 - y0) // 4, cx - (x1 - x0) // 6:cx + (x1 - x0) // 6] = 1
+    if m.sum() < 20:
+        return None
+    hsv = cv2.cvtColor(crop, cv2.COLOR_RGB2HSV)
+    hist = cv2.calcHist([hsv], [0, 1], m, list(HIST_BINS), [0, 180, 0, 256]).ravel()
+    return (hist / max(hist.sum(), 1e-6)).astype(np.float32)
+
+
+def appearance_distance(a: np.ndarray | None, b: np.ndarray | None) -> float:
+    """Bhattacharyya distance of two histograms in [0, 1]; 1 where one is missing."""
+    if a is None or b is None:
+        return 1.0
+    return float(cv2.compareHist(a, b, cv2.HISTCMP_BHATTACHARYYA))
+
+
+def _keypoint_distance(a: np.ndarray, b: np.ndarray, box) -> float:
+    size = max(box[2] - box[0], box[3] - box[1], 1.0)
+    return float(np.median(np.linalg.norm(a - b, axis=1)) / size)
+
+
+@dataclass
+class TrackerConfig:
+    max_gap: int = 30  # frames a track waits for its person before it is retired
+    min_iou: float = 0.1  # a detection joins a track when the boxes overlap this much ...
+    max_keypoint_distance: float = 0.5  # ... or the keypoints are this close (units of the box size)
+    appearance: float = 1.0  # weight of the colour histograms' distance in the assignment (people crossing)
+    reid_distance: float = 0.35  # a retired track's appearance this close gives its id back
+    min_frames: int = 5  # shorter tracks are dropped
+    max_people: int | None = None
+
+
+def track(detections: list[list[Detection]], cfg: TrackerConfig | None = None) -> list[Track]:
+    """Tracks of the per-frame ``detections`` (frame f's list at index f, each with ``frame`` f),
+    numbered from 0 in order of first appearance."""
+    cfg = cfg or TrackerConfig()
+    live: list[Track] = []
+    retired: list[Track] = []
+    next_id = 0
+    for f, dets in enumerate(detections):
+        for t in [t for t in live if f - t.last.frame > cfg.max_gap]:
+            live.remove(t)
+            retired.append(t)
+        matched: set[int] = set()
+        if live and dets:
+            cost = np.full((len(live), len(dets)), 1e6)
+            looks = [t.appearance() for t in live]
+            for i, t in enumerate(live):
+                pred = t.predicted_box(f)
+                for j, d in enumerate(dets):
+                    iou = box_iou(pred, d.box)
+                    kd = _keypoint_distance(t.last.points2d, d.points2d, d.box)
+                    if iou >= cfg.min_iou or kd <= cfg.max_keypoint_distance:
+                        app = 0.5 if looks[i] is None or d.appearance is None else \
+                            appearance_distance(looks[i], d.appearance)
+                        cost[i, j] = (1.0 - iou) + min(kd, 1.0) + cfg.appearance * app
+            rows, cols = linear_sum_assignment(cost)
+            for i, j in zip(rows, cols, strict=True):
+                if cost[i, j] < 1e6:
+                    live[i].detections.append(dets[j])
+                    matched.add(j)
+        for j, d in enumerate(dets):
+            if j in matched:
+                continue
+            back = _reidentified(d, retired, cfg)
+            if back is not None:
+                retired.remove(back)
+                back.detections.append(d)
+                live.append(back)
+            else:
+                live.append(Track(next_id, [d]))
+                next_id += 1
+    tracks = [t for t in live + retired if len(t.detections) >= cfg.min_frames]
+    if cfg.max_people is not None:
+        tracks = sorted(tracks, key=lambda t: -len(t.detections))[:cfg.max_people]
+    tracks = sorted(tracks, key=lambda t: (t.detections[0].frame, t.id))
+    for n, t in enumerate(tracks):
+        t.id = n
+    return tracks
+
+
+def _reidentified(d: Detection, retired: list[Track], cfg: TrackerConfig) -> Track | None:
+    """The retired track that looks most like ``d``, if close enough."""
+    best, best_d = None, cfg.reid_distance
+    for t in retired:
+        dist = appearance_distance(d.appearance, t.appearance())
+        if dist < best_d:
+            best, best_d = t, dist
+    return best
