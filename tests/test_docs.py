@@ -25,7 +25,7 @@ def test_the_readme_is_short_and_links_the_stage_pages():
     text = README.read_text()
     assert len(text) <= 10_000
     for page in ("install", "body", "poses", "smplr", "synth", "pipeline", "backbone", "garments", "training",
-                 "benchmarks", "animate"):
+                 "benchmarks", "animate", "video"):
         assert (ROOT / "docs" / f"{page}.md").exists(), page
         assert f"(docs/{page}.md)" in text, page
 

@@ -1,0 +1,244 @@
+"""``recon video`` on synthetic videos with ground truth (issue 53's benchmark).
+
+    OMP_NUM_THREADS=1 .venv/bin/python eval/video.py --bench synth-video-test   # ~25 min on 1 core
+
+The clips of ``recon.synth.video.VIDEO_BENCHMARKS[bench]`` (held-out mocap subjects, static camera,
+30 fps, people entering and leaving, two people in some) are rendered once into the cache. Rows:
+
+* ``per-frame recon run``: every frame through ``recon run``'s reconstruction on its own (MediaPipe
+  heavy with its mirror pass, retries and backbone, SMPLR, the per-image fit); no tracks;
+* ``video mode, no smoothing``: ``recon video`` with ``SmoothConfig(steps=0)``: MediaPipe's video
+  mode (several people: found one after the other), SMPLR per frame, tracks, gaps interpolated;
+* ``recon video``: the same with the track optimisation.
+
+The cameras' true focal length is given to every row. Each frame's people are matched to the
+truth by their projected joints (Hungarian, within half the person's box). Metrics over matched
+frames (mm, root-aligned): MPJPE, PA-MPJPE, PVE; acceleration error (VIBE: mean distance between
+predicted and true joint accelerations, mm/frame^2, triples of frames matched to one track);
+jitter (mean jerk, mm/frame^3; the truth's own is listed); foot skating (cm a frame a foot joint
+moves, camera frame, where the truth has it planted: within 5 cm of its lowest height and moving
+under 2 cm a frame); identity switches (a true person matched to another track than the frame
+before); found (matched / visible person-frames); frames/s (the row's own time, no overlay).
+Writes eval/results/<bench>.{json,md} (``--out``); rows of methods not run (``--methods``) are kept
+from the file when it was made on the same clips.
+"""
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from scipy.optimize import linear_sum_assignment
+from tqdm import tqdm
+
+from recon import camera, metrics, paths, report
+from recon.body import default_body, skeleton
+from recon.pipeline import Reconstructor, ReconstructorConfig
+from recon.synth.video import SIZE, VIDEO_BENCHMARKS, VIDEO_GENERATOR, ClipRenderer, ClipTruth, write_clip
+from recon.video import smooth
+from recon.video.frames import FrameSource
+from recon.video.run import VideoOptions, video
+
+METHODS = ("per-frame", "video-raw", "video")
+LABELS = {"per-frame": "per-frame `recon run`", "video-raw": "video mode, no smoothing", "video": "`recon video`"}
+FEET = [skeleton.JOINT_NAMES.index(n) for n in ("left_foot", "right_foot")]
+PLANTED_HEIGHT, PLANTED_SPEED = 0.05, 0.02
+
+
+def clips(bench: str) -> list[tuple[str, Path, ClipTruth]]:
+    """(name, video path, truth) of every clip, rendered into the cache when missing."""
+    root = paths.cache_dir() / "synth" / f"{bench}-v{VIDEO_GENERATOR}"
+    out, renderer = [], None
+    for spec in VIDEO_BENCHMARKS[bench]:
+        mp4, npz = root / f"{spec.name}.mp4", root / f"{spec.name}.npz"
+        if not (mp4.exists() and npz.exists()):
+            renderer = renderer or ClipRenderer(default_body())
+            frames, truth = renderer.render(spec)
+            write_clip(frames, mp4)
+            truth.save(npz)
+        out.append((spec.name, mp4, ClipTruth.load(npz)))
+    return out
+
+
+def predict_per_frame(path: Path, truth: ClipTruth, rec: Reconstructor) -> list[list[tuple]]:
+    """Per frame [(track id None, joints (24, 3), vertices (V, 3))], camera frame."""
+    out = []
+    people = truth.joints.shape[0]
+    for frame in FrameSource(path):
+        res = rec.people([frame.rgb], [truth.K], people)[0]
+        out.append([] if isinstance(res, Exception) else [(None, r.joints, r.vertices) for r in res])
+    return out
+
+
+def predict_video(path: Path, truth: ClipTruth, steps: int, work: Path, body) -> list[list[tuple]]:
+    people = truth.joints.shape[0]
+    cfg = ReconstructorConfig(focal_factor=float(truth.K[0, 0]) / max(SIZE))
+    opts = VideoOptions(max_people=people, smooth=smooth.SmoothConfig(steps=steps), overlay=False, force=True)
+    res = video(path, work, opts, cfg, progress=False, log=lambda m: None)
+    out: list[list[tuple]] = [[] for _ in range(len(res.frames.index))]
+    for m in res.tracks:
+        with torch.no_grad():
+            o = body(torch.tensor(m.rotmats, dtype=torch.float32),
+                     torch.tensor(m.shape[None], dtype=torch.float32),
+                     transl=torch.tensor(m.translation, dtype=torch.float32))
+        j, v = o.joints.numpy().astype(np.float64), o.vertices.numpy().astype(np.float64)
+        for f in range(len(m.rotmats)):
+            out[m.first + f].append((m.id, m.to_camera(j[f]), m.to_camera(v[f])))
+    return out
+
+
+def match(truth: ClipTruth, pred: list[list[tuple]]) -> np.ndarray:
+    """(P, F) index into pred[f] of the prediction matched to true person p, -1 where none."""
+    p_n, f_n = truth.visible.shape
+    out = np.full((p_n, f_n), -1)
+    for f in range(f_n):
+        gts = [p for p in range(p_n) if truth.visible[p, f]]
+        if not gts or not pred[f]:
+            continue
+        cost = np.full((len(gts), len(pred[f])), 1e6)
+        for a, p in enumerate(gts):
+            g2 = camera.project(truth.joints[p, f], truth.K)
+            size = max(np.ptp(g2[:, 0]), np.ptp(g2[:, 1]), 1.0)
+            for b, (_, j, _) in enumerate(pred[f]):
+                d = np.median(np.linalg.norm(camera.project(j, truth.K) - g2, axis=1)) / size
+                if d < 0.5:
+                    cost[a, b] = d
+        for a, b in zip(*linear_sum_assignment(cost), strict=True):
+            if cost[a, b] < 1e6:
+                out[gts[a], f] = b
+    return out
+
+
+def planted(truth: ClipTruth) -> np.ndarray:
+    """(P, F, 2) the true foot joints planted (module doc)."""
+    feet = truth.joints_world[:, :, FEET]
+    low = feet[..., 1] - feet[..., 1].min(1, keepdims=True) < PLANTED_HEIGHT
+    speed = np.zeros(low.shape)
+    speed[:, 1:] = np.linalg.norm(np.diff(feet, axis=1), axis=-1)
+    speed[:, 0] = speed[:, 1]
+    return low & (speed < PLANTED_SPEED)
+
+
+def score(truth: ClipTruth, pred: list[list[tuple]], sums: dict) -> None:
+    """Add one clip's errors to ``sums`` (lists of per-item values)."""
+    m = match(truth, pred)
+    plant = planted(truth)
+    for p in range(m.shape[0]):
+        vis = truth.visible[p]
+        sums["visible"] += int(vis.sum())
+        idx = [f for f in range(m.shape[1]) if m[p, f] >= 0]
+        sums["found"] += len(idx)
+        ids = {f: pred[f][m[p, f]][0] for f in idx}
+        prev = None
+        for f in idx:
+            if prev is not None and ids[f] != prev:
+                sums["id_switches"] += 1
+            prev = ids[f]
+        if not idx:
+            continue
+        pj = torch.tensor(np.stack([pred[f][m[p, f]][1] for f in idx]))
+        gj = torch.tensor(truth.joints[p, idx])
+        pv = torch.tensor(np.stack([pred[f][m[p, f]][2] - pred[f][m[p, f]][1][:1] for f in idx]))
+        gv = torch.tensor(truth.vertices[p, idx].astype(np.float64))
+        sums["mpjpe"] += (metrics.per_point_error(pj, gj).mean(1) * 1000).tolist()
+        aligned = metrics.procrustes_align(pj, gj)
+        sums["pa_mpjpe"] += (metrics.per_point_error(aligned, gj, None).mean(1) * 1000).tolist()
+        sums["pve"] += ((pv - gv).norm(dim=-1).mean(1) * 1000).tolist()
+        # runs of consecutive frames matched to one track
+        runs, start = [], 0
+        for n in range(1, len(idx) + 1):
+            if n == len(idx) or idx[n] != idx[n - 1] + 1 or ids[idx[n]] != ids[idx[n - 1]]:
+                runs.append(idx[start:n])
+                start = n
+        for run in runs:
+            a, b = idx.index(run[0]), idx.index(run[-1]) + 1
+            if len(run) >= 3:
+                err = (metrics.acceleration(pj[a:b] - pj[a:b, :1]) - metrics.acceleration(gj[a:b] - gj[a:b, :1]))
+                sums["accel"] += (err.norm(dim=-1).mean(1) * 1000).tolist()
+            if len(run) >= 4:
+                sums["jitter"].append(float(metrics.jitter(pj[a:b]) * 1000))
+                sums["jitter_truth"].append(float(metrics.jitter(gj[a:b]) * 1000))
+            if len(run) >= 2:
+                both = plant[p, run[1:]] & plant[p, run[:-1]]
+                step = (pj[a + 1:b][:, FEET] - pj[a:b - 1][:, FEET]).norm(dim=-1).numpy()
+                true_step = np.linalg.norm(np.diff(truth.joints[p, run][:, FEET], axis=0), axis=-1)
+                sums["skate"] += (step[both] * 100).tolist()
+                sums["skate_truth"] += (true_step[both] * 100).tolist()
+
+
+def summarise(sums: dict, seconds: float, frames: int) -> dict:
+    mean = lambda k: float(np.mean(sums[k])) if sums[k] else None  # noqa: E731
+    return {"mpjpe": mean("mpjpe"), "pa_mpjpe": mean("pa_mpjpe"), "pve": mean("pve"), "accel": mean("accel"),
+            "jitter": mean("jitter"), "jitter_truth": mean("jitter_truth"), "foot_skating_cm": mean("skate"),
+            "foot_skating_truth_cm": mean("skate_truth"), "id_switches": sums["id_switches"],
+            "found": sums["found"] / max(sums["visible"], 1), "person_frames": sums["visible"],
+            "frames_per_second": frames / seconds}
+
+
+def markdown(bench: str, rows: dict, data: dict, machine: dict) -> str:
+    head = ["method", "MPJPE", "PA-MPJPE", "PVE", "accel error", "jitter", "foot skating (cm)", "ID switches",
+            "found", "frames/s"]
+    body = [[LABELS[k], r["mpjpe"], r["pa_mpjpe"], r["pve"], r["accel"], r["jitter"], r["foot_skating_cm"],
+             None if k == "per-frame" else r["id_switches"], f"{100 * r['found']:.1f} %", r["frames_per_second"]]
+            for k, r in rows.items()]
+    any_row = rows.get("video") or next(iter(rows.values()))
+    body.append(["ground truth (on the last row's frames)", None, None, None, None, any_row["jitter_truth"],
+                 any_row["foot_skating_truth_cm"], None, None, None])
+    return "\n".join([
+        f"# `recon video` on {bench}", "",
+        f"{data['clips']} clips, {data['frames']} frames of 640 x 480 at 30 fps, {any_row['person_frames']} visible "
+        "person-frames (eval/video.py; clips: recon/synth/video.py). mm unless stated; acceleration error in "
+        "mm/frame^2, jitter in mm/frame^3; ID switches are not defined without tracks.", "",
+        report.table(body, head, [".1f"] * 9 + [".1f"]), "",
+        "Rows score the frames where they have the person: `recon video` also its bridged gaps.", "",
+        f"Machine: {report.describe(machine)}.", ""])
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--bench", default="synth-video-test", choices=tuple(VIDEO_BENCHMARKS))
+    ap.add_argument("--methods", default=",".join(METHODS))
+    ap.add_argument("--clips", type=int, default=None, help="only the first clips")
+    ap.add_argument("--out", default=None)
+    args = ap.parse_args()
+    torch.set_num_threads(1)
+    data = clips(args.bench)[:args.clips]
+    body = default_body()
+    work = paths.cache_dir() / "eval-video-work"
+    rows = {}
+    for method in args.methods.split(","):
+        sums = {k: [] for k in ("mpjpe", "pa_mpjpe", "pve", "accel", "jitter", "jitter_truth", "skate",
+                                "skate_truth")}
+        sums.update(visible=0, found=0, id_switches=0)
+        seconds, frames = 0.0, 0
+        rec = None
+        for name, path, truth in tqdm(data, desc=method):
+            t0 = time.perf_counter()
+            if method == "per-frame":
+                cfg = ReconstructorConfig(focal_factor=float(truth.K[0, 0]) / max(SIZE))
+                rec = rec or Reconstructor(cfg, body=body)
+                pred = predict_per_frame(path, truth, rec)
+            else:
+                pred = predict_video(path, truth, 0 if method == "video-raw" else smooth.SmoothConfig.steps,
+                                     work / name, body)
+            seconds += time.perf_counter() - t0
+            frames += truth.visible.shape[1]
+            score(truth, pred, sums)
+        rows[method] = summarise(sums, seconds, frames)
+        print(method, {k: (round(v, 2) if isinstance(v, float) else v) for k, v in rows[method].items()})
+    info = {"clips": len(data), "frames": int(sum(t.visible.shape[1] for _, _, t in data))}
+    out = Path(args.out) if args.out else report.RESULTS / args.bench
+    if out.with_suffix(".json").exists():  # the rows not run now stay, when made on the same clips
+        old = report.read(out)
+        if old.get("bench") == args.bench and all(old.get(k) == v for k, v in info.items()):
+            rows = {k: old["rows"][k] for k in METHODS if k in old["rows"] and k not in rows} | rows
+    rows = {k: rows[k] for k in METHODS if k in rows}
+    machine = report.machine()
+    report.write(out, {"bench": args.bench, **info, "rows": rows, "machine": machine},
+                 markdown(args.bench, rows, info, machine))
+
+
+if __name__ == "__main__":
+    main()

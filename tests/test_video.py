@@ -1,0 +1,169 @@
+"""``recon video`` end to end on a generated clip: files, frames, world frame, resume, bad frames.
+
+Most tests replace the per-frame reconstruction by the clip's ground truth (``TruthReconstructor``)
+so that they check ``recon video``'s own work (batches, tracks, the track optimisation, outputs)
+in seconds; the ``slow`` one runs the real pipeline on the rendered frames."""
+from dataclasses import replace
+from pathlib import Path
+from types import SimpleNamespace
+
+import cv2
+import numpy as np
+import pytest
+import roma
+import torch
+from gltf_check import assert_valid
+
+from recon import camera
+from recon.animate import load_motion
+from recon.poses.bvh import read_bvh
+from recon.synth.video import Actor, ClipRenderer, ClipSpec, write_clip
+from recon.video import FrameRange, VideoOptions, video
+from recon.video.run import video_config
+
+FRAMES = 24
+
+
+@pytest.fixture(scope="module")
+def clip(body, tmp_path_factory):
+    """A person walking across a 640 x 480 frame, 24 frames: (video path, frames, truth)."""
+    spec = ClipSpec("test-walk", (Actor("12_01", 20),), FRAMES, seed=5, distance=4.0)
+    frames, truth = ClipRenderer(body).render(spec)
+    path = write_clip(frames, tmp_path_factory.mktemp("clip") / "walk.mp4")
+    return path, frames, truth
+
+
+class TruthReconstructor:
+    """Stands in for ``recon.Reconstructor``: each frame's person as the truth has it, with 2D
+    noise; ``fail_at`` raises KeyboardInterrupt when that frame comes (a killed run)."""
+
+    def __init__(self, body, truth, fail_at: int | None = None, noise: float = 1.5):
+        self.body, self.truth, self.fail_at, self.noise = body, truth, fail_at, noise
+        self.config = video_config()
+        self.seen: list[int] = []  # frames asked for, in order
+
+    def people(self, images, ks, max_people):
+        out = []
+        t = self.truth
+        rot_world = roma.rotvec_to_rotmat(torch.tensor(t.pose[0], dtype=torch.float64)).numpy()
+        for rgb in images:
+            assert rgb[0, 0, 1] == 77, "frames marked by _mark"
+            f = int(round(float(rgb[0, 0, 0]) / 10))
+            if f == self.fail_at:
+                raise KeyboardInterrupt
+            self.seen.append(f)
+            rng = np.random.default_rng(f)
+            pts = t.points[0, f]
+            uv = camera.project(pts, t.K) + rng.normal(0, self.noise, (42, 2))
+            rot = rot_world[f].copy()
+            rot[0] = t.R @ rot[0]
+            kp = SimpleNamespace(points2d=uv, points3d=pts - pts[:1], confidence=0.9, mask=None,
+                                 box=(*uv.min(0), *uv.max(0)))
+            out.append([SimpleNamespace(keypoints=kp, rotmats=rot, shape=t.shape[0].astype(np.float64),
+                                        translation=t.joints[0, f, 0] + rng.normal(0, 0.03, 3))])
+        return out
+
+
+def _mark(frames):
+    """Frames that say their own number in pixel (0, 0) (so a stand-in knows which it got)."""
+    out = []
+    for f, rgb in enumerate(frames):
+        rgb = rgb.copy()
+        rgb[0, 0] = (10 * f, 77, 0)
+        out.append(rgb)
+    return out
+
+
+def _folder(frames, path: Path) -> Path:
+    path.mkdir(parents=True, exist_ok=True)
+    for f, rgb in enumerate(_mark(frames)):
+        cv2.imwrite(str(path / f"frame{f}.png"), rgb[..., ::-1])
+    return path
+
+
+def test_video_writes_each_track_and_the_overlay(body, clip, tmp_path):
+    _, frames, truth = clip
+    src = _folder(frames, tmp_path / "frames")
+    k_factor = float(truth.K[0, 0]) / 640
+    rec = TruthReconstructor(body, truth)
+    rec.config = replace(rec.config, focal_factor=k_factor)
+    res = video(src, tmp_path / "out", VideoOptions(batch=10), reconstructor=rec, progress=False, log=lambda m: None)
+    out = tmp_path / "out"
+    assert sorted(p.name for p in out.iterdir()) == [".work", "overlay.mp4", "track_0", "video.json"]
+    assert sorted(p.name for p in (out / "track_0").iterdir()) == ["animated.glb", "motion.bvh", "motion.json"]
+    assert len(res.tracks) == 1 and len(res.tracks[0].rotmats) == FRAMES
+    m = res.tracks[0]
+    # the world motion back in the camera frame is the truth (it was fed the truth, with noise)
+    with torch.no_grad():
+        j = body(torch.tensor(m.rotmats, dtype=torch.float32), torch.tensor(m.shape[None], dtype=torch.float32),
+                 transl=torch.tensor(m.translation, dtype=torch.float32)).joints.numpy()
+    err = np.linalg.norm(m.to_camera(j) - truth.joints[0], axis=-1).mean()
+    assert err < 0.05, err
+    # the world frame stands on the ground: +Y up, the feet at y ~ 0
+    assert abs(float(j[:, [10, 11], 1].min())) < 0.06
+    cap = cv2.VideoCapture(str(out / "overlay.mp4"))
+    assert int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) == FRAMES and int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)) == 2 * 640
+    cap.release()
+    # recon animate reads the motion back: same frames, same rotations
+    bvh = read_bvh(out / "track_0" / "motion.bvh")
+    assert bvh.num_frames == FRAMES and bvh.fps == pytest.approx(30.0, rel=1e-3)
+    motion = load_motion(out / "track_0" / "motion.bvh", body, torch.tensor(m.shape, dtype=torch.float32))
+    assert len(motion) == FRAMES
+    assert np.abs(motion.rotmats.numpy() - m.rotmats).max() < 1e-3
+    assert np.abs(motion.transl.numpy() - m.translation).max() < 1e-4
+    assert_valid(out / "track_0" / "animated.glb")
+
+
+def test_a_killed_run_continues_from_its_last_finished_batch(body, clip, tmp_path):
+    _, frames, truth = clip
+    src = _folder(frames, tmp_path / "frames")
+    opts = VideoOptions(batch=10, overlay=False)
+    killed = TruthReconstructor(body, truth, fail_at=15)
+    with pytest.raises(KeyboardInterrupt):
+        video(src, tmp_path / "out", opts, reconstructor=killed, progress=False, log=lambda m: None)
+    assert killed.seen == list(range(15))
+    assert sorted(p.name for p in (tmp_path / "out" / ".work").glob("batch-*")) == ["batch-00000000.npz"]
+    assert not (tmp_path / "out" / "video.json").exists()
+    again = TruthReconstructor(body, truth)
+    lines = []
+    res = video(src, tmp_path / "out", opts, reconstructor=again, progress=False, log=lines.append)
+    assert again.seen == list(range(10, FRAMES))  # the first batch was read back
+    assert any("resumed: 10 frames" in line for line in lines)
+    assert len(res.tracks) == 1 and res.tracks[0].seen.all()
+    third = TruthReconstructor(body, truth)
+    assert video(src, tmp_path / "out", opts, reconstructor=third, progress=False, log=lambda m: None).unchanged
+    assert third.seen == []
+    other = video(src, tmp_path / "out", replace(opts, frames=FrameRange(every=2)), reconstructor=third,
+                  progress=False, log=lambda m: None)  # other options: made again
+    assert not other.unchanged and len(other.frames.index) == FRAMES // 2
+
+
+def test_a_corrupt_frame_is_reported_and_bridged(body, clip, tmp_path):
+    _, frames, truth = clip
+    src = _folder(frames, tmp_path / "frames")
+    (src / "frame7.png").write_bytes(b"not a png")
+    lines = []
+    res = video(src, tmp_path / "out", VideoOptions(batch=10, overlay=False),
+                reconstructor=TruthReconstructor(body, truth), progress=False, log=lines.append)
+    summary = (tmp_path / "out" / "video.json").read_text()
+    assert '"7": "' in summary and any("skipped frame 7" in line for line in lines)
+    m = res.tracks[0]
+    assert len(m.rotmats) == FRAMES and not m.seen[7] and m.seen.sum() == FRAMES - 1
+
+
+@pytest.mark.slow
+def test_recon_video_follows_the_person_of_a_rendered_clip(body, clip, tmp_path):
+    path, _, truth = clip
+    cfg = replace(video_config(), focal_factor=float(truth.K[0, 0]) / 640)
+    res = video(path, tmp_path / "out", VideoOptions(overlay=False), cfg, progress=False, log=lambda m: None)
+    assert len(res.tracks) == 1
+    m = res.tracks[0]
+    assert m.seen.sum() >= 0.8 * FRAMES
+    with torch.no_grad():
+        j = body(torch.tensor(m.rotmats, dtype=torch.float32), torch.tensor(m.shape[None], dtype=torch.float32),
+                 transl=torch.tensor(m.translation, dtype=torch.float32)).joints.numpy()
+    cam = m.to_camera(j)
+    truth_j = truth.joints[0, m.first:m.first + len(j)]
+    mpjpe = np.linalg.norm((cam - cam[:, :1]) - (truth_j - truth_j[:, :1]), axis=-1).mean()
+    assert mpjpe < 0.15, mpjpe
+    assert_valid(tmp_path / "out" / "track_0" / "animated.glb")
