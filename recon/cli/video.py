@@ -38,8 +38,8 @@ def add_video(p: Parser) -> None:
     p.add_argument("--every", type=COUNT, default=1, help="take one frame in every N")
     p.add_argument("--fps", type=POSITIVE, default=None, help="at most this many frames a second")
     p.add_argument("--max-people", type=number(int, 1, 20), default=default(opts, "max_people"),
-                   help="people followed; 1 uses MediaPipe's video mode (faster, steadier), more finds them one "
-                        "after the other in every frame")
+                   help="people followed; 1 uses MediaPipe's video mode (faster, steadier); more follows each on "
+                        "a crop where they were, and searches the frame for newcomers")
     p.add_argument("--focal", type=FOCAL, default=None,
                    help=f"focal length in units of the longer frame side (default {default(cfg, 'focal_factor')})")
     p.add_argument("--keypoint-model", choices=tuple(MODELS), default=default(cfg, "keypoint_model"),
