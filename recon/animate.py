@@ -1,7 +1,7 @@
 """``recon animate``: a reconstructed person (its body shape, its outfit) moved by a mocap clip.
 
-The body comes from a photo (run through ``recon run`` first) or from a ``recon run`` result
-folder; the motion from a BVH (CMU, Daz, Mixamo skeletons, or recon's own, e.g. a ``pose.bvh``),
+The body comes from a photo (run through ``recon run`` first), a ``recon run`` result folder or
+a ``recon video`` track folder; the motion from a BVH (CMU, Daz, Mixamo skeletons, or recon's own, e.g. a ``pose.bvh``),
 an ASF/AMC pair, or a clip of the shipped pose set by name or category (``recon animate
 --list-motions``; a category takes its first held-out clip).
 The clip is retargeted to the person's own skeleton (recon.poses.retarget), resampled to
@@ -145,8 +145,13 @@ def load_motion(spec: str | Path, body, shape: torch.Tensor, asf: str | Path | N
 
 def person_from(source: str | Path, out: Path, outfit: str | None = None, log=print) -> dict:
     """result.json of the person to animate: ``source`` is a ``recon run`` result folder (or its
-    result.json) or a photo, which is reconstructed into ``out/reconstruction`` first."""
+    result.json), a ``recon video`` track folder (or its motion.json: the track's body shape) or a
+    photo, which is reconstructed into ``out/reconstruction`` first."""
     p = Path(source)
+    if p.is_dir() and not (p / "result.json").exists() and (p / "motion.json").exists():
+        p = p / "motion.json"
+    if p.name == "motion.json" and p.is_file():
+        return json.loads(p.read_text())
     if p.is_dir() and not (p / "result.json").exists():
         found = sorted(p.glob("*/result.json"))
         if len(found) != 1:

@@ -15,7 +15,7 @@ import torch
 from gltf_check import assert_valid
 
 from recon import camera
-from recon.animate import load_motion
+from recon.animate import load_motion, person_from
 from recon.poses.bvh import read_bvh
 from recon.synth.video import Actor, ClipRenderer, ClipSpec, write_clip
 from recon.video import FrameRange, VideoOptions, video
@@ -112,6 +112,9 @@ def test_video_writes_each_track_and_the_overlay(body, clip, tmp_path):
     assert np.abs(motion.rotmats.numpy() - m.rotmats).max() < 1e-3
     assert np.abs(motion.transl.numpy() - m.translation).max() < 1e-4
     assert_valid(out / "track_0" / "animated.glb")
+    # ... and takes the track's body to move it with another clip
+    person = person_from(out / "track_0", tmp_path / "anim")
+    assert list(person["shape"].values()) == pytest.approx(m.shape, abs=1e-4)
 
 
 def test_a_killed_run_continues_from_its_last_finished_batch(body, clip, tmp_path):

@@ -115,7 +115,8 @@ def add_run(p: Parser) -> None:
 
 def add_animate(p: Parser) -> None:
     p.set_defaults(func=animate_person)
-    p.add_argument("source", nargs="?", help="a photo (reconstructed first) or a `recon run` result folder")
+    p.add_argument("source", nargs="?", help="a photo (reconstructed first), a `recon run` result folder or a "
+                                             "`recon video` track folder")
     p.add_argument("--motion", help="a .bvh (CMU, Daz, Mixamo or recon's own skeleton), an .amc, or a shipped "
                                     "clip's name (--list-motions)")
     p.add_argument("--asf", default=None, help="the skeleton of an .amc (default: the one .asf beside it)")
