@@ -136,9 +136,11 @@ def test_a_killed_run_continues_from_its_last_finished_batch(body, clip, tmp_pat
     third = TruthReconstructor(body, truth)
     assert video(src, tmp_path / "out", opts, reconstructor=third, progress=False, log=lambda m: None).unchanged
     assert third.seen == []
+    (tmp_path / "out" / "track_1").mkdir()  # as an earlier run with two people would have left it
     other = video(src, tmp_path / "out", replace(opts, frames=FrameRange(every=2)), reconstructor=third,
                   progress=False, log=lambda m: None)  # other options: made again
     assert not other.unchanged and len(other.frames.index) == FRAMES // 2
+    assert sorted(p.name for p in (tmp_path / "out").glob("track_*")) == ["track_0"]
 
 
 def test_a_corrupt_frame_is_reported_and_bridged(body, clip, tmp_path):

@@ -9,7 +9,8 @@ an overlay video of the clip. Static camera assumed.
    optimisation of the pose and position of every frame; gaps bridged; the ground from the
    planted feet.
 4. Outputs (``recon.video.outputs``): ``<out>/track_<id>/`` motion.bvh, animated.glb, motion.json;
-   ``<out>/overlay.mp4``; ``<out>/video.json`` last (frames, skipped frames, tracks, timings).
+   ``<out>/overlay.mp4``; ``<out>/video.json`` last (frames, skipped frames, tracks, timings): it is
+   removed before the others are written, so it stands only beside a complete set.
 
 A frame that cannot be decoded is reported and skipped (its track frames are bridged). A finished
 output folder made from the same file, options and recon version is left as it is.
@@ -150,11 +151,15 @@ def video(path: str | Path, out: str | Path, options: VideoOptions | None = None
     motions = [_world_motion(rec.body, t, dets, k, src.size, options.smooth) for t in tracks]
     seconds["tracks"] = time.perf_counter() - t0
     t0 = time.perf_counter()
+    (out / "video.json").unlink(missing_ok=True)  # present only over a complete set of outputs
     cam = {"K": np.round(k, 3).tolist(), "image_size": list(src.size), "focal_from": "default"}
     track_files = {}
     for m in motions:
         track_files[m.id] = write_track(out / f"track_{m.id}", rec.body, m, fps, frames.index, frames.time, cam,
                                         dresser, options.tightness)
+    for old in out.glob("track_*"):  # an earlier run's tracks beyond this run's
+        if old.is_dir() and old.name not in {f"track_{m.id}" for m in motions}:
+            shutil.rmtree(old, ignore_errors=True)
     seconds["outputs"] = time.perf_counter() - t0
     if options.overlay:
         t0 = time.perf_counter()
