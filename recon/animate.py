@@ -17,7 +17,6 @@ from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 
-import cv2
 import numpy as np
 import roma
 import torch
@@ -178,21 +177,8 @@ def write_video(path: Path, frames: list[np.ndarray], fps: float) -> Path:
     """MP4 (OpenCV, MPEG-4 part 2) or, for a .gif path or where OpenCV cannot encode MP4, GIF.
     Written atomically; returns the path written."""
     if path.suffix.lower() == ".mp4":
-        h, w = frames[0].shape[:2]
-        ok = []
-
-        def mp4(tmp):
-            vw = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"mp4v"), fps, (w, h))
-            ok.append(vw.isOpened())
-            if ok[0]:
-                for f in frames:
-                    vw.write(cv2.cvtColor(f, cv2.COLOR_RGB2BGR))
-            vw.release()
-            if not ok[0]:
-                raise OSError("no MP4 encoder")
         try:
-            paths.atomic_write(path, mp4)
-            return path
+            return paths.write_mp4(path, frames, fps, frames[0].shape[:2])
         except OSError:
             path = path.with_suffix(".gif")
     images = [Image.fromarray(f) for f in frames]

@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import os
 import tempfile
+from collections.abc import Iterable
 from pathlib import Path
 
 import cv2
+import numpy as np
 import torch
 
 from recon.errors import MissingFile
@@ -62,6 +64,26 @@ def atomic_write(path: str | Path, write) -> None:
 def write_text(path: str | Path, text: str) -> Path:
     """Atomically write a text file."""
     atomic_write(path, lambda t: Path(t).write_text(text))
+    return Path(path)
+
+
+def write_mp4(path: str | Path, frames: Iterable[np.ndarray], fps: float, size: tuple[int, int],
+              quality: int | None = None) -> Path:
+    """RGB frames of ``size`` (H, W), streamed (a generator is consumed frame by frame) into an MP4
+    (OpenCV's MPEG-4 part 2), atomically; OSError where OpenCV has no MP4 encoder."""
+    def write(tmp):
+        vw = cv2.VideoWriter(tmp, cv2.VideoWriter_fourcc(*"mp4v"), fps, (size[1], size[0]))
+        try:
+            if not vw.isOpened():
+                raise OSError("OpenCV has no MP4 encoder here")
+            if quality is not None:
+                vw.set(cv2.VIDEOWRITER_PROP_QUALITY, quality)
+            for f in frames:
+                vw.write(cv2.cvtColor(f, cv2.COLOR_RGB2BGR))
+        finally:
+            vw.release()
+
+    atomic_write(path, write)
     return Path(path)
 
 

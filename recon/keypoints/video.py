@@ -159,10 +159,10 @@ class PeopleVideoSource:
                 found += new
             for kp in new:  # newcomers, unless they are someone followed who was hidden
                 box = np.asarray(kp.box, float)
-                if not any(f[2] and box_iou(f[0] + f[1] * f[2], box) > 0.3 for f in followed):
+                hidden = next((f for f in followed if f[2] and box_iou(f[0] + f[1] * f[2], box) > 0.3), None)
+                if hidden is None:
                     followed.append([box, np.zeros(4), 0])
                 else:
-                    hidden = next(f for f in followed if f[2] and box_iou(f[0] + f[1] * f[2], box) > 0.3)
                     hidden[0], hidden[2] = box, 0
         self.followed = followed
         return found

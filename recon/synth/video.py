@@ -9,7 +9,7 @@ leaves the frame ("enter", "leave"). Frames are 640 x 480 at the pose set's 30 f
 background and light and fresh sensor noise each frame. Every random choice comes from the clip's
 seed. World frame: +Y up, metres, the ground at y = 0; camera: OpenCV, X_cam = R @ X_world + t.
 
-``render_clip(spec) -> (frames, truth)``; ``write_clip`` stores the frames as an MP4 (what
+``ClipRenderer(body).render(spec) -> (frames, truth)``; ``write_clip`` stores the frames as an MP4 (what
 ``recon video`` reads) and the truth as .npz; ``VIDEO_BENCHMARKS`` are the fixed sets.
 """
 from __future__ import annotations
@@ -19,7 +19,6 @@ import json
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-import cv2
 import numpy as np
 import torch
 from scipy.spatial.transform import Rotation
@@ -207,13 +206,4 @@ class ClipRenderer:
 
 def write_clip(frames: list[np.ndarray], path: Path, fps: float = FPS) -> Path:
     """The frames as an MP4 (OpenCV's MPEG-4 part 2 at high quality), atomically."""
-    def write(tmp):
-        vw = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"mp4v"), fps, frames[0].shape[1::-1])
-        if not vw.isOpened():
-            raise OSError("OpenCV has no MP4 encoder here")
-        vw.set(cv2.VIDEOWRITER_PROP_QUALITY, 100)
-        for f in frames:
-            vw.write(cv2.cvtColor(f, cv2.COLOR_RGB2BGR))
-        vw.release()
-    paths.atomic_write(path, write)
-    return path
+    return paths.write_mp4(path, frames, fps, frames[0].shape[:2], quality=100)

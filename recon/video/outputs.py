@@ -4,18 +4,15 @@ Per track (``write_track``): ``motion.bvh`` (the motion on the track's own skele
 ``animated.glb`` (skinned body with the track's shape, dressed with an outfit when asked; NCS
 dynamics where the outfit has them) and ``motion.json``, all in the track's world frame (+Y up
 from the estimated ground, feet on y = 0, Z towards the camera; ``recon.video.smooth.to_world``).
-``write_overlay`` streams ``overlay.mp4``: each frame with every track's body drawn over it, side
+``OverlayFrames`` draws the frames of ``overlay.mp4``: every track's body over the frame, side
 by side with a 3D view of the bodies on the ground.
 """
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
-import cv2
 import numpy as np
 import roma
 import torch
@@ -94,35 +91,6 @@ def write_track(folder: Path, body, m: WorldMotion, fps: float, frame_index: lis
     }
     paths.write_text(folder / "motion.json", json.dumps(info, indent=1))
     return info["files"]
-
-
-class VideoFileWriter:
-    """Frames streamed into an MP4 written under a temporary name and renamed at ``close()``:
-    readers never see a partial file. ``abort()`` drops it."""
-
-    def __init__(self, path: Path, fps: float, size: tuple[int, int]):
-        self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        fd, self.tmp = tempfile.mkstemp(dir=self.path.parent, prefix=f".{self.path.name}.", suffix=".mp4")
-        os.close(fd)
-        self.writer = cv2.VideoWriter(self.tmp, cv2.VideoWriter_fourcc(*"mp4v"), fps, (size[1], size[0]))
-        if not self.writer.isOpened():
-            self.abort()
-            raise OSError("OpenCV has no MP4 encoder here")
-
-    def write(self, rgb: np.ndarray) -> None:
-        self.writer.write(cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
-
-    def close(self) -> Path:
-        self.writer.release()
-        os.chmod(self.tmp, 0o644)
-        os.replace(self.tmp, self.path)
-        return self.path
-
-    def abort(self) -> None:
-        self.writer.release()
-        if os.path.exists(self.tmp):
-            os.unlink(self.tmp)
 
 
 class OverlayFrames:

@@ -38,7 +38,7 @@ from recon.pipeline import Reconstructor, ReconstructorConfig
 from recon.run import check_writable
 from recon.version import __version__
 from recon.video.frames import FrameRange, FrameSource
-from recon.video.outputs import OverlayFrames, VideoFileWriter, WorldMotion, write_track
+from recon.video.outputs import OverlayFrames, WorldMotion, write_track
 from recon.video.perframe import Detections, FrameLog, PerFrame, same_work, stamp
 from recon.video.smooth import SmoothConfig, TrackInput, smooth_track, to_world
 from recon.video.track import Detection, Track, TrackerConfig, track
@@ -255,19 +255,16 @@ def _write_overlay(path: Path, src: FrameSource, body, motions: list[WorldMotion
                    progress: bool) -> None:
     h, w = src.size
     draw = OverlayFrames(body, motions, k, (h, w))
-    writer = VideoFileWriter(path, fps, (h, 2 * w))
     bar = tqdm(total=_expected(src), desc="overlay.mp4", unit="frame", disable=not progress)
-    try:
-        last = None
+
+    def frames():
+        last = np.zeros((h, w, 3), np.uint8)  # an undecodable frame shows the last good one
         for position, frame in enumerate(src):
-            rgb = frame.rgb if frame.rgb is not None else (last if last is not None else np.zeros((h, w, 3), np.uint8))
-            writer.write(draw(rgb, position))
-            last = rgb
+            last = frame.rgb if frame.rgb is not None else last
+            yield draw(last, position)
             bar.update(1)
-        writer.close()
-    except BaseException:
-        writer.abort()
-        raise
+    try:
+        paths.write_mp4(path, frames(), fps, (h, 2 * w))
     finally:
         bar.close()
         draw.close()
