@@ -190,10 +190,12 @@ def write_video(path: Path, frames: list[np.ndarray], fps: float) -> Path:
 def animate(source: str | Path, motion: str | Path, out: str | Path, outfit: str | None = None, tightness=None,
             asf: str | Path | None = None, max_seconds: float | None = None, render: str = "mp4",
             size: tuple[int, int] = (480, 640), yaw_deg: float = 20.0, progress: bool = True, log=print,
-            dynamics: bool | None = None) -> dict:
+            dynamics: bool | None = None, garment_model: str | None = None) -> dict:
     """Animate a reconstructed person; returns {file kind: path}. ``outfit``: an outfit name (default:
     the one ``recon run`` dressed the person in, if any); ``render``: "mp4", "gif" or "none";
-    ``dynamics``: the outfit's NCS (swinging cloth) or not (PBNS); None: NCS where it exists."""
+    ``dynamics``: the outfit's NCS (swinging cloth) or not (PBNS); None: NCS where it exists;
+    ``garment_model``: "pbns" (PBNS / NCS) or "taylor" (the example-based model, quasi-static);
+    None: the one ``recon run`` dressed the person with (else pbns)."""
     check_motion(motion)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -203,18 +205,21 @@ def animate(source: str | Path, motion: str | Path, out: str | Path, outfit: str
     outfit = outfit or (person.get("outfit") or {}).get("name")
     if tightness is None and person.get("outfit"):
         tightness = person["outfit"].get("tightness")
+    if garment_model is None:
+        garment_model = (person.get("outfit") or {}).get("garment_model", "pbns")
     m = on_the_ground(load_motion(motion, body, shape, asf), body, shape)  # the whole clip's ground
     if max_seconds:
         keep = max(1, int(round(max_seconds * m.fps)))
         m = Motion(m.rotmats[:keep], m.transl[:keep], m.fps, m.name)
-    dresser = Dresser(outfit, dynamics=dynamics) if outfit else None
+    dresser = Dresser(outfit, dynamics=dynamics, garment_model=garment_model) if outfit else None
     written = {"glb": write_glb(out / "animated.glb", body, shape, m.rotmats, m.transl, m.fps, dresser,
                                 tightness=tightness, animation_name=m.name)}
     if render != "none":
         frames = render_motion(body, shape, m, dresser, tightness, size, yaw_deg, progress)
         written["video"] = write_video(out / f"animated.{render}", frames, m.fps)
     info = {"source": str(source), "motion": m.name, "frames": len(m), "fps": m.fps, "outfit": outfit,
-            "garment_model": None if dresser is None else ("NCS" if dresser.dynamic else "PBNS"),
+            "garment_model": None if dresser is None else (
+                "Taylor" if dresser.taylor is not None else "NCS" if dresser.dynamic else "PBNS"),
             "tightness": None if tightness is None else [float(t) for t in tightness],
             "files": {k: v.name for k, v in written.items()}}
     written["json"] = paths.write_text(out / "animation.json", json.dumps(info, indent=1))

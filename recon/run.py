@@ -63,7 +63,8 @@ class RunOptions:
     (> 0) or tighter (< 0), needs the outfit's resizer. max_people: people per image (> 1: the
     ``person_<i>/`` layout). overlay: write overlay.png and side.png. exif_focal: the focal length
     from the photo's EXIF where it has one (else the config's ``focal_factor``). batch_size: images
-    per SMPLR/fit batch. force: make every image again, even those already done.
+    per SMPLR/fit batch. force: make every image again, even those already done. garment_model:
+    "pbns" or "taylor" (recon.garment.Dresser).
     """
 
     outfit: str | None = None
@@ -73,12 +74,15 @@ class RunOptions:
     exif_focal: bool = True
     batch_size: int = 4
     force: bool = False
+    garment_model: str = "pbns"
 
     def to_json(self) -> dict:
-        """The options that change the outputs (not batch size or force)."""
+        """The options that change the outputs (not batch size or force; the garment model only
+        when it is not the default, so that earlier runs' outputs stay theirs)."""
         d = asdict(self)
         d["tightness"] = None if self.tightness is None else [float(t) for t in self.tightness]
-        return {k: v for k, v in d.items() if k not in ("batch_size", "force")}
+        skip = ("batch_size", "force") + (("garment_model",) if self.garment_model == "pbns" else ())
+        return {k: v for k, v in d.items() if k not in skip}
 
 
 @dataclass
@@ -214,8 +218,8 @@ def _dresser(options: RunOptions) -> Dresser | None:
         if options.tightness is not None:
             raise ReconError("--tightness needs --outfit")
         return None
-    dresser = Dresser(options.outfit)
-    if options.tightness is not None and not dresser.has_resizer:
+    dresser = Dresser(options.outfit, garment_model=options.garment_model)
+    if options.tightness is not None and (not dresser.has_resizer or dresser.taylor is not None):
         raise ReconError(f"--tightness needs a trained resizer for {options.outfit}: "
                          f"run `recon garment resize --outfit {options.outfit}`")
     return dresser
@@ -383,6 +387,8 @@ def _write(folder: Path, src: Path, img, small, s: float, k_small, r: Reconstruc
     if dresser is not None:
         js["outfit"] = {"name": dresser.outfit, "garments": dresser.names,
                         "tightness": None if tightness is None else [float(t) for t in tightness]}
+        if dresser.taylor is not None:
+            js["outfit"]["garment_model"] = "taylor"
     js["files"] = sorted(p.name for p in folder.iterdir() if not p.name.startswith("."))
     js["made_from"] = stamp
     paths.write_text(folder / "result.json", json.dumps(js, indent=1))

@@ -8,7 +8,7 @@ from recon import report
 from recon.body import default_body
 from recon.cli.parsing import COUNT, NON_NEGATIVE, STEPS, Parser, actions, default
 from recon.errors import ReconError
-from recon.garment import ncs_eval, ncs_train, pbns_eval, pbns_train, store
+from recon.garment import ncs_eval, ncs_train, pbns_eval, pbns_train, store, taylor_build, taylor_eval
 from recon.garment.resize import ResizeConfig
 from recon.garment.templates import PRESETS
 
@@ -24,6 +24,13 @@ def outfits(names: list[str]) -> list[str]:
 
 def train(args) -> None:
     for o in outfits(args.outfit):
+        if args.model == "taylor":
+            more = {k: getattr(args, k) for k in ("anchors", "shapes", "workers") if getattr(args, k) is not None}
+            path = taylor_build.build(taylor_build.TaylorBuildConfig(outfit=o, **more))
+            meta = json.loads(taylor_build.read_meta(path))
+            keys = ("anchors", "drape_seconds", "fit_seconds", "explained_variance", "ridge")
+            print(json.dumps({"outfit": o, "weights": str(path), **{k: meta[k] for k in keys}}))
+            continue
         if args.model == "ncs":
             if args.epochs:
                 raise ReconError("--epochs is PBNS's: NCS takes --chunks and --steps")
@@ -58,7 +65,14 @@ def evaluate(args) -> None:
                                                          ncs_weights=weights, log=print, val=args.val,
                                                          update=args.update)).read_text())
         return
-    print(Path(pbns_eval.evaluate_and_report(body, names, args.n, Path(args.out))).read_text())
+    if args.model == "taylor":
+        print(Path(taylor_eval.evaluate_and_report(names, args.n or default(taylor_eval.evaluate_and_report, "poses"),
+                                                   out_dir=Path(args.out),
+                                                   speed_outfits=list(PRESETS), newton=not args.no_simulation)
+                   ).read_text())
+        return
+    n = args.n or default(pbns_eval.evaluate_and_report, "n_poses")
+    print(Path(pbns_eval.evaluate_and_report(body, names, n, Path(args.out))).read_text())
     for o in names:  # the resizing table, for outfits with a trained resizer
         if store.resizer_path(o).exists():
             print(Path(pbns_eval.evaluate_resizer(body, o, out_dir=Path(args.out))).read_text())
@@ -83,7 +97,7 @@ NCS_FLAGS = {
     "free_weight": (NON_NEGATIVE, "weight of the collision/edge/pin energies on unsolved motions in the physics steps"),
     "field_lr": (NON_NEGATIVE, "learning rate of D's new rows in the physics steps, 0: the principal fields stay"),
     "steps": (STEPS, "fitting steps"),
-    "workers": (COUNT, "processes integrating chunks"),
+    "workers": (COUNT, "processes integrating chunks (taylor: draping)"),
 }
 
 
@@ -91,10 +105,16 @@ def add_garment(p: Parser) -> None:
     action = actions(p)
     help_outfit = ("preset names, 'all', or your own garment meshes (.obj, .ply, .glb, ...: body frame, metres, "
                    "+Y up; trained into ~/.cache/recon/garments)")
-    help_model = "pbns: quasi-static (ch. 5); ncs: dynamic (ch. 6), trained from the outfit's PBNS"
+    help_model = ("pbns: quasi-static (ch. 5); ncs: dynamic (ch. 6), trained from the outfit's PBNS; taylor: the "
+                  "example-based model's database (drapes on many bodies at anchor poses; ~45 min)")
     a = action("train", train, "train outfits (unsupervised, physics energies): PBNS, then NCS")
     a.add_argument("--outfit", nargs="+", default=["tshirt-trousers"], help=help_outfit)
-    a.add_argument("--model", choices=("pbns", "ncs"), default="pbns", help=help_model)
+    a.add_argument("--model", choices=("pbns", "ncs", "taylor"), default="pbns", help=help_model)
+    a.add_argument("--anchors", type=COUNT, default=None,
+                   help=f"taylor: anchor poses (default {default(taylor_build.TaylorBuildConfig, 'anchors')})")
+    a.add_argument("--shapes", type=COUNT, default=None,
+                   help=f"taylor: bodies draped at each anchor besides PBNS's "
+                        f"(default {default(taylor_build.TaylorBuildConfig, 'shapes')})")
     a.add_argument("--epochs", type=COUNT, default=None,
                    help=f"PBNS: default {default(pbns_train.GarmentTrainConfig, 'epochs')}")
     a.add_argument("--poses", type=COUNT, default=default(pbns_train.GarmentTrainConfig, "poses"))
@@ -107,17 +127,19 @@ def add_garment(p: Parser) -> None:
     a = action("eval", evaluate, "PBNS (and resizer) tables on held-out poses (and shapes); "
                "--model ncs: skinning, PBNS and NCS on held-out clips and against dynamic simulations")
     a.add_argument("--outfit", nargs="+", default=["tshirt-trousers"], help=help_outfit)
-    a.add_argument("--model", choices=("pbns", "ncs"), default="pbns")
+    a.add_argument("--model", choices=("pbns", "ncs", "taylor"), default="pbns",
+                   help="taylor: against drapes of held-out poses x bodies (writes garment-taylor.md)")
     a.add_argument("--no-simulation", action="store_true",
-                   help="--model ncs: skip the newton simulations (minutes a clip; cached once run)")
+                   help="--model ncs / taylor: skip the newton simulations (minutes a clip or pose)")
     a.add_argument("--ncs-weights", nargs="+", default=None,
                    help="--model ncs: NCS files to evaluate instead of the shipped ones (one per outfit)")
     a.add_argument("--update", action="store_true",
                    help="--model ncs: keep the other outfits' rows of the existing table")
     a.add_argument("--val", action="store_true",
                    help="--model ncs: against the val performers' simulations (what the recipe is tuned on)")
-    a.add_argument("--n", type=COUNT, default=default(pbns_eval.evaluate_and_report, "n_poses"),
-                   help="held-out test poses")
+    a.add_argument("--n", type=COUNT, default=None,
+                   help=f"held-out test poses (default {default(pbns_eval.evaluate_and_report, 'n_poses')}; "
+                        f"taylor {default(taylor_eval.evaluate_and_report, 'poses')})")
     a.add_argument("--out", default=str(report.RESULTS))
     a = action("reference", reference, "PBNS against a newton cloth drape (needs newton; minutes a pose)")
     a.add_argument("--outfit", nargs="+", default=["tshirt-trousers"], help="preset names or 'all'")

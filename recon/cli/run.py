@@ -22,6 +22,11 @@ FOCAL = number(float, 0.05, 20.0)  # in units of the longer image side: a fishey
 TIGHTNESS = number(float, -1.0, 1.0)
 
 
+GARMENT_MODELS = ("pbns", "taylor")
+GARMENT_MODEL_HELP = ("with an outfit: pbns (PBNS, NCS for motions) or taylor (example-based: the body-shape dimension "
+                      "from drapes on many bodies; `recon garment train --model taylor` builds its database)")
+
+
 def run_images(args) -> int:
     config = ReconstructorConfig(source=args.source, device=args.device, flip=args.flip, lift=args.lift,
                                  retry=args.retry, guard=args.guard, keypoint_model=args.keypoint_model,
@@ -31,7 +36,7 @@ def run_images(args) -> int:
                                  **({} if args.focal is None else {"focal_factor": args.focal}))
     options = RunOptions(outfit=args.outfit, tightness=args.tightness, max_people=args.max_people,
                          overlay=not args.no_overlay, exif_focal=args.focal is None, batch_size=args.batch_size,
-                         force=args.force)
+                         force=args.force, garment_model=args.garment_model)
     s = run(args.inputs or example_photos(), Path(args.out), options, config)
     if s.interrupted:
         return 130
@@ -45,7 +50,8 @@ def animate_person(args) -> int:
     if not args.source or not args.motion or not args.out:
         raise ReconError("recon animate needs a photo or result folder, --motion and --out (or --list-motions)")
     written = animate(args.source, args.motion, args.out, outfit=args.outfit, tightness=args.tightness, asf=args.asf,
-                      max_seconds=args.seconds, render=args.render, dynamics=args.dynamics)
+                      max_seconds=args.seconds, render=args.render, dynamics=args.dynamics,
+                      garment_model=args.garment_model)
     for path in written.values():
         print(path)
     return 0
@@ -111,6 +117,7 @@ def add_run(p: Parser) -> None:
     p.add_argument("--tightness", type=TIGHTNESS, nargs=2, default=None, metavar=("WEIGHT", "HEIGHT"),
                    help="with --outfit: looser (> 0) or tighter (< 0), offsets of the body's weight and height "
                         f"phenotypes (trained range {TIGHTNESS_RANGE}; needs a resizer)")
+    p.add_argument("--garment-model", choices=GARMENT_MODELS, default="pbns", help=GARMENT_MODEL_HELP)
 
 
 def add_animate(p: Parser) -> None:
@@ -124,6 +131,8 @@ def add_animate(p: Parser) -> None:
     p.add_argument("--outfit", default=None, help="dress the body (default: the outfit `recon run` used, if any)")
     p.add_argument("--tightness", type=TIGHTNESS, nargs=2, default=None, metavar=("WEIGHT", "HEIGHT"),
                    help="with an outfit that has a resizer: looser (> 0) or tighter (< 0)")
+    p.add_argument("--garment-model", choices=GARMENT_MODELS, default=None,
+                   help=GARMENT_MODEL_HELP + "; default: the one `recon run` used")
     p.add_argument("--seconds", type=POSITIVE, default=None, help="only the clip's first seconds")
     p.add_argument("--dynamics", action=argparse.BooleanOptionalAction, default=None,
                    help="cloth dynamics (NCS: swings, lags, settles) or quasi-static cloth (PBNS); "

@@ -10,6 +10,11 @@ not print through; when the outfit has a trained resizer (``recon garment resize
 A motion (``Dresser.animate``) is dressed by the outfit's NCS (thesis ch. 6: the cloth swings,
 lags and settles) when the outfit has one and ``dynamics`` is not False, else by PBNS frame by
 frame (quasi-static).
+
+``garment_model="taylor"``: the example-based model (recon.garment.taylor) instead, quasi-static:
+PBNS's pose deformations plus the body-shape dimension from drapes on many bodies at anchor poses;
+it sizes the outfit to the body itself (no resizer, no tightness) and resolves penetrations its
+own way.
 """
 from __future__ import annotations
 
@@ -26,6 +31,7 @@ from recon.garment.collide import CollisionResolver
 from recon.garment.ncs import FPS, NCS
 from recon.garment.pbns import PBNS, pose_features
 from recon.garment.resize import OutfitResizer, Transfer
+from recon.garment.taylor import TaylorGarment
 
 
 @dataclass
@@ -40,10 +46,16 @@ class Dresser:
     """``Dresser("tshirt-trousers")(body, rotmats, shape, transl) -> DressedOutfit``."""
 
     def __init__(self, outfit: str = "tshirt-trousers", path: str | Path | None = None, resizer: bool = True,
-                 resolve_collisions: bool = True, dynamics: bool | None = None):
+                 resolve_collisions: bool = True, dynamics: bool | None = None, garment_model: str = "pbns"):
         """``resolve_collisions``: push cloth that PBNS leaves inside the body out of it
         (recon.garment.collide; its cost: eval/results/bench-garment-1t.md).
-        ``dynamics``: motions through the outfit's NCS (None: when it has one; True: it must)."""
+        ``dynamics``: motions through the outfit's NCS (None: when it has one; True: it must).
+        ``garment_model``: "pbns" (PBNS, NCS for motions as ``dynamics`` says) or "taylor" (the
+        example-based model; its database: ``recon garment train --model taylor``)."""
+        if garment_model not in ("pbns", "taylor"):
+            raise ReconError(f"unknown garment model {garment_model!r}: pbns or taylor")
+        if garment_model == "taylor" and dynamics:
+            raise ReconError("the Taylor garment model is quasi-static: no dynamics")
         path = Path(path) if path else store.trained_pbns(outfit)  # a preset, your own garment, a .pt file
         if not path.exists():
             raise MissingFile(f"no trained outfit {path}: run `recon garment train --outfit {outfit}`")
@@ -63,6 +75,14 @@ class Dresser:
             self._resizer_path = p if p.exists() else None
         self.ncs = None
         ncs_path = store.ncs_path(name) if name else None
+        self.taylor = None
+        if garment_model == "taylor":
+            tp = store.taylor_path(self.outfit)
+            if not tp.exists():
+                raise MissingFile(f"{self.outfit} has no Taylor database {tp}: run "
+                                  f"`recon garment train --model taylor --outfit {self.outfit}` (~45 min)")
+            self.taylor, _ = TaylorGarment.load(tp, self.model)
+            self.resolver, dynamics = None, False  # its own penetration handling
         if dynamics is not False and ncs_path is not None and ncs_path.exists():
             self.ncs, _ = NCS.load(ncs_path)
         elif dynamics:
@@ -76,7 +96,12 @@ class Dresser:
 
     def rest_for(self, body, shape: torch.Tensor, smooth: int = 10, tightness=None) -> torch.Tensor:
         """Outfit rest vertices resized to ``shape`` (1-D tensor); ``tightness`` (2,) needs a
-        trained resizer (> 0 looser, see recon.garment.resize)."""
+        trained resizer (> 0 looser, see recon.garment.resize). The Taylor model's: the graded
+        template its blend shapes apply to."""
+        if self.taylor is not None:
+            if tightness is not None:
+                raise ReconError("the Taylor garment model has no tightness (it has no resizer)")
+            return self._taylor_for(body, shape).graded
         if self._resizer_path is not None:
             if self.resizer is None:
                 self.resizer = OutfitResizer(body, self._resizer_path, self.model.rest.numpy(),
@@ -103,15 +128,29 @@ class Dresser:
         network sees the gravity-aligned pose; the cloth is posed in the input frame."""
         b = rotmats.shape[0]
         shape = shape.reshape(b, -1)
-        out = body(rotmats, shape, transl=transl, points_only=self.resolver is None)
+        out = body(rotmats, shape, transl=transl, points_only=self.resolver is None and self.taylor is None)
         r = rotmats.clone()
         if up is not None:
             r[:, 0] = up.to(r) @ r[:, 0]
+        if self.taylor is not None:
+            self.rest_for(body, shape[0], tightness=tightness)  # refuses a tightness
+            verts = torch.cat([self._taylor_for(body, s).pose(r[i:i + 1], out.transforms[i:i + 1],
+                                                               out.vertices[i:i + 1])
+                               for i, s in enumerate(shape)])
+            return DressedOutfit(verts.numpy(), self.model.faces.numpy(), self.garment_id, self.names)
         rest = torch.stack([self.rest_for(body, s, tightness=tightness) for s in shape])
         verts = self.model.pose(r, out.transforms, rest)
         if self.resolver is not None:
             verts = self.resolver(verts, out.vertices, body.faces)
         return DressedOutfit(verts.numpy(), self.model.faces.numpy(), self.garment_id, self.names)
+
+    def _taylor_for(self, body, shape: torch.Tensor) -> TaylorGarment:
+        """The Taylor model set to a body shape (its shape terms are recomputed only for a new one)."""
+        key = shape.detach().cpu().numpy().tobytes()
+        if getattr(self, "_taylor_key", None) != key:
+            self.taylor.set_shape(body, shape.detach().cpu())
+            self._taylor_key = key
+        return self.taylor
 
     @property
     def dynamic(self) -> bool:
@@ -124,6 +163,8 @@ class Dresser:
         NCS's when dynamic (``motion`` scales its dynamic code: 0 = static; ``NCS.motion_codes``),
         else PBNS's. Poses in the gravity-aligned body frame (+Y up)."""
         with torch.no_grad():
+            if self.taylor is not None:
+                return self._taylor_for(body, shape.reshape(-1)).sequence_codes(rotmats)
             if self.ncs is None:
                 return self.model.D.detach(), self.model.mlp(pose_features(rotmats))
             zs, zd = self.ncs.motion_codes(body, rotmats, shape, transl, fps)
@@ -137,9 +178,11 @@ class Dresser:
         shape = shape.reshape(-1)
         t = len(rotmats)
         shp = shape[None].expand(t, -1)
-        out = body(rotmats, shp, transl=transl, points_only=self.resolver is None)
+        out = body(rotmats, shp, transl=transl, points_only=self.resolver is None and self.taylor is None)
         rest = self.rest_for(body, shape, tightness=tightness)
-        if self.ncs is None:
+        if self.taylor is not None:
+            verts = self._taylor_for(body, shape).animate(rotmats, out.transforms, out.vertices)
+        elif self.ncs is None:
             verts = self.model.pose(rotmats, out.transforms, rest)
         else:
             _, codes = self.sequence_codes(body, rotmats, shape, transl, fps)

@@ -139,7 +139,7 @@ def write_glb(path: str | Path, body, shape: torch.Tensor, rotmats: torch.Tensor
     morph = None
     if dresser is not None:
         rest_c = dresser.rest_for(body, shape[0], tightness=tightness).numpy()
-        if t > 1:  # a motion: NCS's blend shapes and per-frame codes where the outfit has it
+        if t > 1 or dresser.taylor is not None:  # a motion (NCS's codes where it has it), or Taylor's blend
             model = dresser.ncs or dresser.model
             d, morph = dresser.sequence_codes(body, rotmats, shape[0], transl, fps)
         else:

@@ -37,8 +37,7 @@ class PBNSConfig:
 def pose_features(rotmats: torch.Tensor) -> torch.Tensor:
     """(B, 24, 3, 3) local rotations -> (B, 216) network input: R - I of every joint, the root
     with its heading (yaw about +Y) removed: gravity depends on tilt, not on heading."""
-    r = rotmats.clone()
-    r[:, 0] = remove_yaw(r[:, 0])
+    r = torch.cat([remove_yaw(rotmats[:, :1]), rotmats[:, 1:]], 1)  # out of place: differentiable in the pose
     eye = torch.eye(3, dtype=r.dtype, device=r.device)
     return (r - eye).flatten(1)
 

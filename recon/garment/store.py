@@ -31,6 +31,12 @@ def ncs_path(outfit: str) -> Path:
     return (SHIPPED_DIR if name in PRESETS else user_dir()) / f"ncs_{name}.pt"
 
 
+def taylor_path(outfit: str) -> Path:
+    """The Taylor model (example database) of an outfit: built on this machine by ``recon garment
+    train --model taylor`` (tens of MB, not shipped), in the cache for presets and your garments."""
+    return user_dir() / f"taylor_{outfit_name(outfit)}.pt"
+
+
 def resizer_path(outfit: str, pbns: str | Path | None = None) -> Path:
     """The resizer of an outfit: shipped for the presets (their templates never change), else
     beside its PBNS weights (``pbns``, default where ``recon garment train`` writes them)."""

@@ -1,0 +1,246 @@
+"""Example-based clothing synthesis (Wu et al., "Example-based Real-time Clothing Synthesis for
+Virtual Agents"): the body-shape dimension added to a clothing pose model by first-order Taylor
+expansions at anchor poses, blended.
+
+    f(beta, theta) = f(beta0, theta) + sum_s w^s [LBS_s->theta f(beta, theta_s) - LBS_s->theta f(beta0, theta_s)]
+
+f(beta0, .) is the clothing pose model (PBNS on the body it was trained for, or a simulation);
+f(., theta_s) is the clothing shape model of anchor s: the quasi-static drapes of the outfit on a
+set of bodies at that pose (recon.garment.drape), reduced by PCA (5 components) with a ridge map
+from (beta, beta^2, 1) to the coefficients (the paper's eq. 5-6). The model is of each drape's
+departure from the outfit graded to its body (``resize.Transfer``, computed exactly for any body):
+the PCA and its map then carry how the drape differs from the grading, not the body's size.
+
+Here the anchors' drapes are kept unposed: each is taken back to the rest pose through the
+outfit's skinning at its own pose and body (``integrate.unpose``), so "LBS from theta_s to theta"
+is that inverse followed by the skinning at theta. The shape term of every anchor is then a rest
+-pose displacement, computed once per body shape (``set_shape``); per frame the blended term is a
+weighted sum of those displacements added to the pose model's rest-pose output before its one
+skinning: the cost of the shape dimension is a blend, not one skinning per anchor.
+
+Blending (the paper's eq. 7-8): the clothing is split into regions by bone groups (``REGIONS``);
+per region the distance of the query pose to each anchor weighs each joint rotation difference
+by the clothing's sensitivity to that joint in that region; the five nearest anchors get weights
+1 / (D + eps)^k, normalised per region; a vertex takes its regions' weights by its skinning
+weights. Over a motion the distances are damped from frame to frame (eq. 9). Penetrations are
+pushed out along the normal of each cloth vertex's bound body vertex (eq. 10).
+"""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import roma
+import torch
+from scipy.spatial import cKDTree
+
+from recon import paths
+from recon.body import skeleton
+from recon.garment.mesh import vertex_normals
+from recon.garment.pbns import PBNS, pose_features, remove_yaw
+from recon.garment.resize import Transfer
+
+# bone groups of the clothing regions (the paper's N_g = 7)
+REGIONS = (
+    ("pelvis", "spine1", "spine2", "spine3", "neck", "head"),
+    ("left_collar", "left_shoulder", "left_elbow", "left_wrist", "left_hand"),
+    ("right_collar", "right_shoulder", "right_elbow", "right_wrist", "right_hand"),
+    ("left_hip",),
+    ("left_knee", "left_ankle", "left_foot"),
+    ("right_hip",),
+    ("right_knee", "right_ankle", "right_foot"),
+)
+
+
+@dataclass
+class BlendConfig:
+    nearest: int = 5  # anchors blended per region (the paper: the top five)
+    power: float = 2.0  # k of 1 / (D + eps)^k: higher keeps an anchor's detail, lower smooths
+    eps: float = 1e-4  # rad^2 (distances are sensitivity-weighted squared joint angle differences)
+    damping: float = 0.5  # eta of eq. 9: share of the previous frame's distance kept over a motion
+    margin: float = 0.005  # epsilon_p of eq. 10 (m): clearance restored at most
+
+
+def region_weights(blend_weights: torch.Tensor) -> torch.Tensor:
+    """(N, 24) skinning weights -> (N, G) share of each region per vertex (rows sum to 1)."""
+    cols = [[skeleton.JOINT_NAMES.index(j) for j in group] for group in REGIONS]
+    return torch.stack([blend_weights[:, c].sum(1) for c in cols], 1)
+
+
+def pose_vector(rotmats: torch.Tensor) -> torch.Tensor:
+    """(B, 24, 3, 3) local rotations -> (B, 72) joint rotation vectors, the root's heading removed
+    (gravity acts on tilt, not on heading): the coordinates of the sensitivity distance."""
+    r = torch.cat([remove_yaw(rotmats[:, :1]), rotmats[:, 1:]], 1)
+    return roma.rotmat_to_rotvec(r).flatten(1)
+
+
+def shape_features(shape: torch.Tensor) -> torch.Tensor:
+    """(B, S) -> (B, 2S + 1): (beta, beta^2, 1), the inputs of the shape model's map (eq. 6)."""
+    return torch.cat([shape, shape ** 2, torch.ones_like(shape[:, :1])], 1)
+
+
+def blend_weights(distance: torch.Tensor, cfg: BlendConfig) -> torch.Tensor:
+    """(..., G, A) region-to-anchor distances -> (..., G, A) weights: 1 / (D + eps)^k on the
+    ``cfg.nearest`` nearest anchors of each region, 0 elsewhere, summing to 1 per region."""
+    k = min(cfg.nearest, distance.shape[-1])
+    d, idx = distance.topk(k, dim=-1, largest=False)
+    w = (d + cfg.eps) ** -cfg.power
+    w = w / w.sum(-1, keepdim=True)
+    return torch.zeros_like(distance).scatter_(-1, idx, w)
+
+
+def fit_shape_model(shapes: torch.Tensor, unposed: torch.Tensor, components: int = 5, ridge: float = 0.2
+                    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """One anchor's clothing shape model from its drapes: ``unposed`` (K, N, 3) on bodies
+    ``shapes`` (K, S). PCA of the vertex coordinates (eq. 5) and a ridge map (eq. 6, L2 weight
+    ``ridge``): returns (mean (N, 3), basis (C, N, 3), map (C, 2S + 1)) with
+    drape(beta) ~ mean + (map @ shape_features(beta)) . basis."""
+    k = unposed.shape[0]
+    flat = unposed.reshape(k, -1).double()
+    mean = flat.mean(0)
+    _, _, vh = torch.linalg.svd(flat - mean, full_matrices=False)
+    c = min(components, k)
+    basis = vh[:c]
+    coeff = (flat - mean) @ basis.T  # (K, C), zero mean
+    # the ridge acts on standardised features and spares the intercept: on raw phenotypes in [0, 1]
+    # (not SMPL's betas of the paper) a weight of 0.2 shrinks every slope and misses the drapes by cm
+    x = shape_features(shapes.double())[:, :-1]
+    mu, sd = x.mean(0), x.std(0).clamp_min(1e-6)
+    z = (x - mu) / sd
+    w = torch.linalg.solve(z.T @ z + ridge * torch.eye(z.shape[1], dtype=z.dtype), z.T @ coeff).T  # (C, 2S)
+    w = w / sd
+    m = torch.cat([w, -(w @ mu)[:, None]], 1)  # (C, 2S + 1) on (beta, beta^2, 1)
+    return mean.view(-1, 3).float(), basis.view(c, -1, 3).float(), m.float()
+
+
+class TaylorGarment:
+    """The Taylor model of one outfit: ``TaylorGarment.load(path, pbns)``; ``set_shape(body,
+    shape)`` once per person, then ``pose(rotmats, transforms, body_v)`` per frame (or batch) and
+    ``animate`` for motions (damped blending)."""
+
+    def __init__(self, pbns: PBNS, anchors: torch.Tensor, sensitivity_q: torch.Tensor, basis: torch.Tensor,
+                 maps: torch.Tensor, shape0: torch.Tensor, cfg: BlendConfig | None = None):
+        self.pbns, self.cfg = pbns, cfg or BlendConfig()
+        self.anchors = anchors  # (A, 24, 3, 3) anchor poses
+        self.anchor_vec = pose_vector(anchors)  # (A, 72)
+        self.q = sensitivity_q  # (G, 72) per region, weight of each squared joint-angle difference
+        self.basis = basis  # (A, C, N, 3) shape-model components (the means cancel in the Taylor term)
+        self.maps = maps  # (A, C, 2S + 1)
+        self.shape0 = shape0  # (S,) the body of the pose model
+        self.regions = region_weights(pbns.weights.detach())  # (N, G)
+        self.delta: torch.Tensor | None = None  # (A, N, 3) per-anchor shape terms beyond the grading
+        self.graded: torch.Tensor | None = None  # (N, 3) the template graded to the body of set_shape
+        self._transfer: Transfer | None = None
+
+    # --- per body shape -------------------------------------------------------------------------
+    @torch.no_grad()
+    def shape_terms(self, shape: torch.Tensor) -> torch.Tensor:
+        """(A, N, 3) the part of each anchor's rest-pose Taylor shape term f(beta, theta_s) -
+        f(beta0, theta_s) (unposed) beyond the grading's, for ``shape`` (S,)."""
+        dx = shape_features(shape.reshape(1, -1).float()) - shape_features(self.shape0.reshape(1, -1).float())
+        coeff = self.maps @ dx[0]  # (A, C)
+        return torch.einsum("ac,acnk->ank", coeff, self.basis.float())
+
+    @torch.no_grad()
+    def set_shape(self, body, shape: torch.Tensor) -> TaylorGarment:
+        """Precompute the shape terms and the penetration binding for a body shape (S,)."""
+        self.shape = shape.reshape(-1).float()
+        if self._transfer is None:
+            self._transfer = Transfer(body, self.pbns.rest.numpy(), self.pbns.faces.numpy(), self.shape0)
+        self.graded = torch.from_numpy(self._transfer.resize(self.shape[None])[0])
+        self.delta = self.shape_terms(self.shape)
+        rest = self.graded + self.delta.mean(0)  # the outfit on this body, at rest (a typical anchor's)
+        bv = body.rest_geometry(self.shape[None].to(body.mean_shape))[0][0].float()
+        bn = vertex_normals(bv[None], body.faces)[0]
+        _, self.bound = cKDTree(bv.numpy()).query(rest.numpy())
+        self.bound = torch.from_numpy(self.bound)
+        self.bound_normal = bn[self.bound]  # rest normal of each cloth vertex's bound body vertex
+        clearance = ((rest - bv[self.bound]) * self.bound_normal).sum(-1)
+        self.clearance = clearance.clamp(0.0, self.cfg.margin)  # d0 = min(h0, epsilon_p)
+        self._prev = None
+        return self
+
+    # --- per frame ------------------------------------------------------------------------------
+    def distances(self, rotmats: torch.Tensor) -> torch.Tensor:
+        """(B, G, A) sensitivity distance of each region of poses (B, 24, 3, 3) to each anchor."""
+        d = pose_vector(rotmats)[:, None] - self.anchor_vec[None]  # (B, A, 72)
+        return torch.einsum("bam,gm->bga", d ** 2, self.q)
+
+    def correction(self, weights: torch.Tensor) -> torch.Tensor:
+        """(B, G, A) blend weights -> (B, N, 3) blended rest-pose shape term."""
+        active = torch.nonzero(weights.sum((0, 1)) > 0)[:, 0]
+        c = self.regions @ weights[:, :, active]  # (B, N, a): per vertex weight of each anchor
+        return torch.einsum("bna,ank->bnk", c, self.delta[active])
+
+    @torch.no_grad()
+    def pose(self, rotmats: torch.Tensor, transforms: torch.Tensor, body_v: torch.Tensor | None = None,
+             pose_model: torch.Tensor | None = None, distance: torch.Tensor | None = None,
+             weights: torch.Tensor | None = None) -> torch.Tensor:
+        """Cloth (B, N, 3) for poses (B, 24, 3, 3) (+Y up) on the body of ``set_shape``:
+        ``transforms`` (B, 24, 3, 4) its joint transforms, ``body_v`` (B, V, 3) its posed vertices
+        (penetration handling; None: none). ``pose_model`` (B, N, 3): the pose model's rest-pose
+        output to use instead of PBNS's (an unposed simulation, for the upper bound). ``distance``
+        (B, G, A): the blending's distances (``distances``; damped by ``animate``); ``weights``
+        (B, G, A): blend weights to use instead."""
+        if self.delta is None:
+            raise RuntimeError("TaylorGarment.set_shape(body, shape) first")
+        base = self.pbns.rest + self.pbns.decode(self.pbns.mlp(pose_features(rotmats))) if pose_model is None \
+            else pose_model
+        if weights is None:
+            weights = blend_weights(self.distances(rotmats) if distance is None else distance, self.cfg)
+        shift = self.graded - self.pbns.rest  # the grading's term, the same at every anchor
+        x = self.pbns.skin(base + shift + self.correction(weights), transforms)
+        return x if body_v is None else self.push_out(x, transforms, body_v)
+
+    def push_out(self, x: torch.Tensor, transforms: torch.Tensor, body_v: torch.Tensor) -> torch.Tensor:
+        """Eq. 10: a cloth vertex closer to its bound body vertex (along that vertex's normal, posed
+        by the cloth vertex's blended skinning rotation) than its rest clearance (at most
+        ``cfg.margin``) moves out to it."""
+        b = x.shape[0]
+        rot = (self.pbns.weights @ transforms.reshape(b, 24, 12)).view(b, -1, 3, 4)[..., :3]
+        n = torch.einsum("bnij,nj->bni", rot, self.bound_normal)
+        n = n / n.norm(dim=-1, keepdim=True).clamp_min(1e-9)
+        h = ((x - body_v[:, self.bound]) * n).sum(-1)
+        return x + (self.clearance - h).clamp_min(0.0)[..., None] * n
+
+    def damped_distances(self, rotmats: torch.Tensor) -> torch.Tensor:
+        """(T, G, A) distances of a motion, each frame's blended with the previous one's (eq. 9)."""
+        d = self.distances(rotmats)
+        for t in range(1, len(d)):
+            d[t] = self.cfg.damping * d[t - 1] + (1.0 - self.cfg.damping) * d[t]
+        return d
+
+    @torch.no_grad()
+    def animate(self, rotmats: torch.Tensor, transforms: torch.Tensor, body_v: torch.Tensor | None = None
+                ) -> torch.Tensor:
+        """A motion (T, 24, 3, 3) frame by frame with the distances damped (eq. 9): (T, N, 3)."""
+        d = self.damped_distances(rotmats)
+        return torch.cat([self.pose(rotmats[i:i + 64], transforms[i:i + 64],
+                                    None if body_v is None else body_v[i:i + 64], distance=d[i:i + 64])
+                          for i in range(0, len(rotmats), 64)])
+
+    @torch.no_grad()
+    def sequence_codes(self, rotmats: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The model of a motion as blend shapes on the graded outfit (``graded``; an export's morph
+        targets): PBNS's rows of D and, for every (region, anchor) pair the motion blends, that
+        anchor's shape term on that region; and their weights per frame: (D (E + P, N * 3), codes
+        (T, E + P)). Skinned like PBNS; without the penetration handling (not a blend shape)."""
+        w = blend_weights(self.damped_distances(rotmats), self.cfg)  # (T, G, A)
+        g, a = torch.nonzero(w.amax(0) > 0, as_tuple=True)
+        targets = self.regions[:, g].T[:, :, None] * self.delta[a]  # (P, N, 3)
+        d = torch.cat([self.pbns.D.detach(), targets.reshape(len(g), -1)])
+        return d, torch.cat([self.pbns.mlp(pose_features(rotmats)), w[:, g, a]], 1)
+
+    # --- persistence ----------------------------------------------------------------------------
+    def save(self, path: Path, meta_json: str) -> None:
+        state = {"anchors": self.anchors, "q": self.q, "basis": self.basis.half(), "maps": self.maps,
+                 "shape0": self.shape0, "blend": asdict(self.cfg), "meta_json": meta_json}
+        paths.atomic_write(Path(path), lambda t: torch.save(state, t))
+
+    @classmethod
+    def load(cls, path: Path, pbns: PBNS) -> tuple[TaylorGarment, dict]:
+        ck = paths.load_checkpoint(path, "recon garment train --model taylor")
+        if ck["basis"].shape[2] != pbns.rest.shape[0]:
+            raise ValueError(f"{path} was built for another outfit ({ck['basis'].shape[2]} vertices)")
+        m = cls(pbns, ck["anchors"], ck["q"], ck["basis"].float(), ck["maps"], ck["shape0"], BlendConfig(**ck["blend"]))
+        return m, ck

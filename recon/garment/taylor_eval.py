@@ -1,0 +1,328 @@
+"""``recon garment eval --model taylor``: the Taylor model against the quasi-static drape (the
+database's own solver, recon.garment.drape) on held-out poses of the test performers x anny
+bodies that are not in the database, beside skinning, PBNS (graded outfit) and PBNS + resizer.
+Also the error against the number of anchors, the paper's separability check (error against the
+distance from an anchor, practical and theoretical), frames a second and the database's size and
+build time. Writes eval/results/garment-taylor.{json,md}.
+"""
+from __future__ import annotations
+
+import json
+import multiprocessing as mp
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+import roma
+import torch
+
+from recon import report
+from recon.body import default_body
+from recon.garment import reference, store
+from recon.garment.collide import CollisionResolver
+from recon.garment.data import pose_set, posed_bodies, trained_outfit
+from recon.garment.drape import DrapeSolver
+from recon.garment.metrics import physical_metrics
+from recon.garment.pbns import PBNS, pose_features, remove_yaw
+from recon.garment.pbns_eval import frames_per_second
+from recon.garment.resize import OutfitResizer, Transfer
+from recon.garment.taylor import TaylorGarment
+from recon.garment.taylor_build import SHAPE_BOX, TaylorBuildConfig, cluster_anchors, drape_poses
+from recon.poses.sampler import ShapeSampler
+
+PHENOTYPES = ("weight", "height")  # "far" bodies: top or bottom quintile of either in anny's prior
+
+
+def test_shapes(body, n_far: int = 6, n_near: int = 2, seed: int = 2024) -> tuple[torch.Tensor, np.ndarray]:
+    """Held-out bodies from anny's prior: ``n_far`` with weight or height in its top or bottom
+    quintile, ``n_near`` with both in the middle fifth; (K, S) and a bool (K,) far mask."""
+    s = ShapeSampler(body, seed=seed).sample(4000).float()
+    cols = [list(body.shape_names).index(n) for n in PHENOTYPES]
+    q = np.stack([np.searchsorted(np.sort(s[:, c].numpy()), s[:, c].numpy()) / len(s) for c in cols], 1)
+    inside = np.all([(s[:, i] >= lo) & (s[:, i] <= hi) for i, (lo, hi) in enumerate(SHAPE_BOX)], 0)
+    far = np.nonzero(((q < 0.2) | (q > 0.8)).any(1) & inside)[0]
+    near = np.nonzero((np.abs(q - 0.5) < 0.1).all(1) & inside)[0]
+    rng = np.random.default_rng(seed)
+    # the far ones spread over the four extremes: low/high weight, low/high height in turn
+    picks = []
+    for k in range(n_far):
+        c, high = k % 2, (k // 2) % 2
+        pool = [i for i in far if (q[i, c] > 0.8 if high else q[i, c] < 0.2) and i not in picks]
+        picks.append(int(rng.choice(pool)))
+    picks += [int(i) for i in rng.choice(near, n_near, replace=False)]
+    return s[picks], np.array([True] * n_far + [False] * n_near)
+
+
+def test_poses(n: int, seed: int = 7) -> torch.Tensor:
+    """(n, 24, 3, 3) balanced poses of the test performers, heading removed."""
+    r = pose_set("test", n, 0.5, seed)
+    r[:, 0] = remove_yaw(r[:, 0])
+    return r
+
+
+class Methods:
+    """Every model of the table on one outfit, dressing one (pose, body) pair."""
+
+    def __init__(self, body, outfit: str, taylor_path: Path):
+        self.body = body
+        self.pbns, ck = PBNS.load(store.pbns_path(outfit))
+        self.shape0 = ck["shape"]
+        self.taylor, self.tck = TaylorGarment.load(taylor_path, self.pbns)
+        self.transfer = Transfer(body, self.pbns.rest.numpy(), self.pbns.faces.numpy(), self.shape0)
+        rp = store.resizer_path(outfit)
+        self.resizer = OutfitResizer(body, rp, self.pbns.rest.numpy(), self.pbns.faces.numpy()) if rp.exists() else None
+        self.resolver = CollisionResolver(self.pbns.faces.numpy(), ck["layer"].numpy())
+
+    @torch.no_grad()
+    def __call__(self, rot: torch.Tensor, shape: torch.Tensor, sim_pose_model: torch.Tensor | None) -> dict:
+        """(24, 3, 3), (S,), the unposed drape on the pose model's body at this pose (N, 3) ->
+        {method: (N, 3)} and the body (vertices, normals) and the graded rest outfit."""
+        bv, bn, bt = posed_bodies(self.body, rot[None], shape[None])
+        graded = torch.from_numpy(self.transfer.resize(shape[None]))[0]
+        d_t = self.pbns.decode(self.pbns.mlp(pose_features(rot[None])))[0]
+        out = {"skinning only": self.pbns.skin(graded, bt)[0], "PBNS (graded)": self.pbns.skin(graded + d_t, bt)[0]}
+        if self.resizer is not None:
+            resized = self.resizer.rest(shape[None])[0]
+            pv = self.pbns.skin(resized + d_t, bt)
+            out["PBNS + resizer"] = pv[0]
+            out["PBNS + resizer + collision resolution"] = self.resolver(pv, bv, self.body.faces)[0]
+        self.taylor.set_shape(self.body, shape)
+        out["Taylor, no penetration handling"] = self.taylor.pose(rot[None], bt)[0]
+        out["Taylor"] = self.taylor.pose(rot[None], bt, bv)[0]
+        if sim_pose_model is not None:
+            sim = sim_pose_model[None]
+            out["Taylor, simulation as pose model"] = self.taylor.pose(rot[None], bt, bv, pose_model=sim)[0]
+        return out, (bv, bn), graded
+
+
+def _mean(xs) -> float | None:
+    return float(np.mean(xs)) if len(xs) else None
+
+
+def subset(model: TaylorGarment, joint_weights: torch.Tensor, n: int) -> TaylorGarment:
+    """The model with ``n`` of its anchors (clustered like the database's, the member nearest each
+    centre): the error-against-anchors curve without a database per count."""
+    idx = torch.from_numpy(cluster_anchors(model.anchors, joint_weights, n))
+    return TaylorGarment(model.pbns, model.anchors[idx], model.q, model.basis[idx], model.maps[idx], model.shape0,
+                         model.cfg)
+
+
+def separability(cfg: TaylorBuildConfig, m: Methods, anchors: list[int], radii: tuple[float, ...], samples: int,
+                 seed: int = 0) -> list[dict]:
+    """The paper's 4.2: bodies and poses at distance r from an anchor (a random direction over the
+    72 joint-rotation components, rad, and the 6 phenotypes); error of eq. 3 to the drape there,
+    practical (the pose model PBNS and the anchor's shape model) and theoretical (each term the
+    drape itself)."""
+    rng = np.random.default_rng(seed)
+    tasks = []
+    for a in anchors:
+        for r in radii:
+            for _ in range(samples):
+                u = rng.standard_normal(78)
+                u *= r / np.linalg.norm(u)
+                rot = m.taylor.anchors[a] @ roma.rotvec_to_rotmat(torch.from_numpy(u[:72]).float().view(24, 3))
+                shape = (m.shape0 + torch.from_numpy(u[72:]).float()).clamp(0.0, 1.0)
+                tasks.append((a, r, rot, shape))
+    poses = torch.stack([t[2] for t in tasks] + [m.taylor.anchors[t[0]] for t in tasks])
+    bodies = [t[3][None] for t in tasks] * 2
+    drapes = drape_poses(cfg, poses, bodies, desc="separability")
+    rows = []
+    n = len(tasks)
+    for i, (a, r, rot, shape) in enumerate(tasks):
+        at, anchor = drapes[i], drapes[n + i]
+        gt = torch.from_numpy(at["posed"][1])
+        bv, _, bt = posed_bodies(m.body, rot[None], shape[None])
+        du = torch.from_numpy(anchor["unposed"][1] - anchor["unposed"][0])
+        theory = m.pbns.skin(torch.from_numpy(at["unposed"][0]) + du, bt)[0]
+        m.taylor.set_shape(m.body, shape)
+        w = torch.zeros(1, m.taylor.q.shape[0], len(m.taylor.anchors))
+        w[..., a] = 1.0
+        practical = m.taylor.pose(rot[None], bt, weights=w)[0]
+        rows.append({"anchor": a, "r": r, "practical_mm": float((practical - gt).norm(dim=-1).mean()) * 1000,
+                     "theoretical_mm": float((theory - gt).norm(dim=-1).mean()) * 1000})
+    return rows
+
+
+@torch.no_grad()
+def speed(body, outfit: str, taylor: TaylorGarment | None) -> dict:
+    """Frames a second at batch 1 (1 thread, given the posed body) of PBNS and of the Taylor model
+    (with penetration handling), and the time of a new body shape (ms). Without a built database
+    the Taylor model is timed on one of the default size with random contents (its cost does not
+    depend on the values)."""
+    pbns, ck = PBNS.load(store.pbns_path(outfit))
+    rot = test_poses(8)
+    shape = ck["shape"]
+    random_db = taylor is None
+    if random_db:
+        cfg = TaylorBuildConfig()
+        a, n, s = cfg.anchors, pbns.rest.shape[0], len(shape)
+        g = torch.Generator().manual_seed(0)
+        q = torch.rand(7, 72, generator=g)
+        taylor = TaylorGarment(pbns, test_poses(a + 8)[8:], q / q.sum(1, keepdim=True),
+                               1e-3 * torch.randn(a, cfg.components, n, 3, generator=g),
+                               torch.randn(a, cfg.components, 2 * s + 1, generator=g), shape)
+    out = body(rot[:1], shape[None])
+    t_ms = []
+    for k in range(5):
+        t = time.perf_counter()
+        taylor.set_shape(body, shape + 0.01 * k)
+        t_ms.append((time.perf_counter() - t) * 1000)
+    r, tr, bv = rot[:1], out.transforms, out.vertices
+    return {"vertices": int(pbns.rest.shape[0]), "random_database": random_db, "anchors": len(taylor.anchors),
+            "pbns_fps": frames_per_second(lambda: pbns.pose(r, tr), 1),
+            "taylor_fps": frames_per_second(lambda: taylor.pose(r, tr, bv), 1),
+            "new_shape_ms": float(np.median(t_ms))}
+
+
+@torch.no_grad()
+def evaluate(outfit: str, poses: int = 20, workers: int = 2, anchor_counts=(8, 16, 32, 64),
+             radii=(0.05, 0.1, 0.2, 0.4), separability_samples: int = 2, log=print) -> dict:
+    body = default_body()
+    path = store.taylor_path(outfit)
+    cfg = TaylorBuildConfig(outfit=outfit, workers=workers)
+    m = Methods(body, outfit, path)
+    meta = json.loads(m.tck["meta_json"])
+    shapes, far = test_shapes(body)
+    rot = test_poses(poses)
+    drapes = drape_poses(cfg, rot, shapes, desc="ground truth")
+    faces = m.pbns.faces.numpy()
+    joint_w = torch.tensor(meta["joint_weights"])
+    subsets = {n: subset(m.taylor, joint_w, n) for n in anchor_counts if n < len(m.taylor.anchors)}
+    acc: dict = {}
+    curve = {n: {"far": [], "all": []} for n in subsets}
+
+    def add(name, v, gt, k, bv, bn, graded):
+        phys = physical_metrics(v[None], faces, graded, bv, bn)
+        acc.setdefault(name, []).append((float((v - gt).norm(dim=-1).mean()) * 1000, bool(far[k]),
+                                         phys["collision_pct"], phys["edge_mm"]))
+
+    for p in range(len(rot)):
+        for k in range(len(shapes)):
+            gt = torch.from_numpy(drapes[p]["posed"][k + 1])
+            outs, (bv, bn), graded = m(rot[p], shapes[k], torch.from_numpy(drapes[p]["unposed"][0]))
+            for name, v in outs.items():
+                add(name, v, gt, k, bv, bn, graded)
+            add("drape (ground truth)", gt, gt, k, bv, bn, graded)
+            _, _, bt = posed_bodies(body, rot[p][None], shapes[k][None])
+            for n, sub in subsets.items():
+                sub.set_shape(body, shapes[k])
+                e = float((sub.pose(rot[p][None], bt, bv)[0] - gt).norm(dim=-1).mean()) * 1000
+                curve[n]["all"].append(e)
+                if far[k]:
+                    curve[n]["far"].append(e)
+    rows = {name: {"error_mm": _mean([a[0] for a in v]), "error_far_mm": _mean([a[0] for a in v if a[1]]),
+                   "error_near_mm": _mean([a[0] for a in v if not a[1]]), "collision_pct": _mean([a[2] for a in v]),
+                   "edge_mm": _mean([a[3] for a in v])} for name, v in acc.items()}
+    anchors_curve = {str(n): {"error_mm": _mean(c["all"]), "error_far_mm": _mean(c["far"])} for n, c in curve.items()}
+    anchors_curve[str(len(m.taylor.anchors))] = {"error_mm": rows["Taylor"]["error_mm"],
+                                                "error_far_mm": rows["Taylor"]["error_far_mm"]}
+    log("scored; separability")
+    sep = separability(cfg, m, [0, len(m.taylor.anchors) // 2], radii, separability_samples)
+    return {"outfit": outfit, "poses": len(rot), "shapes": shapes.tolist(), "far": far.tolist(), "rows": rows,
+            "anchors_curve": anchors_curve, "separability": sep, "database": {
+                "anchors": meta["anchors"], "bodies_per_anchor": len(meta["shapes"]),
+                "size_mb": path.stat().st_size / 1e6,
+                "build_min": ((meta["drape_seconds"] or 0.0) + meta["fit_seconds"]) / 60, "ridge": meta["ridge"],
+                "explained_variance_pct": 100 * meta["explained_variance"]}}
+
+
+def _newton_one(args) -> dict:
+    """One held-out pose on PBNS's body: newton's drape (reference.drape, its protocol) and ours, from
+    the same skinned start; the distance of ours, PBNS's and the skinned start to newton's."""
+    outfit, pose = args
+    torch.set_num_threads(1)
+    body = default_body()
+    pbns, ck = PBNS.load(store.pbns_path(outfit))
+    o, shape0, _ = trained_outfit(body, store.pbns_path(outfit))
+    rot = test_poses(20)[pose:pose + 1]
+    bv, bn, bt = posed_bodies(body, rot, shape0[None])
+    sk = pbns.skin(pbns.rest, bt)[0]
+    t = time.time()
+    ours = DrapeSolver(o, TaylorBuildConfig().drape)(pbns.rest, sk, bv[0], bn[0])
+    ours_s = time.time() - t
+    sim = reference.drape(bv[0].numpy(), body.faces.numpy(), pbns.rest.numpy(), sk.numpy(), pbns.faces.numpy(),
+                          o.pinned, reference.DrapeConfig())
+    newton = torch.from_numpy(sim["vertices"]).float()
+    err = lambda v: float((v - newton).norm(dim=-1).mean()) * 1000  # noqa: E731
+    return {"pose": pose, "ours_mm": err(ours), "pbns_mm": err(pbns.pose(rot, bt)[0]), "skinning_mm": err(sk),
+            "ours_s": ours_s, "newton_s": sim["seconds"], "newton_settled": sim["settled"]}
+
+
+def newton_comparison(outfit: str, poses=(3, 11), workers: int = 2) -> list[dict]:
+    """Our drape solver against newton's VBD drape (``recon garment reference``'s protocol) at held-out
+    poses on PBNS's body: is it closer to newton's than PBNS is? (needs the ``sim`` extra)."""
+    with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn")) as pool:
+        return list(pool.map(_newton_one, [(outfit, p) for p in poses]))
+
+
+ROW_ORDER = ("skinning only", "PBNS (graded)", "PBNS + resizer", "PBNS + resizer + collision resolution",
+             "Taylor, no penetration handling", "Taylor", "Taylor, simulation as pose model", "drape (ground truth)")
+
+
+def render(data: dict) -> str:
+    out = ["# Example-based Taylor garment model against the quasi-static drape", ""]
+    for name, r in data["outfits"].items():
+        db = r["database"]
+        out += [f"## {name}", "",
+                f"{r['poses']} held-out poses (test performers) x {len(r['shapes'])} anny bodies not in the database "
+                f"({sum(r['far'])} far: weight or height in the prior's top or bottom quintile); error = mean vertex "
+                "distance to the drape of each pair (recon.garment.drape, the database's solver); edge against the "
+                "outfit graded to the body.", ""]
+        rows = [[k, *(r["rows"][k][c] for c in ("error_mm", "error_far_mm", "error_near_mm", "collision_pct",
+                                                 "edge_mm"))] for k in ROW_ORDER if k in r["rows"]]
+        out += [report.table(rows, ["model", "error mm", "far bodies mm", "near bodies mm", "collision %", "edge mm"],
+                             [""] + [".2f"] * 5), ""]
+        out += [f"Database: {db['anchors']} anchors x {db['bodies_per_anchor']} bodies, {db['size_mb']:.1f} MB, "
+                f"built in {db['build_min']:.0f} min (2 processes); the shape models' 5 PCA components keep "
+                f"{db['explained_variance_pct']:.1f} % of the variance of each anchor's drapes; ridge {db['ridge']:g} "
+                "(least leave-one-body-out error).", ""]
+        curve = r["anchors_curve"]
+        out += ["Error against the number of anchors (subsets of the database's, clustered alike):", "",
+                report.table([[int(n), c["error_mm"], c["error_far_mm"]] for n, c in
+                              sorted(curve.items(), key=lambda t: int(t[0]))],
+                             ["anchors", "error mm", "far bodies mm"], ["", ".2f", ".2f"]), ""]
+        sep: dict = {}
+        for s in r["separability"]:
+            sep.setdefault(s["r"], []).append(s)
+        out += ["Separability (the paper's 4.2): error of eq. 3 at distance r from an anchor (a random direction over "
+                "the 72 joint-rotation components in rad and the 6 phenotypes), practical (PBNS and the anchor's shape "
+                "model) and theoretical (every term a drape):", "",
+                report.table([[r_, len(v), _mean([x["practical_mm"] for x in v]),
+                               _mean([x["theoretical_mm"] for x in v])] for r_, v in sorted(sep.items())],
+                             ["r", "samples", "practical mm", "theoretical mm"], [".2f", "", ".2f", ".2f"]), ""]
+    for name, cmp in data.get("newton", {}).items():
+        out += [f"## {name}: the drape solver against newton's", "",
+                "Held-out poses on PBNS's body, both drapes from the same skinned start (newton 1.8.0 VBD, "
+                "quasi-static, `recon garment reference`'s protocol): mean distance to newton's drape.", "",
+                report.table([[c["pose"], c["skinning_mm"], c["pbns_mm"], c["ours_mm"], c["ours_s"], c["newton_s"],
+                               "yes" if c["newton_settled"] else "no (60 frames)"] for c in cmp],
+                             ["pose", "skinning mm", "PBNS mm", "our drape mm", "our s", "newton s", "newton settled"],
+                             ["", ".1f", ".1f", ".1f", ".0f", ".0f", ""]), ""]
+    sp = data.get("speed", {})
+    if sp:
+        out += ["## Speed", "", "Batch 1, 1 thread, given the posed body (as PBNS's FPS in garment-pbns.md); the "
+                "Taylor model with its penetration handling. New body: `set_shape` (shape terms of every anchor "
+                "and the penetration binding).", ""]
+        out += [report.table([[o, s["vertices"], s["anchors"], "random" if s["random_database"] else "built",
+                               s["pbns_fps"], s["taylor_fps"], s["new_shape_ms"]] for o, s in sp.items()],
+                             ["outfit", "vertices", "anchors", "database", "PBNS FPS", "Taylor FPS", "new body ms"],
+                             ["", "", "", "", ".0f", ".0f", ".1f"]), ""]
+        out += ["Databases marked random: an outfit whose database was not built here, timed with one of the default "
+                "size and random contents (the cost does not depend on the values).", ""]
+    return "\n".join(out)
+
+
+def evaluate_and_report(outfits: list[str], poses: int = 20, workers: int = 2, out_dir: Path = report.RESULTS,
+                        speed_outfits: list[str] | None = None, newton: bool = True, log=print) -> Path:
+    """The table of ``outfits`` (their databases must be built), the speed of ``speed_outfits`` and,
+    with ``newton`` (the ``sim`` extra; ~6 min a pose), the drape solver against newton's."""
+    body = default_body()
+    data = {"outfits": {o: evaluate(o, poses, workers, log=log) for o in outfits}, "speed": {}}
+    if newton and reference.available():
+        data["newton"] = {o: newton_comparison(o, workers=workers) for o in outfits}
+    for o in speed_outfits or outfits:
+        p = store.taylor_path(o)
+        pbns, _ = PBNS.load(store.pbns_path(o))
+        data["speed"][o] = speed(body, o, TaylorGarment.load(p, pbns)[0] if p.exists() else None)
+    return report.write(Path(out_dir) / "garment-taylor", data, render(data))

@@ -1,0 +1,273 @@
+"""The example-based Taylor garment model (recon.garment.taylor, taylor_build, drape): the Taylor
+term at an anchor, separability on a toy, the blending, the shape model, sensitivity by finite
+differences against autograd, the drape solver, and the model behind Dresser and the .glb."""
+import json
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+import roma
+import torch
+import trimesh
+from gltf_check import assert_valid
+
+from recon.garment import store
+from recon.garment.data import posed_bodies
+from recon.garment.drape import DrapeSolver, DrapeSolverConfig
+from recon.garment.dress import Dresser
+from recon.garment.gltf import write_glb
+from recon.garment.pbns import PBNS, PBNSConfig, initial_weights, pose_features
+from recon.garment.resize import Transfer
+from recon.garment.taylor import (
+    BlendConfig,
+    TaylorGarment,
+    blend_weights,
+    fit_shape_model,
+    region_weights,
+    shape_features,
+)
+from recon.garment.taylor_build import (
+    cluster_anchors,
+    database_shapes,
+    perturbed,
+    region_sensitivity,
+    sensitivity,
+    unposed,
+)
+from recon.garment.templates import GarmentSpec, RestBody, make_outfit
+
+
+@pytest.fixture(scope="module")
+def top(body):
+    """A small sleeveless top with a PBNS of random pose deformations."""
+    torch.manual_seed(0)
+    outfit = make_outfit(body, [GarmentSpec("top", "top", sleeve=0.0)])
+    w = initial_weights(RestBody(body), outfit, diffusion=5)
+    model = PBNS(torch.from_numpy(outfit.vertices), torch.from_numpy(outfit.faces), torch.from_numpy(w), PBNSConfig())
+    with torch.no_grad():
+        model.D.normal_(0, 1e-3)
+    return outfit, model.eval()
+
+
+def poses(n, scale=0.3, seed=0):
+    g = torch.Generator().manual_seed(seed)
+    r = roma.rotvec_to_rotmat(scale * torch.randn(n, 24, 3, generator=g))
+    r[:, 0] = torch.eye(3)
+    return r
+
+
+def graded(body, model, shapes):
+    """(K, N, 3) the template graded to each body (its own body: the template)."""
+    return torch.from_numpy(Transfer(body, model.rest.numpy(), model.faces.numpy(), body.mean_shape).resize(shapes))
+
+
+def toy_model(body, model, anchors, shapes, unposed_of, ridge=1e-6, cfg=None):
+    """A Taylor model whose database holds ``unposed_of(shape, anchor)`` (N, 3) at each anchor
+    (its shape models fitted, as the build's, to the departures from the graded outfit)."""
+    basis, maps = [], []
+    for a in anchors:
+        u = torch.stack([unposed_of(s, a) for s in shapes]) - graded(body, model, shapes)
+        _, b, m = fit_shape_model(shapes, u, components=5, ridge=ridge)
+        basis.append(b)
+        maps.append(m)
+    q = torch.rand(7, 72, generator=torch.Generator().manual_seed(1))
+    return TaylorGarment(model, anchors, q / q.sum(1, keepdim=True), torch.stack(basis), torch.stack(maps), shapes[0],
+                         cfg or BlendConfig())
+
+
+def shifted_drape(model, amplitude=0.02):
+    """A toy 'drape' in the rest pose, linear in (beta, beta^2) (5 independent fields) and depending
+    on the anchor."""
+    g = torch.Generator().manual_seed(3)
+    fields = torch.einsum("fc,cnk->fnk", torch.randn(13, 5, generator=g),
+                          amplitude * torch.randn(5, model.rest.shape[0], 3, generator=g))
+
+    def unposed_of(shape, anchor):
+        tilt = float(roma.rotmat_to_rotvec(anchor[1]).norm())
+        return model.rest + torch.einsum("f,fnk->nk", shape_features(shape[None])[0], fields) * (1 + tilt)
+    return unposed_of
+
+
+def test_taylor_term_is_exact_at_an_anchor_and_vanishes_on_the_pose_models_body(body, top):
+    _, model = top
+    anchors = poses(3)
+    shapes = torch.cat([body.mean_shape[None], database_shapes(5, seed=1)])
+    unposed_of = shifted_drape(model)
+    m = toy_model(body, model, anchors, shapes, unposed_of)
+    for k in (1, 3):  # a database body, at its anchor, with the simulation as pose model: the drape itself
+        _, _, bt = posed_bodies(body, anchors[2:3], shapes[k][None])
+        m.set_shape(body, shapes[k])
+        w = torch.zeros(1, 7, 3)
+        w[..., 2] = 1.0
+        x = m.pose(anchors[2:3], bt, pose_model=unposed_of(shapes[0], anchors[2])[None], weights=w)
+        assert (x - model.skin(unposed_of(shapes[k], anchors[2]), bt)).norm(dim=-1).max() < 1e-4
+    # the pose model's own body: no shape term whatever the pose, the pose model's cloth exactly
+    m.set_shape(body, shapes[0])
+    rot = poses(4, seed=5)
+    _, _, bt = posed_bodies(body, rot, shapes[0][None])
+    assert torch.equal(m.pose(rot, bt), model.pose(rot, bt))
+
+
+def test_separability_on_a_toy_function(body, top):
+    """f(beta, theta) = a(theta) + b(beta) + c(beta) d(theta): the first-order Taylor model is exact
+    without the cross term and its error shrinks with the square of the distance with it."""
+    _, model = top
+    n = model.rest.shape[0]
+    g = torch.Generator().manual_seed(4)
+    fa, fb, fc = (0.02 * torch.randn(n, 3, generator=g) for _ in range(3))
+    beta0 = body.mean_shape
+    anchor = poses(1, seed=9)
+
+    def f(shape, rot, cross):
+        theta = pose_features(rot[None])[0][9:12].sum()  # a smooth scalar of the pose
+        b = (shape - beta0).sum()  # beyond the grading, the shape part lies in the span of eq. 6's features
+        return graded(body, model, shape[None])[0] + fa * theta + fb * (b + (shape ** 2).sum()) + cross * fc * b * theta
+
+    errors = {}
+    for cross in (0.0, 20.0):
+        shapes = torch.cat([beta0[None], database_shapes(15, seed=2)])  # more bodies than features: exact
+        m = toy_model(body, model, anchor, shapes, lambda s, a, cross=cross: f(s, a, cross))
+        w = torch.ones(1, 7, 1)
+        for r in (0.2, 0.1, 0.05):
+            direction = torch.randn(78, generator=torch.Generator().manual_seed(0))
+            direction = r * direction / direction.norm()
+            rot = anchor[0] @ roma.rotvec_to_rotmat(direction[:72].view(24, 3))
+            shape = beta0 + direction[72:]
+            m.set_shape(body, shape)
+            _, _, bt = posed_bodies(body, rot[None], shape[None])
+            x = m.pose(rot[None], bt, pose_model=f(beta0, rot, cross)[None], weights=w)
+            errors[cross, r] = float((x - model.skin(f(shape, rot, cross), bt)).norm(dim=-1).mean())
+    assert max(errors[0.0, r] for r in (0.2, 0.1, 0.05)) < 1e-5
+    assert errors[20.0, 0.2] > 1e-4
+    assert 2.5 < errors[20.0, 0.2] / errors[20.0, 0.1] < 6 and 2.5 < errors[20.0, 0.1] / errors[20.0, 0.05] < 6
+
+
+def test_blending_weights_sum_to_one_on_the_nearest_anchors():
+    g = torch.Generator().manual_seed(0)
+    d = torch.rand(3, 7, 20, generator=g)
+    d[0, 2, 11] = 0.0
+    w = blend_weights(d, BlendConfig(nearest=5, power=2.0))
+    assert torch.allclose(w.sum(-1), torch.ones(3, 7))
+    assert ((w > 0).sum(-1) == 5).all()
+    nearest = d.topk(5, -1, largest=False).indices
+    assert torch.equal(torch.gather(w, -1, nearest) > 0, torch.ones_like(nearest, dtype=torch.bool))
+    assert w[0, 2, 11] > 0.999  # an anchor at distance 0 takes (nearly) all of its region
+    assert (w.argmax(-1) == d.argmin(-1)).all()
+
+
+def test_region_weights_cover_every_vertex(top):
+    _, model = top
+    r = region_weights(model.weights.detach())
+    assert r.shape == (model.rest.shape[0], 7)
+    assert torch.allclose(r.sum(1), torch.ones(len(r)), atol=1e-5)
+
+
+def test_shape_model_reproduces_a_quadratic_family_and_generalises(body, top):
+    _, model = top
+    shapes = torch.cat([body.mean_shape[None], database_shapes(15, seed=3)])  # more bodies than features
+    unposed_of = shifted_drape(model)
+    a = poses(1)[0]
+    u = torch.stack([unposed_of(s, a) for s in shapes])
+    mean, basis, m = fit_shape_model(shapes, u, components=5, ridge=1e-6)
+    test = database_shapes(4, seed=11)
+    for s in test:  # bodies not in the set, as exactly
+        pred = mean + torch.einsum("c,cnk->nk", m @ shape_features(s[None])[0], basis)
+        assert (pred - unposed_of(s, a)).norm(dim=-1).max() < 2e-4
+    for k, s in enumerate(shapes):  # the bodies it was fitted on: back within float noise
+        pred = mean + torch.einsum("c,cnk->nk", m @ shape_features(s[None])[0], basis)
+        assert (pred - u[k]).norm(dim=-1).max() < 2e-4
+
+
+def test_sensitivity_finite_differences_match_autograd(body, top):
+    _, model = top
+    rot = poses(1, seed=2)[0]
+    shape = body.mean_shape
+    fd = sensitivity(model, body, rot, shape, model.rest, step=1e-3)  # (N, 72)
+    ids = torch.tensor([10, 500, len(model.rest) - 7])
+    delta = torch.zeros(72, requires_grad=True)
+
+    def cloth(d):
+        r = rot[None] @ roma.rotvec_to_rotmat(d.view(1, 24, 3))
+        t = body(r, shape[None]).transforms
+        return model.skin(model.rest + model.decode(model.mlp(pose_features(r))), t)[0, ids]
+
+    x = cloth(delta)
+    jac = torch.stack([torch.autograd.grad(x[i, c], delta, retain_graph=True)[0] for i in range(3) for c in range(3)])
+    auto = jac.view(3, 3, 72).norm(dim=1)  # (3 vertices, 72)
+    assert torch.allclose(fd[ids], auto, rtol=2e-2, atol=2e-3)
+    assert perturbed(rot, 0.1).shape == (144, 24, 3, 3)
+
+
+def test_region_sensitivity_and_clustering():
+    s = torch.rand(50, 72)
+    regions = torch.softmax(torch.randn(50, 7), 1)
+    q, joints = region_sensitivity(s, regions)
+    assert torch.allclose(q.sum(1), torch.ones(7)) and joints.shape == (24,)
+    rot = poses(200, seed=1)
+    idx = cluster_anchors(rot, torch.ones(24), 12)
+    assert len(set(idx.tolist())) == len(idx) and 8 <= len(idx) <= 12
+
+
+def test_drape_solver_hangs_a_pinned_sheet(body):
+    """A 20 cm sheet pinned along its top edge, far from the body: it hangs (lower, its edge lengths
+    kept within 2 %), the pins stay."""
+    n = 8
+    u, v = np.meshgrid(np.linspace(0, 0.2, n), np.linspace(0, 0.2, n))
+    verts = np.stack([u.ravel(), 2.0 + np.zeros(n * n), v.ravel()], 1).astype(np.float32)  # horizontal
+    quads = [(i * n + j, i * n + j + 1, (i + 1) * n + j) for i in range(n - 1) for j in range(n - 1)]
+    quads += [(i * n + j + 1, (i + 1) * n + j + 1, (i + 1) * n + j) for i in range(n - 1) for j in range(n - 1)]
+    faces = np.array(quads)
+    pinned = np.zeros(n * n, bool)
+    pinned[:n] = True
+    sheet = SimpleNamespace(vertices=verts, faces=faces, layer=np.zeros(n * n, int), pinned=pinned)
+    solver = DrapeSolver(sheet, DrapeSolverConfig(rounds=3, iterations=60, tether=1.0))
+    with torch.no_grad():
+        bv = body(poses(1), body.mean_shape[None]).vertices[0]
+    bn = torch.nn.functional.normalize(bv, dim=-1)
+    x = torch.from_numpy(verts)
+    out = solver(x, x, bv, bn)
+    assert torch.equal(out[:n], x[:n])
+    assert float(out[n:, 1].mean()) < 2.0 - 0.03  # fell
+    e = solver.crit.edge.edges
+    length = lambda p: (p[e[:, 0]] - p[e[:, 1]]).norm(dim=-1)  # noqa: E731
+    assert ((length(out) - length(x)).abs() / length(x)).mean() < 0.02
+
+
+def test_dresser_with_the_taylor_model_poses_animates_and_exports(body, top, tmp_path, monkeypatch):
+    monkeypatch.setenv("RECON_CACHE_DIR", str(tmp_path / "cache"))
+    outfit, model = top
+    path = tmp_path / "mytop.pt"
+    model.save(path, {"meta_json": json.dumps({"garments": ["top"]}), "layer": torch.zeros(len(outfit.vertices)),
+                      "garment_id": torch.zeros(len(outfit.vertices), dtype=torch.long), "shape": body.mean_shape})
+    with pytest.raises(Exception, match="recon garment train --model taylor"):
+        Dresser(path=path, garment_model="taylor")
+    shapes = torch.cat([body.mean_shape[None], database_shapes(6, seed=1)])
+    m = toy_model(body, model, poses(4), shapes, shifted_drape(model))
+    m.save(store.taylor_path(str(path)), json.dumps({"outfit": "mytop"}))
+    dresser = Dresser(path=path, garment_model="taylor")
+    shape = shapes[3]
+    rot = poses(5, seed=7)
+    transl = torch.zeros(5, 3)
+    one = dresser(body, rot[:2], shape[None].expand(2, -1), transl[:2]).vertices
+    with torch.no_grad():
+        out = body(rot[:2], shape[None].expand(2, -1))
+    direct = m.set_shape(body, shape).pose(rot[:2], out.transforms, out.vertices)
+    assert np.abs(one - direct.numpy()).mean() < 1e-4  # float16 storage (a push-out may flip: the mean)
+    loaded = TaylorGarment.load(store.taylor_path(str(path)), dresser.model)[0].set_shape(body, shape)
+    assert np.abs(one - loaded.pose(rot[:2], out.transforms, out.vertices).numpy()).max() < 1e-5
+    motion = dresser.animate(body, rot, shape, transl).vertices
+    assert motion.shape == (5, len(outfit.vertices), 3) and np.isfinite(motion).all()
+    glb = write_glb(tmp_path / "a.glb", body, shape, rot, transl + torch.tensor([0.0, 0.9, 0.0]), 30.0, dresser)
+    assert_valid(glb)
+    scene = trimesh.load(glb)
+    assert len(scene.geometry) == 2
+    with pytest.raises(Exception, match="tightness"):
+        dresser(body, rot[:1], shape, tightness=(0.1, 0.0))
+    # the blend-shape form of the export is the model without its penetration handling
+    d, codes = dresser.sequence_codes(body, rot, shape)
+    with torch.no_grad():
+        out = body(rot, shape[None].expand(5, -1))
+    posed = model.skin(dresser.rest_for(body, shape) + (codes @ d).view(5, -1, 3), out.transforms)
+    ref = m.set_shape(body, shape).pose(rot, out.transforms, distance=m.damped_distances(rot))
+    assert (posed - ref).norm(dim=-1).max() < 1e-4
+    assert unposed(model, ref, out.transforms).shape == ref.shape
