@@ -101,6 +101,18 @@ def test_taylor_term_is_exact_at_an_anchor_and_vanishes_on_the_pose_models_body(
         w[..., 2] = 1.0
         x = m.pose(anchors[2:3], bt, pose_model=unposed_of(shapes[0], anchors[2])[None], weights=w)
         assert (x - model.skin(unposed_of(shapes[k], anchors[2]), bt)).norm(dim=-1).max() < 1e-4
+    # PBNS as the pose model, corrected at the anchors: the drape itself there, on any database body
+    with torch.no_grad():
+        pbns_at = model.rest + model.decode(model.mlp(pose_features(anchors)))
+    m.pose_residual = torch.stack([unposed_of(shapes[0], a) for a in anchors]) - pbns_at
+    for k in (0, 2):
+        _, _, bt = posed_bodies(body, anchors[1:2], shapes[k][None])
+        m.set_shape(body, shapes[k])
+        w = torch.zeros(1, 7, 3)
+        w[..., 1] = 1.0
+        x = m.pose(anchors[1:2], bt, weights=w)
+        assert (x - model.skin(unposed_of(shapes[k], anchors[1]), bt)).norm(dim=-1).max() < 1e-4
+    m.pose_residual = None
     # the pose model's own body: no shape term whatever the pose, the pose model's cloth exactly
     m.set_shape(body, shapes[0])
     rot = poses(4, seed=5)

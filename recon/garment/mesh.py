@@ -100,9 +100,10 @@ def neighbour_mean(faces: np.ndarray, n: int):
     return (sp.diags(1.0 / deg) @ a).tocsr()
 
 
-def smooth_vertex_values(x: np.ndarray, faces: np.ndarray, iterations: int) -> np.ndarray:
-    """Laplacian smoothing of per-vertex values (N, C): x <- (x + mean of the neighbours) / 2."""
-    avg = neighbour_mean(faces, len(x))
+def smooth_vertex_values(x: np.ndarray, faces: np.ndarray, iterations: int, avg=None) -> np.ndarray:
+    """Laplacian smoothing of per-vertex values (N, C): x <- (x + mean of the neighbours) / 2.
+    ``avg``: ``neighbour_mean(faces, N)`` when the caller keeps it (building it costs more)."""
+    avg = neighbour_mean(faces, len(x)) if avg is None else avg
     for _ in range(iterations):
         x = 0.5 * x + 0.5 * (avg @ x)
     return x

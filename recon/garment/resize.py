@@ -28,7 +28,7 @@ from torch import nn
 
 from recon import paths
 from recon.garment import losses
-from recon.garment.mesh import smooth_vertex_values
+from recon.garment.mesh import neighbour_mean, smooth_vertex_values
 
 TIGHTNESS_PHENOTYPES = ("weight", "height")  # what gamma offsets (anny), like CLOTH3D's beta_0, beta_1
 TIGHTNESS_RANGE = ((-0.1, 0.3), (-0.05, 0.1))  # sampling range per component, biased to loose (CLOTH3D)
@@ -83,6 +83,7 @@ class Transfer:
         with torch.no_grad():
             self.v0 = body.rest_geometry(shape0.reshape(1, -1).to(body.mean_shape))[0][0].numpy()
         self.idx = cKDTree(self.v0).query(rest)[1]
+        self.avg = neighbour_mean(faces, len(rest))
 
     def target(self, shape: torch.Tensor, tightness: torch.Tensor) -> torch.Tensor:
         """Shape the garment is sized for: ``shape`` with gamma added to TIGHTNESS_PHENOTYPES."""
@@ -95,8 +96,9 @@ class Transfer:
         """(B, S) target shapes -> (B, N, 3) resized rest vertices."""
         with torch.no_grad():
             v1 = self.body.rest_geometry(shape.to(self.body.mean_shape))[0].numpy()
-        return np.stack([self.rest + smooth_vertex_values(v[self.idx] - self.v0[self.idx], self.faces, self.smooth)
-                         for v in v1]).astype(np.float32)
+        d = [v[self.idx] - self.v0[self.idx] for v in v1]
+        smooth = [smooth_vertex_values(x, self.faces, self.smooth, self.avg) for x in d]
+        return np.stack([self.rest + x for x in smooth]).astype(np.float32)
 
     def __call__(self, shape: torch.Tensor, tightness: torch.Tensor) -> np.ndarray:
         """(B, S), (B, 2) -> (B, N, 3) rest vertices sized for shape + tightness."""

@@ -18,6 +18,11 @@ is that inverse followed by the skinning at theta. The shape term of every ancho
 weighted sum of those displacements added to the pose model's rest-pose output before its one
 skinning: the cost of the shape dimension is a blend, not one skinning per anchor.
 
+The pose model: PBNS, corrected at the anchors like the paper's SOR pose model (example poses
+blended): each anchor's drape on PBNS's body minus PBNS's cloth there (``pose_residual``, unposed)
+is blended with the same weights as the shape terms, so the model meets the drape at an anchor
+(``correct_pose=False``: PBNS alone, the paper's formula with PBNS as f(beta0, .)).
+
 Blending (the paper's eq. 7-8): the clothing is split into regions by bone groups (``REGIONS``);
 per region the distance of the query pose to each anchor weighs each joint rotation difference
 by the clothing's sensitivity to that joint in that region; the five nearest anchors get weights
@@ -119,7 +124,8 @@ class TaylorGarment:
     ``animate`` for motions (damped blending)."""
 
     def __init__(self, pbns: PBNS, anchors: torch.Tensor, sensitivity_q: torch.Tensor, basis: torch.Tensor,
-                 maps: torch.Tensor, shape0: torch.Tensor, cfg: BlendConfig | None = None):
+                 maps: torch.Tensor, shape0: torch.Tensor, cfg: BlendConfig | None = None,
+                 pose_residual: torch.Tensor | None = None, correct_pose: bool = True):
         self.pbns, self.cfg = pbns, cfg or BlendConfig()
         self.anchors = anchors  # (A, 24, 3, 3) anchor poses
         self.anchor_vec = pose_vector(anchors)  # (A, 72)
@@ -127,6 +133,9 @@ class TaylorGarment:
         self.basis = basis  # (A, C, N, 3) shape-model components (the means cancel in the Taylor term)
         self.maps = maps  # (A, C, 2S + 1)
         self.shape0 = shape0  # (S,) the body of the pose model
+        # (A, N, 3) drape minus PBNS at each anchor on PBNS's body, unposed (None: zeros)
+        self.pose_residual = pose_residual
+        self.correct_pose = correct_pose
         self.regions = region_weights(pbns.weights.detach())  # (N, G)
         self.delta: torch.Tensor | None = None  # (A, N, 3) per-anchor shape terms beyond the grading
         self.graded: torch.Tensor | None = None  # (N, 3) the template graded to the body of set_shape
@@ -166,11 +175,24 @@ class TaylorGarment:
         d = pose_vector(rotmats)[:, None] - self.anchor_vec[None]  # (B, A, 72)
         return torch.einsum("bam,gm->bga", d ** 2, self.q)
 
-    def correction(self, weights: torch.Tensor) -> torch.Tensor:
-        """(B, G, A) blend weights -> (B, N, 3) blended rest-pose shape term."""
+    def terms(self, pose_model: bool = True) -> torch.Tensor:
+        """(A, N, 3) what each anchor adds: its shape term, and its pose-model correction when PBNS is
+        the pose model and ``correct_pose``."""
+        if pose_model and self.correct_pose and self.pose_residual is not None:
+            if getattr(self, "_terms_of", None) is not self.delta:
+                self._terms, self._terms_of = self.delta + self.pose_residual, self.delta
+            return self._terms
+        return self.delta
+
+    def correction(self, weights: torch.Tensor, pose_model: bool = True) -> torch.Tensor:
+        """(B, G, A) blend weights -> (B, N, 3) blended rest-pose terms (``terms``)."""
         active = torch.nonzero(weights.sum((0, 1)) > 0)[:, 0]
         c = self.regions @ weights[:, :, active]  # (B, N, a): per vertex weight of each anchor
-        return torch.einsum("bna,ank->bnk", c, self.delta[active])
+        terms = self.terms(pose_model)
+        out = torch.zeros(c.shape[0], c.shape[1], 3, dtype=terms.dtype)
+        for j, a in enumerate(active.tolist()):  # in place, no gathered copy of the active terms
+            out.addcmul_(c[:, :, j:j + 1], terms[a])
+        return out
 
     @torch.no_grad()
     def pose(self, rotmats: torch.Tensor, transforms: torch.Tensor, body_v: torch.Tensor | None = None,
@@ -189,15 +211,16 @@ class TaylorGarment:
         if weights is None:
             weights = blend_weights(self.distances(rotmats) if distance is None else distance, self.cfg)
         shift = self.graded - self.pbns.rest  # the grading's term, the same at every anchor
-        x = self.pbns.skin(base + shift + self.correction(weights), transforms)
-        return x if body_v is None else self.push_out(x, transforms, body_v)
+        rest = base + shift + self.correction(weights, pose_model is None)
+        b = rest.shape[0]
+        t = (self.pbns.weights @ transforms.reshape(b, 24, 12)).view(b, -1, 3, 4)  # blended, for both steps
+        x = torch.einsum("bnij,bnj->bni", t[..., :3], rest) + t[..., 3]  # BlendShapeGarment.skin
+        return x if body_v is None else self.push_out(x, t[..., :3], body_v)
 
-    def push_out(self, x: torch.Tensor, transforms: torch.Tensor, body_v: torch.Tensor) -> torch.Tensor:
+    def push_out(self, x: torch.Tensor, rot: torch.Tensor, body_v: torch.Tensor) -> torch.Tensor:
         """Eq. 10: a cloth vertex closer to its bound body vertex (along that vertex's normal, posed
-        by the cloth vertex's blended skinning rotation) than its rest clearance (at most
-        ``cfg.margin``) moves out to it."""
-        b = x.shape[0]
-        rot = (self.pbns.weights @ transforms.reshape(b, 24, 12)).view(b, -1, 3, 4)[..., :3]
+        by the cloth vertex's blended skinning rotation ``rot`` (B, N, 3, 3)) than its rest
+        clearance (at most ``cfg.margin``) moves out to it."""
         n = torch.einsum("bnij,nj->bni", rot, self.bound_normal)
         n = n / n.norm(dim=-1, keepdim=True).clamp_min(1e-9)
         h = ((x - body_v[:, self.bound]) * n).sum(-1)
@@ -227,7 +250,7 @@ class TaylorGarment:
         (T, E + P)). Skinned like PBNS; without the penetration handling (not a blend shape)."""
         w = blend_weights(self.damped_distances(rotmats), self.cfg)  # (T, G, A)
         g, a = torch.nonzero(w.amax(0) > 0, as_tuple=True)
-        targets = self.regions[:, g].T[:, :, None] * self.delta[a]  # (P, N, 3)
+        targets = self.regions[:, g].T[:, :, None] * self.terms()[a]  # (P, N, 3)
         d = torch.cat([self.pbns.D.detach(), targets.reshape(len(g), -1)])
         return d, torch.cat([self.pbns.mlp(pose_features(rotmats)), w[:, g, a]], 1)
 
@@ -235,6 +258,8 @@ class TaylorGarment:
     def save(self, path: Path, meta_json: str) -> None:
         state = {"anchors": self.anchors, "q": self.q, "basis": self.basis.half(), "maps": self.maps,
                  "shape0": self.shape0, "blend": asdict(self.cfg), "meta_json": meta_json}
+        if self.pose_residual is not None:
+            state["pose_residual"] = self.pose_residual.half()
         paths.atomic_write(Path(path), lambda t: torch.save(state, t))
 
     @classmethod
@@ -242,5 +267,7 @@ class TaylorGarment:
         ck = paths.load_checkpoint(path, "recon garment train --model taylor")
         if ck["basis"].shape[2] != pbns.rest.shape[0]:
             raise ValueError(f"{path} was built for another outfit ({ck['basis'].shape[2]} vertices)")
-        m = cls(pbns, ck["anchors"], ck["q"], ck["basis"].float(), ck["maps"], ck["shape0"], BlendConfig(**ck["blend"]))
+        res = ck.get("pose_residual")
+        m = cls(pbns, ck["anchors"], ck["q"], ck["basis"].float(), ck["maps"], ck["shape0"], BlendConfig(**ck["blend"]),
+                None if res is None else res.float())
         return m, ck

@@ -13,7 +13,8 @@ section 3.6 on our outfits, bodies and mocap.
    ``shapes`` bodies spanning anny's phenotype box (a Latin hypercube), each body's drape started
    from the first drape moved by the change of the graded, skinned outfit (one fold pattern per
    anchor, what a PCA can model); the drapes are unposed and their departures from the outfit
-   graded to each body fitted (``taylor.fit_shape_model``).
+   graded to each body fitted (``taylor.fit_shape_model``); the first drape minus PBNS's cloth is
+   the anchor's pose-model correction.
 
 Drapes run in ``workers`` processes, one anchor a task, each kept in ``<cache>/taylor-drapes/``
 (resumable: a rerun drapes only what is missing).
@@ -76,7 +77,7 @@ class TaylorBuildConfig:
     blend: BlendConfig = field(default_factory=BlendConfig)
 
 
-RIDGES = (0.01, 0.03, 0.1, 0.3, 1.0)
+RIDGES = (0.1, 0.3, 1.0, 3.0, 10.0, 30.0)
 
 
 def leave_one_out(shapes: torch.Tensor, u: torch.Tensor, components: int, ridge: float) -> float:
@@ -271,6 +272,9 @@ def build(cfg: TaylorBuildConfig, out: Path | None = None, log=print, progress: 
     drapes = drape_poses(cfg, anchors, shapes, progress)
     all_shapes = torch.cat([shape0[None], shapes])
     graded = torch.cat([pbns.rest[None], torch.from_numpy(transfer.resize(shapes))])  # what the grading explains
+    with torch.no_grad():  # the pose model's miss at each anchor, on its own body (unposed)
+        pbns_at = pbns.rest + pbns.decode(pbns.mlp(pose_features(anchors)))
+    pose_residual = torch.stack([torch.from_numpy(d["unposed"][0]).float() for d in drapes]) - pbns_at
     for d in drapes:
         d["unposed"] = torch.from_numpy(d["unposed"]).float() - graded
     loo = {}
@@ -290,7 +294,7 @@ def build(cfg: TaylorBuildConfig, out: Path | None = None, log=print, progress: 
         total = float((flat ** 2).sum())
         kept = float(((flat @ b.reshape(len(b), -1).T) ** 2).sum())
         explained.append(kept / max(total, 1e-12))
-    model = TaylorGarment(pbns, anchors, q, torch.stack(basis), torch.stack(maps), shape0, cfg.blend)
+    model = TaylorGarment(pbns, anchors, q, torch.stack(basis), torch.stack(maps), shape0, cfg.blend, pose_residual)
     strain = np.stack([d["strain"] for d in drapes])
     meta = {"outfit": cfg.outfit, "config": asdict(cfg), "shapes": all_shapes.tolist(),
             "pbns_sha256": hashlib.sha256(store.pbns_path(cfg.outfit).read_bytes()).hexdigest(),
