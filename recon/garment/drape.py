@@ -24,7 +24,6 @@ import torch
 
 from recon.garment import losses, mesh
 from recon.garment.integrate import IntegrateConfig, Preconditioner, minimise
-from recon.garment.metrics import penetration
 from recon.garment.pbns_train import GarmentTrainConfig
 
 FABRIC = GarmentTrainConfig()
@@ -112,8 +111,3 @@ class DrapeSolver:
                              u, self.precond, inner)
         return (base + u * free).detach()
 
-
-def inside_pct(x: torch.Tensor, body_v: torch.Tensor, body_n: torch.Tensor) -> float:
-    """% of cloth vertices (N, 3) behind their nearest body vertex's tangent plane."""
-    idx = mesh.nearest(body_v[None], x[None])
-    return float((penetration(x[None], body_v[None], body_n[None], idx) < 0).float().mean() * 100)

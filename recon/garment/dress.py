@@ -101,7 +101,7 @@ class Dresser:
         if self.taylor is not None:
             if tightness is not None:
                 raise ReconError("the Taylor garment model has no tightness (it has no resizer)")
-            return self._taylor_for(body, shape).graded
+            return self.taylor.set_shape(body, shape).graded
         if self._resizer_path is not None:
             if self.resizer is None:
                 self.resizer = OutfitResizer(body, self._resizer_path, self.model.rest.numpy(),
@@ -134,7 +134,7 @@ class Dresser:
             r[:, 0] = up.to(r) @ r[:, 0]
         if self.taylor is not None:
             self.rest_for(body, shape[0], tightness=tightness)  # refuses a tightness
-            verts = torch.cat([self._taylor_for(body, s).pose(r[i:i + 1], out.transforms[i:i + 1],
+            verts = torch.cat([self.taylor.set_shape(body, s).pose(r[i:i + 1], out.transforms[i:i + 1],
                                                                out.vertices[i:i + 1])
                                for i, s in enumerate(shape)])
             return DressedOutfit(verts.numpy(), self.model.faces.numpy(), self.garment_id, self.names)
@@ -143,14 +143,6 @@ class Dresser:
         if self.resolver is not None:
             verts = self.resolver(verts, out.vertices, body.faces)
         return DressedOutfit(verts.numpy(), self.model.faces.numpy(), self.garment_id, self.names)
-
-    def _taylor_for(self, body, shape: torch.Tensor) -> TaylorGarment:
-        """The Taylor model set to a body shape (its shape terms are recomputed only for a new one)."""
-        key = shape.detach().cpu().numpy().tobytes()
-        if getattr(self, "_taylor_key", None) != key:
-            self.taylor.set_shape(body, shape.detach().cpu())
-            self._taylor_key = key
-        return self.taylor
 
     @property
     def dynamic(self) -> bool:
@@ -164,7 +156,7 @@ class Dresser:
         else PBNS's. Poses in the gravity-aligned body frame (+Y up)."""
         with torch.no_grad():
             if self.taylor is not None:
-                return self._taylor_for(body, shape.reshape(-1)).sequence_codes(rotmats)
+                return self.taylor.set_shape(body, shape).sequence_codes(rotmats)
             if self.ncs is None:
                 return self.model.D.detach(), self.model.mlp(pose_features(rotmats))
             zs, zd = self.ncs.motion_codes(body, rotmats, shape, transl, fps)
@@ -181,7 +173,7 @@ class Dresser:
         out = body(rotmats, shp, transl=transl, points_only=self.resolver is None and self.taylor is None)
         rest = self.rest_for(body, shape, tightness=tightness)
         if self.taylor is not None:
-            verts = self._taylor_for(body, shape).animate(rotmats, out.transforms, out.vertices)
+            verts = self.taylor.set_shape(body, shape).animate(rotmats, out.transforms, out.vertices)
         elif self.ncs is None:
             verts = self.model.pose(rotmats, out.transforms, rest)
         else:

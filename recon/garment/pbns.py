@@ -105,15 +105,23 @@ class BlendShapeGarment(nn.Module):
             self._weights_key = key
         return self._weights
 
-    def skin(self, x: torch.Tensor, transforms: torch.Tensor) -> torch.Tensor:
-        """LBS of rest-pose points x ((N, 3) or (B, N, 3)) with the joint transforms (B, 24, 3, 4)
-        (BodyOutput.transforms, rest -> posed). One matmul blends the transforms per vertex:
-        faster than an einsum over joints for batches. The 3x3 part is applied with an einsum:
-        broadcasting to (B, N, 3, 3) and summing is memory-bound (benchmarks/bench_garment.py)."""
+    def blend(self, transforms: torch.Tensor) -> torch.Tensor:
+        """Joint transforms (B, 24, 3, 4) (BodyOutput.transforms, rest -> posed) -> each vertex's
+        blended transform (B, N, 3, 4). One matmul: faster than an einsum over joints for batches."""
         b = transforms.shape[0]
-        t = (self.weights @ transforms.reshape(b, -1, 12)).view(b, -1, 3, 4)
+        return (self.weights @ transforms.reshape(b, -1, 12)).view(b, -1, 3, 4)
+
+    def skin(self, x: torch.Tensor, transforms: torch.Tensor) -> torch.Tensor:
+        """LBS of rest-pose points x ((N, 3) or (B, N, 3)) with the joint transforms (B, 24, 3, 4)."""
+        return self.apply_blend(x, self.blend(transforms))
+
+    @staticmethod
+    def apply_blend(x: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+        """Rest-pose points x ((N, 3) or (B, N, 3)) through blended transforms t (B, N, 3, 4). The
+        3x3 part with an einsum: broadcasting to (B, N, 3, 3) and summing is memory-bound
+        (benchmarks/bench_garment.py)."""
         if x.dim() == 2:
-            x = x.expand(b, -1, -1)
+            x = x.expand(t.shape[0], -1, -1)
         return torch.einsum("bnij,bnj->bni", t[..., :3], x) + t[..., 3]
 
     def decode(self, x: torch.Tensor) -> torch.Tensor:

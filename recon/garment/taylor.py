@@ -137,7 +137,9 @@ class TaylorGarment:
         self.pose_residual = pose_residual
         self.correct_pose = correct_pose
         self.regions = region_weights(pbns.weights.detach())  # (N, G)
+        self.shape: torch.Tensor | None = None  # (S,) the body of set_shape
         self.delta: torch.Tensor | None = None  # (A, N, 3) per-anchor shape terms beyond the grading
+        self.corrected: torch.Tensor | None = None  # delta + pose_residual (PBNS corrected as pose model)
         self.graded: torch.Tensor | None = None  # (N, 3) the template graded to the body of set_shape
         self._transfer: Transfer | None = None
 
@@ -152,12 +154,17 @@ class TaylorGarment:
 
     @torch.no_grad()
     def set_shape(self, body, shape: torch.Tensor) -> TaylorGarment:
-        """Precompute the shape terms and the penetration binding for a body shape (S,)."""
-        self.shape = shape.reshape(-1).float()
+        """Precompute the shape terms and the penetration binding for a body shape (S,) (nothing to do
+        for the body it is set to already)."""
+        shape = shape.detach().reshape(-1).float().cpu()
+        if self.shape is not None and torch.equal(shape, self.shape):
+            return self
+        self.shape = shape
         if self._transfer is None:
             self._transfer = Transfer(body, self.pbns.rest.numpy(), self.pbns.faces.numpy(), self.shape0)
         self.graded = torch.from_numpy(self._transfer.resize(self.shape[None])[0])
         self.delta = self.shape_terms(self.shape)
+        self.corrected = self.delta if self.pose_residual is None else self.delta + self.pose_residual
         rest = self.graded + self.delta.mean(0)  # the outfit on this body, at rest (a typical anchor's)
         bv = body.rest_geometry(self.shape[None].to(body.mean_shape))[0][0].float()
         bn = vertex_normals(bv[None], body.faces)[0]
@@ -166,7 +173,6 @@ class TaylorGarment:
         self.bound_normal = bn[self.bound]  # rest normal of each cloth vertex's bound body vertex
         clearance = ((rest - bv[self.bound]) * self.bound_normal).sum(-1)
         self.clearance = clearance.clamp(0.0, self.cfg.margin)  # d0 = min(h0, epsilon_p)
-        self._prev = None
         return self
 
     # --- per frame ------------------------------------------------------------------------------
@@ -178,11 +184,7 @@ class TaylorGarment:
     def terms(self, pose_model: bool = True) -> torch.Tensor:
         """(A, N, 3) what each anchor adds: its shape term, and its pose-model correction when PBNS is
         the pose model and ``correct_pose``."""
-        if pose_model and self.correct_pose and self.pose_residual is not None:
-            if getattr(self, "_terms_of", None) is not self.delta:
-                self._terms, self._terms_of = self.delta + self.pose_residual, self.delta
-            return self._terms
-        return self.delta
+        return self.corrected if pose_model and self.correct_pose else self.delta
 
     def correction(self, weights: torch.Tensor, pose_model: bool = True) -> torch.Tensor:
         """(B, G, A) blend weights -> (B, N, 3) blended rest-pose terms (``terms``)."""
@@ -206,15 +208,13 @@ class TaylorGarment:
         (B, G, A): blend weights to use instead."""
         if self.delta is None:
             raise RuntimeError("TaylorGarment.set_shape(body, shape) first")
-        base = self.pbns.rest + self.pbns.decode(self.pbns.mlp(pose_features(rotmats))) if pose_model is None \
-            else pose_model
+        base = self.pbns.rest + self.pbns.deformation(rotmats) if pose_model is None else pose_model
         if weights is None:
             weights = blend_weights(self.distances(rotmats) if distance is None else distance, self.cfg)
         shift = self.graded - self.pbns.rest  # the grading's term, the same at every anchor
         rest = base + shift + self.correction(weights, pose_model is None)
-        b = rest.shape[0]
-        t = (self.pbns.weights @ transforms.reshape(b, 24, 12)).view(b, -1, 3, 4)  # blended, for both steps
-        x = torch.einsum("bnij,bnj->bni", t[..., :3], rest) + t[..., 3]  # BlendShapeGarment.skin
+        t = self.pbns.blend(transforms)  # for the skinning and the push-out alike
+        x = self.pbns.apply_blend(rest, t)
         return x if body_v is None else self.push_out(x, t[..., :3], body_v)
 
     def push_out(self, x: torch.Tensor, rot: torch.Tensor, body_v: torch.Tensor) -> torch.Tensor:

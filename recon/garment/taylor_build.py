@@ -42,7 +42,7 @@ from recon.garment import store
 from recon.garment.data import posed_bodies, trained_outfit
 from recon.garment.drape import DrapeSolver, DrapeSolverConfig
 from recon.garment.integrate import unpose
-from recon.garment.pbns import PBNS, pose_features, remove_yaw
+from recon.garment.pbns import PBNS, remove_yaw
 from recon.garment.resize import Transfer
 from recon.garment.taylor import (
     BlendConfig,
@@ -114,7 +114,7 @@ def sensitivity(pbns: PBNS, body, rotmats: torch.Tensor, shape: torch.Tensor, re
     on body ``shape``) moves per radian of each joint rotation component at pose (24, 3, 3)."""
     r = perturbed(rotmats, step)
     _, _, bt = posed_bodies(body, r, shape.reshape(1, -1))
-    x = pbns.skin(rest + pbns.decode(pbns.mlp(pose_features(r))), bt)
+    x = pbns.skin(rest + pbns.deformation(r), bt)
     j = (x[:72] - x[72:]) / (2 * step)  # (72, N, 3)
     return j.norm(dim=-1).T
 
@@ -122,8 +122,7 @@ def sensitivity(pbns: PBNS, body, rotmats: torch.Tensor, shape: torch.Tensor, re
 def unposed(pbns: PBNS, x: torch.Tensor, transforms: torch.Tensor, min_singular: float = 0.2) -> torch.Tensor:
     """Posed cloth (B, N, 3) -> rest pose through the outfit's skinning at ``transforms`` (B, 24,
     3, 4): the inverse of ``pbns.skin`` (blends clamped like NCS's teacher: ``integrate.unpose``)."""
-    b = x.shape[0]
-    t = (pbns.weights @ transforms.reshape(b, 24, 12)).view(b, -1, 3, 4)
+    t = pbns.blend(transforms)
     return unpose(t[..., :3], x - t[..., 3], min_singular)
 
 
@@ -258,10 +257,11 @@ def build(cfg: TaylorBuildConfig, out: Path | None = None, log=print, progress: 
     train = sample_poses(cfg.frame_step)
     rng = np.random.default_rng(cfg.seed)
     picks = train[torch.from_numpy(rng.choice(len(train), cfg.sensitivity_poses, replace=False))]
-    bodies = torch.cat([shape0[None], shapes[:2]])
-    rests = torch.cat([pbns.rest[None], torch.from_numpy(transfer.resize(shapes[:2]))])
+    all_shapes = torch.cat([shape0[None], shapes])
+    graded = torch.cat([pbns.rest[None], torch.from_numpy(transfer.resize(shapes))])  # the outfit on each body
+    bodies = all_shapes[:3]
     s = torch.stack([sensitivity(pbns, body, p, b, r, cfg.sensitivity_step)
-                     for p in picks for b, r in zip(bodies, rests)]).mean(0)
+                     for p in picks for b, r in zip(bodies, graded)]).mean(0)
     q, joint_w = region_sensitivity(s, region_weights(pbns.weights.detach()))
     log(f"sensitivity from {len(picks) * len(bodies)} samples; joint weights "
         + ", ".join(f"{n} {w:.2f}" for n, w in sorted(zip(skeleton.JOINT_NAMES, (joint_w / joint_w.max()).tolist()),
@@ -270,10 +270,8 @@ def build(cfg: TaylorBuildConfig, out: Path | None = None, log=print, progress: 
     anchors = train[torch.from_numpy(idx)]
     log(f"{len(anchors)} anchors from {len(train)} train poses; {cfg.shapes + 1} bodies each")
     drapes = drape_poses(cfg, anchors, shapes, progress)
-    all_shapes = torch.cat([shape0[None], shapes])
-    graded = torch.cat([pbns.rest[None], torch.from_numpy(transfer.resize(shapes))])  # what the grading explains
     with torch.no_grad():  # the pose model's miss at each anchor, on its own body (unposed)
-        pbns_at = pbns.rest + pbns.decode(pbns.mlp(pose_features(anchors)))
+        pbns_at = pbns.rest + pbns.deformation(anchors)
     pose_residual = torch.stack([torch.from_numpy(d["unposed"][0]).float() for d in drapes]) - pbns_at
     for d in drapes:
         d["unposed"] = torch.from_numpy(d["unposed"]).float() - graded

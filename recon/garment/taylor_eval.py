@@ -24,7 +24,7 @@ from recon.garment.collide import CollisionResolver
 from recon.garment.data import pose_set, posed_bodies, trained_outfit
 from recon.garment.drape import DrapeSolver
 from recon.garment.metrics import physical_metrics
-from recon.garment.pbns import PBNS, pose_features, remove_yaw
+from recon.garment.pbns import PBNS, remove_yaw
 from recon.garment.pbns_eval import frames_per_second
 from recon.garment.resize import OutfitResizer, Transfer
 from recon.garment.taylor import TaylorGarment
@@ -77,10 +77,10 @@ class Methods:
     @torch.no_grad()
     def __call__(self, rot: torch.Tensor, shape: torch.Tensor, sim_pose_model: torch.Tensor | None) -> dict:
         """(24, 3, 3), (S,), the unposed drape on the pose model's body at this pose (N, 3) ->
-        {method: (N, 3)} and the body (vertices, normals) and the graded rest outfit."""
+        ({method: (N, 3)}, (body vertices, normals), the graded rest outfit)."""
         bv, bn, bt = posed_bodies(self.body, rot[None], shape[None])
         graded = torch.from_numpy(self.transfer.resize(shape[None]))[0]
-        d_t = self.pbns.decode(self.pbns.mlp(pose_features(rot[None])))[0]
+        d_t = self.pbns.deformation(rot[None])[0]
         out = {"skinning only": self.pbns.skin(graded, bt)[0], "PBNS (graded)": self.pbns.skin(graded + d_t, bt)[0]}
         if self.resizer is not None:
             resized = self.resizer.rest(shape[None])[0]
