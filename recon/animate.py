@@ -26,7 +26,7 @@ from tqdm import tqdm
 from recon import paths
 from recon.body import default_body, skeleton
 from recon.errors import MissingFile, ReconError
-from recon.garment.dress import Dresser
+from recon.garment.dress import DressedOutfit, Dresser
 from recon.garment.gltf import write_glb
 from recon.io import load_image
 from recon.pipeline import NoPersonFound
@@ -238,10 +238,11 @@ def on_the_ground(m: Motion, body, shape: torch.Tensor) -> Motion:
 
 
 def render_motion(body, shape: torch.Tensor, m: Motion, dresser=None, tightness=None, size=(480, 640),
-                  yaw_deg: float = 20.0, progress: bool = True, batch: int = 16, every: int = 1) -> list[np.ndarray]:
+                  yaw_deg: float = 20.0, progress: bool = True, batch: int = 16, every: int = 1,
+                  dressed: DressedOutfit | None = None) -> list[np.ndarray]:
     """Frames of the (dressed) body following the clip, every ``every``-th (the outfit is dressed
     on all of them: NCS needs the motion at its own rate); the camera follows the pelvis on the
-    ground plane at a fixed height and distance."""
+    ground plane at a fixed height and distance. ``dressed``: the outfit on every frame already."""
     faces = body.faces.numpy()
     frames = []
     with torch.no_grad():
@@ -250,7 +251,8 @@ def render_motion(body, shape: torch.Tensor, m: Motion, dresser=None, tightness=
     ground = float(bounds[..., 1].min().item())
     renderer = SequenceRenderer(size=size, yaw_deg=yaw_deg, distance=1.6 * max(height, 1.0) + 0.8)
     # the whole motion at once: NCS carries its state from frame to frame
-    dressed = None if dresser is None else dresser.animate(body, m.rotmats, shape, m.transl, m.fps, tightness)
+    if dressed is None and dresser is not None:
+        dressed = dresser.animate(body, m.rotmats, shape, m.transl, m.fps, tightness)
     shown = torch.arange(0, len(m), every)
     bar = tqdm(total=len(shown), desc=f"rendering {m.name}", unit="frame", disable=not progress)
     try:

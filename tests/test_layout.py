@@ -27,7 +27,7 @@ STAGES = [
     ("recon.viz",),
     ("recon.bench",),
     ("recon.run",),
-    ("recon.animate",),
+    ("recon.animate", "recon.authoring"),
     ("recon.video",),
     ("recon.demo",),
     ("recon.cli",),

@@ -5,10 +5,22 @@ import json
 from pathlib import Path
 
 from recon import report
+from recon.authoring import author
 from recon.body import default_body
-from recon.cli.parsing import COUNT, NON_NEGATIVE, STEPS, Parser, actions, default
+from recon.cli.parsing import COUNT, NON_NEGATIVE, POSITIVE, STEPS, Parser, actions, default
 from recon.errors import ReconError
-from recon.garment import ncs_eval, ncs_train, pbns_eval, pbns_train, store, taylor_build, taylor_eval
+from recon.garment import (
+    author_eval,
+    author_train,
+    ncs_eval,
+    ncs_train,
+    pbns_eval,
+    pbns_train,
+    store,
+    taylor_build,
+    taylor_eval,
+)
+from recon.garment.author_data import AuthorDataConfig
 from recon.garment.resize import ResizeConfig
 from recon.garment.templates import PRESETS
 
@@ -24,6 +36,12 @@ def outfits(names: list[str]) -> list[str]:
 
 def train(args) -> None:
     for o in outfits(args.outfit):
+        if args.model == "author":
+            data = AuthorDataConfig(outfit=o, **({"workers": args.workers} if args.workers else {}))
+            path, meta = author_train.train(author_train.AuthorTrainConfig(data=data))
+            print(json.dumps({"outfit": o, "weights": str(path), "frames": meta["frames"], "sets": meta["sets"],
+                              "seconds": meta["seconds"]}))
+            continue
         if args.model == "taylor":
             more = {k: getattr(args, k) for k in ("anchors", "shapes", "workers") if getattr(args, k) is not None}
             path = taylor_build.build(taylor_build.TaylorBuildConfig(outfit=o, **more))
@@ -65,6 +83,9 @@ def evaluate(args) -> None:
                                                          ncs_weights=weights, log=print, val=args.val,
                                                          update=args.update)).read_text())
         return
+    if args.model == "author":
+        print(Path(author_eval.evaluate_and_report(names, "val" if args.val else "test", Path(args.out))).read_text())
+        return
     if args.model == "taylor":
         print(Path(taylor_eval.evaluate_and_report(names, args.n or default(taylor_eval.evaluate_and_report, "poses"),
                                                    out_dir=Path(args.out),
@@ -76,6 +97,12 @@ def evaluate(args) -> None:
     for o in names:  # the resizing table, for outfits with a trained resizer
         if store.resizer_path(o).exists():
             print(Path(pbns_eval.evaluate_resizer(body, o, out_dir=Path(args.out))).read_text())
+
+
+def author_clip(args) -> None:
+    store.check_outfit(args.outfit)
+    author(args.outfit, args.motion, args.out, keys=args.key or [], export=args.export or [], loop=args.loop,
+           render=args.render, max_seconds=args.max_seconds)
 
 
 def reference(args) -> None:
@@ -106,10 +133,11 @@ def add_garment(p: Parser) -> None:
     help_outfit = ("preset names, 'all', or your own garment meshes (.obj, .ply, .glb, ...: body frame, metres, "
                    "+Y up; trained into ~/.cache/recon/garments)")
     help_model = ("pbns: quasi-static (ch. 5); ncs: dynamic (ch. 6), trained from the outfit's PBNS; taylor: the "
-                  "example-based model's database (drapes on many bodies at anchor poses; ~45 min)")
+                  "example-based model's database (drapes on many bodies at anchor poses; ~45 min); author: keyframe "
+                  "authoring (simulations with random fabrics, then the intrinsic-space networks; ~1.5 h)")
     a = action("train", train, "train outfits (unsupervised, physics energies): PBNS, then NCS")
     a.add_argument("--outfit", nargs="+", default=["tshirt-trousers"], help=help_outfit)
-    a.add_argument("--model", choices=("pbns", "ncs", "taylor"), default="pbns", help=help_model)
+    a.add_argument("--model", choices=("pbns", "ncs", "taylor", "author"), default="pbns", help=help_model)
     a.add_argument("--anchors", type=COUNT, default=None,
                    help=f"taylor: anchor poses (default {default(taylor_build.TaylorBuildConfig, 'anchors')})")
     a.add_argument("--shapes", type=COUNT, default=None,
@@ -127,8 +155,9 @@ def add_garment(p: Parser) -> None:
     a = action("eval", evaluate, "PBNS (and resizer) tables on held-out poses (and shapes); "
                "--model ncs: skinning, PBNS and NCS on held-out clips and against dynamic simulations")
     a.add_argument("--outfit", nargs="+", default=["tshirt-trousers"], help=help_outfit)
-    a.add_argument("--model", choices=("pbns", "ncs", "taylor"), default="pbns",
-                   help="taylor: against drapes of held-out poses x bodies (writes garment-taylor.md)")
+    a.add_argument("--model", choices=("pbns", "ncs", "taylor", "author"), default="pbns",
+                   help="taylor: against drapes of held-out poses x bodies (writes garment-taylor.md); author: "
+                        "keyframe propagation on held-out fabrics and clips (garment-author.md)")
     a.add_argument("--no-simulation", action="store_true",
                    help="--model ncs / taylor: skip the newton simulations (minutes a clip or pose)")
     a.add_argument("--ncs-weights", nargs="+", default=None,
@@ -136,11 +165,25 @@ def add_garment(p: Parser) -> None:
     a.add_argument("--update", action="store_true",
                    help="--model ncs: keep the other outfits' rows of the existing table")
     a.add_argument("--val", action="store_true",
-                   help="--model ncs: against the val performers' simulations (what the recipe is tuned on)")
+                   help="--model ncs / author: against the val performers' simulations (what recipes are tuned on)")
     a.add_argument("--n", type=COUNT, default=None,
                    help=f"held-out test poses (default {default(pbns_eval.evaluate_and_report, 'n_poses')}; "
                         f"taylor {default(taylor_eval.evaluate_and_report, 'poses')})")
     a.add_argument("--out", default=str(report.RESULTS))
+    a = action("author", author_clip, "a clip's garment animation from edited keyframes (the intrinsic garment space)")
+    a.add_argument("--outfit", default="tshirt-skirt", help="an outfit with an authoring model "
+                   "(`recon garment train --model author`)")
+    a.add_argument("--motion", required=True, help="a .bvh, an .amc or a shipped clip's name or category "
+                   "(`recon animate --list-motions`)")
+    a.add_argument("--key", action="append", metavar="FRAME:MESH",
+                   help="the outfit as wanted at FRAME (a mesh in the outfit's vertex order, e.g. an --export "
+                        "edited in Blender); repeat for more keyframes. None: the default material (NCS)")
+    a.add_argument("--export", type=STEPS, nargs="+", metavar="FRAME",
+                   help="also write the result at these frames as frame_NNNN.obj (to edit into keyframes)")
+    a.add_argument("--loop", action="store_true", help="the motion loops: the garment loops with it")
+    a.add_argument("--render", choices=("mp4", "gif", "none"), default="mp4")
+    a.add_argument("--max-seconds", type=POSITIVE, default=None, help="only the clip's first seconds")
+    a.add_argument("--out", required=True, help="output folder: authored.glb, authored.mp4, authoring.json")
     a = action("reference", reference, "PBNS against a newton cloth drape (needs newton; minutes a pose)")
     a.add_argument("--outfit", nargs="+", default=["tshirt-trousers"], help="preset names or 'all'")
     a.add_argument("--n", type=COUNT, default=default(pbns_eval.reference_and_report, "poses"),

@@ -18,6 +18,7 @@ import json
 import math
 import struct
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import roma
@@ -32,6 +33,16 @@ FLOAT, UBYTE, USHORT, UINT = 5126, 5121, 5123, 5125
 ARRAY_BUFFER, ELEMENT_ARRAY_BUFFER = 34962, 34963
 BODY_RGBA = (0.8, 0.72, 0.66, 1.0)
 OUTFIT_RGBA = (0.3, 0.45, 0.75, 1.0)
+
+
+class BlendAnimation(NamedTuple):
+    """An outfit animated in glTF's terms: rest vertices (N, 3), faces (F, 3), skin weights (N, 24),
+    morph targets (K, N * 3) and their weights per frame (T, K)."""
+    rest: torch.Tensor
+    faces: np.ndarray
+    weights: torch.Tensor
+    targets: torch.Tensor
+    codes: torch.Tensor
 
 
 class _Buffer:
@@ -74,7 +85,7 @@ def _quat_xyzw(r: torch.Tensor) -> np.ndarray:
 
 def write_glb(path: str | Path, body, shape: torch.Tensor, rotmats: torch.Tensor, transl: torch.Tensor,
               fps: float = 30.0, dresser=None, tightness=None, camera: tuple[np.ndarray, tuple[int, int]] | None = None,
-              animation_name: str = "motion") -> Path:
+              animation_name: str = "motion", garment: BlendAnimation | None = None) -> Path:
     """Write a rigged .glb atomically.
 
     Args:
@@ -87,6 +98,7 @@ def write_glb(path: str | Path, body, shape: torch.Tensor, rotmats: torch.Tensor
             (``Dresser.dynamic``), frame by frame by PBNS otherwise.
         camera: (K, (height, width)): a perspective camera at the origin looking down -Z with the
             vertical field of view of K (glTF has no principal point: it is taken as centred).
+        garment: an outfit already animated as skinning plus morph targets (instead of ``dresser``).
     With T = 1 the file holds the pose and no animation."""
     shape = shape.reshape(1, -1)
     rotmats, transl = rotmats.detach().float().cpu(), transl.detach().float().cpu().reshape(-1, 3)
@@ -137,7 +149,12 @@ def write_glb(path: str | Path, body, shape: torch.Tensor, rotmats: torch.Tensor
 
     mesh_nodes = [skinned_mesh("body", rest_v, body.faces.numpy(), body.weights.numpy(), BODY_RGBA)]
     morph = None
-    if dresser is not None:
+    if garment is not None:
+        morph = garment.codes.numpy().astype(np.float32)
+        mesh_nodes.append(skinned_mesh("outfit", garment.rest.numpy(), garment.faces, garment.weights.numpy(),
+                                       OUTFIT_RGBA, targets=garment.targets.numpy().reshape(len(morph[0]), -1, 3),
+                                       morph0=morph[0]))
+    elif dresser is not None:
         rest_c = dresser.rest_for(body, shape[0], tightness=tightness).numpy()
         if t > 1 or dresser.taylor is not None:  # a motion (NCS's codes where it has it), or Taylor's blend
             model = dresser.ncs or dresser.model

@@ -158,12 +158,15 @@ def integrate(crit: Criterion, inertia: InertiaLoss, held: torch.Tensor, static:
               carried: torch.Tensor, body_v: torch.Tensor, body_n: torch.Tensor,
               cfg: IntegrateConfig | None = None, precond: Preconditioner | None = None,
               start: torch.Tensor | None = None,
-              solve: Callable[[Callable, torch.Tensor], torch.Tensor] | None = None) -> torch.Tensor:
+              solve: Callable[[Callable, torch.Tensor], torch.Tensor] | None = None,
+              friction: float = 0.0) -> torch.Tensor:
     """The cloth trajectory (T, n, 3) of a motion of ``T`` frames: ``static`` (T, n, 3), the
     static model's drape; ``carried`` (T, n, 3), the skinned outfit (where the body carries the
     cloth); the posed body ``body_v``, ``body_n`` (T, V, 3); ``held`` (n,) bool. The cloth starts
     at ``start`` (n, 3; default the static drape), moving as ``carried`` moves. ``solve(energy,
-    u0) -> u``: another minimiser of each frame's energy than ``minimise`` (a comparison's)."""
+    u0) -> u``: another minimiser of each frame's energy than ``minimise`` (a comparison's).
+    ``friction`` > 0: the share of a touching vertex's velocity along the body surface, relative
+    to the carried cloth, that contact takes each frame (``contact_friction``)."""
     cfg = cfg or IntegrateConfig()
     if solve is None:
         precond = precond or Preconditioner(crit, inertia, held.numpy(), cfg.across)
@@ -176,6 +179,8 @@ def integrate(crit: Criterion, inertia: InertiaLoss, held: torch.Tensor, static:
     for t in range(static.shape[0]):
         carry = carried[t] - carried[t - 1] if t else v0
         proj = inertia.projection(prev[1], prev[0], carry)
+        if friction > 0:
+            proj = contact_friction(proj, prev[1], body_v[t], body_n[t], crit.collision.cfg.eps, friction)
         cand = nearest(body_v[t:t + 1], proj[None], cfg.candidates)
         s_t, bv, bn = static[t], body_v[t:t + 1], body_n[t:t + 1]
 
@@ -189,6 +194,19 @@ def integrate(crit: Criterion, inertia: InertiaLoss, held: torch.Tensor, static:
         out.append(x)
         prev = (prev[1], x)
     return torch.stack(out)
+
+
+def contact_friction(proj: torch.Tensor, x_prev: torch.Tensor, body_v: torch.Tensor, body_n: torch.Tensor,
+                     eps: float, friction: float, reach: float = 0.005) -> torch.Tensor:
+    """Kinetic friction as a velocity filter: the projection ``proj`` (n, 3) of the vertices whose
+    previous state ``x_prev`` lies within ``eps`` + ``reach`` (m) of the body surface (nearest body
+    vertex, along its normal) keeps 1 - ``friction`` of its motion along the body surface."""
+    idx = nearest(body_v[None], x_prev[None])[0]
+    n = body_n[idx]
+    touching = ((x_prev - body_v[idx]) * n).sum(-1, keepdim=True) < eps + reach
+    step = proj - x_prev
+    along = step - (step * n).sum(-1, keepdim=True) * n
+    return torch.where(touching, proj - friction * along, proj)
 
 
 def settle(crit: Criterion, inertia: InertiaLoss, held: torch.Tensor, static: torch.Tensor, carried: torch.Tensor,

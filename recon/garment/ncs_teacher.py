@@ -145,10 +145,10 @@ class Motions:
 class Teacher:
     """The integrated cloth of one outfit's hanging part: ``Teacher(body, outfit_name, cfg)(rot,
     transl)`` -> its posed offset from PBNS's drape (T, n, 3) over a motion, after ``cfg.settle``
-    frames on the motion's first pose."""
+    frames on the motion's first pose; ``friction`` as ``integrate``'s (none in NCS's teacher)."""
 
-    def __init__(self, body, outfit_name: str, cfg: NCSTrainConfig):
-        self.body, self.cfg = body, cfg
+    def __init__(self, body, outfit_name: str, cfg: NCSTrainConfig, friction: float = 0.0):
+        self.body, self.cfg, self.friction = body, cfg, friction
         self.pbns, ck = PBNS.load(store.pbns_path(outfit_name))
         self.shape = ck["shape"][None]
         outfit, _, _ = trained_outfit(body, store.pbns_path(outfit_name))
@@ -176,7 +176,8 @@ class Teacher:
         static, carried, bv, bn, _, _ = self.drapes(rot, transl)
         args = (self.crit, self.inertia, self.held)
         x0 = settle(*args, static[0], carried[0], bv[0], bn[0], self.cfg.settle, self.cfg.integrate, self.precond)
-        x = integrate(*args, static, carried, bv, bn, self.cfg.integrate, self.precond, start=x0)
+        x = integrate(*args, static, carried, bv, bn, self.cfg.integrate, self.precond, start=x0,
+                      friction=self.friction)
         return x - static
 
     @torch.no_grad()

@@ -37,6 +37,12 @@ def taylor_path(outfit: str) -> Path:
     return user_dir() / f"taylor_{outfit_name(outfit)}.pt"
 
 
+def author_path(outfit: str) -> Path:
+    """The keyframe-authoring model of an outfit (``recon garment train --model author``): built on
+    this machine from its own simulations, in the cache (``outfit`` may carry a variant suffix)."""
+    return user_dir() / f"author_{outfit}.pt"
+
+
 def resizer_path(outfit: str, pbns: str | Path | None = None) -> Path:
     """The resizer of an outfit: shipped for the presets (their templates never change), else
     beside its PBNS weights (``pbns``, default where ``recon garment train`` writes them)."""

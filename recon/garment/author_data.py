@@ -1,0 +1,208 @@
+"""The authoring model's data (``recon garment train --model author``, stage 1): the hanging part
+of an outfit simulated through mocap chunks with randomly drawn *intrinsic parameters* (fabric,
+environment, solver damping), the dataset of Wang et al. 2019 (section 3.6) on our outfits.
+
+The simulator is NCS's teacher (``ncs_teacher.Teacher``: PBNS's energies plus inertia, integrated
+implicitly frame by frame; recon.garment.integrate): the project's own dynamic solver, ~0.5 s a
+frame of the 5k-vertex skirt on one thread where newton's VBD takes minutes, and the solver whose
+default fabric NCS learnt, so "NCS with default parameters" is a fair baseline. Per parameter set
+the fabric's terms are rescaled (``fabric``); friction, which the teacher lacks, enters as a
+velocity filter at contacts (``integrate.contact_friction``).
+
+Splits: train parameter sets x chunks of the train performers' clips; held-out parameter sets
+(another Latin-hypercube draw) x windows of the val (tuning) and test performers' clips. Each
+simulation settles ``settle`` frames on its first pose; its first ``lead`` frames are not used
+(the swing builds up from rest there). Simulations run in ``workers`` processes, each kept in
+``<cache>/author-sims/`` as it is done (resumable).
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import multiprocessing as mp
+import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+import torch
+from scipy.stats import qmc
+from tqdm import tqdm
+
+from recon import paths
+from recon.body import default_body
+from recon.garment import losses, store
+from recon.garment.ncs_config import NCSTrainConfig
+from recon.garment.ncs_teacher import Chunk, Motions, Teacher, chunks_of
+
+
+@dataclass(frozen=True)
+class Intrinsics:
+    """Everything but the motion that shapes the cloth: multipliers of the outfit's trained fabric
+    (edge stiffness, bending stiffness, density, gravity) and, absolute, the share of the cloth's
+    velocity relative to the body kept a frame (air and fabric damping) and the contact friction."""
+    stretch: float = 1.0
+    bend: float = 1.0
+    mass: float = 1.0
+    gravity: float = 1.0
+    damping: float = 0.95
+    friction: float = 0.0
+
+    def vector(self) -> np.ndarray:
+        """The parameters as the ranges scale them (log for the multipliers), each in [0, 1]."""
+        return np.array([_to_unit(getattr(self, k), *RANGES[k]) for k in NAMES])
+
+
+# name: (low, high, log-uniform); wide enough that one motion gives visibly different cloth, narrow
+# enough that the solver stays sound (stiffer edges than x3 need more than 20 iterations a frame)
+RANGES = {"stretch": (0.3, 3.0, True), "bend": (0.1, 10.0, True), "mass": (0.5, 2.0, True),
+          "gravity": (0.6, 1.4, False), "damping": (0.85, 0.99, False), "friction": (0.0, 0.6, False)}
+NAMES = tuple(RANGES)
+
+
+def _to_unit(x: float, lo: float, hi: float, log: bool) -> float:
+    return float((np.log(x / lo) / np.log(hi / lo)) if log else (x - lo) / (hi - lo))
+
+
+def _from_unit(u: float, lo: float, hi: float, log: bool) -> float:
+    return float(lo * (hi / lo) ** u if log else lo + u * (hi - lo))
+
+
+def sample_intrinsics(n: int, seed: int) -> list[Intrinsics]:
+    """``n`` parameter sets spread over the ranges (a Latin hypercube)."""
+    u = qmc.LatinHypercube(d=len(NAMES), seed=seed).random(n)
+    return [Intrinsics(**{k: round(_from_unit(x, *RANGES[k]), 4) for k, x in zip(NAMES, row)}) for row in u]
+
+
+def fabric(cfg: NCSTrainConfig, p: Intrinsics) -> NCSTrainConfig:
+    """The teacher's configuration with ``p``'s fabric: gravity's weight is mass x g, inertia's mass."""
+    return replace(cfg, edge=losses.EdgeConfig(cfg.edge.weight * p.stretch),
+                   bend=losses.BendConfig(cfg.bend.weight * p.bend),
+                   gravity=losses.GravityConfig(cfg.gravity.weight * p.mass * p.gravity),
+                   inertia=losses.InertiaConfig(cfg.inertia.weight * p.mass, keep_velocity=p.damping))
+
+
+@dataclass
+class AuthorDataConfig:
+    outfit: str = "tshirt-skirt"
+    train_sets: int = 32  # parameter sets simulated on the train performers' motion
+    train_chunks: int = 2  # chunks per train set (each set its own)
+    chunk: int = 90  # frames a train chunk
+    val_sets: int = 2  # held-out parameter sets on windows of the val performers (tuning)
+    val_windows: int = 2
+    test_sets: int = 4  # held-out parameter sets on windows of the test performers (the tables)
+    test_windows: int = 3
+    window: int = 200  # frames a val or test window (a clip to author)
+    settle: int = 10  # frames on a simulation's first pose, before it
+    lead: int = 20  # a simulation's first frames, not used
+    workers: int = 2
+    seed: int = 0
+
+
+class Sim(NamedTuple):
+    """One simulation: parameter set ``set`` of split ``split`` on ``chunk``."""
+    split: str
+    set: int
+    chunk: Chunk
+    params: Intrinsics
+
+    @property
+    def name(self) -> str:
+        c = self.chunk
+        return f"{self.split}-{self.set:03d}-{c.clip}-{c.start}-{c.frames}"
+
+
+def plan(cfg: AuthorDataConfig) -> list[Sim]:
+    """Every simulation of the dataset: the train sets' chunks first, then val, then test."""
+    sims = []
+    train_p = sample_intrinsics(cfg.train_sets, cfg.seed)
+    chunks = chunks_of("train", cfg.chunk, cfg.train_sets * cfg.train_chunks, cfg.seed)
+    for k, c in enumerate(chunks):
+        sims.append(Sim("train", k % cfg.train_sets, c, train_p[k % cfg.train_sets]))
+    for split, n_sets, n_win, off in (("val", cfg.val_sets, cfg.val_windows, 1), ("test", cfg.test_sets,
+                                                                                 cfg.test_windows, 2)):
+        ps = sample_intrinsics(n_sets, cfg.seed + off)
+        for c in chunks_of(split, cfg.window, n_win, cfg.seed + off):
+            sims += [Sim(split, s, c, p) for s, p in enumerate(ps)]
+    return sims
+
+
+def teacher_config(outfit: str) -> NCSTrainConfig:
+    """The simulator's base configuration: NCS's teacher on the outfit's trained fabric."""
+    return NCSTrainConfig(outfit=outfit)
+
+
+def sim_folder(cfg: AuthorDataConfig) -> Path:
+    """``<cache>/author-sims/<outfit>-<hash of everything the simulations depend on>``."""
+    base = teacher_config(cfg.outfit)
+    key = json.dumps({"pbns": hashlib.sha256(store.trained_pbns(cfg.outfit).read_bytes()).hexdigest(),
+                      "data": {k: v for k, v in asdict(cfg).items() if k != "workers"}, "ranges": RANGES,
+                      **{k: asdict(base)[k] for k in ("edge", "bend", "collision", "gravity", "pin", "inertia",
+                                                      "integrate", "smooth_motion", "waist_hold")}},
+                     sort_keys=True, default=str)
+    return paths.cache_dir() / "author-sims" / f"{cfg.outfit}-{hashlib.sha256(key.encode()).hexdigest()[:12]}"
+
+
+_WORKER: dict = {}
+
+
+def _worker_init(outfit: str, settle: int) -> None:
+    torch.set_num_threads(1)
+    _WORKER.update(body=default_body(), outfit=outfit, base=replace(teacher_config(outfit), settle=settle))
+
+
+def simulate(body, outfit: str, base: NCSTrainConfig, sim: Sim, motions: Motions | None = None) -> np.ndarray:
+    """One simulation's hanging part as posed offsets from PBNS's drape (T, n, 3) float16."""
+    teacher = Teacher(body, outfit, fabric(base, sim.params), friction=sim.params.friction)
+    motions = motions or Motions(body, teacher.shape, base.smooth_motion)
+    return teacher(*motions.motion(sim.chunk)).detach().numpy().astype(np.float16)
+
+
+def _worker_run(sim: Sim) -> np.ndarray:
+    w = _WORKER
+    if "motions" not in w:
+        t = Teacher(w["body"], w["outfit"], w["base"])
+        w["motions"] = Motions(w["body"], t.shape, w["base"].smooth_motion)
+    return simulate(w["body"], w["outfit"], w["base"], sim, w["motions"])
+
+
+def generate(cfg: AuthorDataConfig, log=print) -> Path:
+    """Run every simulation of ``plan(cfg)`` not yet in ``sim_folder(cfg)``; returns the folder,
+    which holds one ``<name>.npy`` per simulation, ``plan.json`` and ``timing.json``."""
+    folder = sim_folder(cfg)
+    folder.mkdir(parents=True, exist_ok=True)
+    sims = plan(cfg)
+    meta = {"config": asdict(cfg), "sims": [{"name": s.name, "split": s.split, "set": s.set,
+                                            "chunk": s.chunk._asdict(), "params": asdict(s.params)} for s in sims]}
+    paths.atomic_write(folder / "plan.json", lambda t: Path(t).write_text(json.dumps(meta, indent=1)))
+    todo = [s for s in sims if not (folder / f"{s.name}.npy").exists()]
+    t0 = time.time()
+    if todo:
+        log(f"simulating {len(todo)} of {len(sims)} runs ({sum(s.chunk.frames + cfg.settle for s in todo)} frames) "
+            f"in {cfg.workers} processes -> {folder}")
+        ctx = mp.get_context("spawn")
+        with ProcessPoolExecutor(cfg.workers, mp_context=ctx, initializer=_worker_init,
+                                 initargs=(cfg.outfit, cfg.settle)) as pool:
+            futures = {pool.submit(_worker_run, s): s for s in todo}
+            for fut in tqdm(as_completed(futures), total=len(futures), desc="simulations", unit="run"):
+                s, x = futures[fut], fut.result()
+                paths.atomic_write(folder / f"{s.name}.npy", lambda t, x=x: _save_npy(t, x))
+    timing = folder / "timing.json"
+    done = json.loads(timing.read_text()) if timing.exists() else {"seconds": 0.0}
+    done["seconds"] += time.time() - t0
+    done["workers"] = cfg.workers
+    paths.atomic_write(timing, lambda t: Path(t).write_text(json.dumps(done)))
+    return folder
+
+
+def _save_npy(path, array: np.ndarray) -> None:
+    with open(path, "wb") as f:
+        np.save(f, array)
+
+
+def load_plan(folder: Path) -> tuple[AuthorDataConfig, list[Sim]]:
+    meta = json.loads((Path(folder) / "plan.json").read_text())
+    sims = [Sim(m["split"], m["set"], Chunk(**m["chunk"]), Intrinsics(**m["params"])) for m in meta["sims"]]
+    return AuthorDataConfig(**meta["config"]), sims

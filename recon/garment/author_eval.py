@@ -1,0 +1,290 @@
+"""``recon garment eval --model author`` -> eval/results/garment-author.{json,md}: the authoring
+model on held-out parameter sets and held-out clips (the test performers' windows of
+``author_data``; ``--val``: the val performers'), against the simulation with the true parameters.
+
+1. Shape descriptor: reconstruction error against PCA at 20/40/50/100/200 dimensions (and without
+   the Laplacian term), on the held-out frames.
+2. Motion-invariant encoding: decode(encode(S | M) | M) (same motion) and z from one frame decoded
+   on the other windows of the same parameter set (cross-motion), for the paper's model and its two
+   ablations (concatenated motion; embedding-loss training).
+3. Keyframe propagation: all frames of a window from 1, 2 and 5 % keyframes (at least 2), against
+   NCS and PBNS (no keyframes), linear interpolation between the keyframes of the character-space
+   vertices, of the offsets from PBNS's drape, and of the shape descriptors.
+4. Speed: re-propagating a 300-frame clip after a keyframe edit, and after a motion edit.
+"""
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from recon import report
+from recon.body import default_body
+from recon.garment import store
+from recon.garment.author import PELVIS, AuthorModel, Session, clip_inputs, interpolate_latents
+from recon.garment.author_data import AuthorDataConfig, load_plan, sim_folder, teacher_config
+from recon.garment.author_train import (
+    AuthorTrainConfig,
+    Frames,
+    hanging_outfit,
+    laplacian,
+    load_frames,
+    model_name,
+    principal_basis,
+    train,
+    train_descriptor,
+)
+from recon.garment.dress import Dresser
+from recon.garment.ncs_teacher import Chunk, Motions
+from recon.garment.pbns import PBNS
+from recon.poses.mocap import MocapPoses
+
+DIMS = (20, 40, 50, 100, 200)
+RATIOS = (0.01, 0.02, 0.05)
+VARIANTS = ("ours", "concat", "embedding")
+
+
+def vertex_error(a: torch.Tensor, b: torch.Tensor) -> float:
+    """Mean per-vertex distance (mm)."""
+    return float((a - b).norm(dim=-1).mean()) * 1000
+
+
+def descriptor_table(train_f: Frames, test_f: Frames, faces: np.ndarray, model: AuthorModel,
+                     tcfg: AuthorTrainConfig, log=print) -> list[dict]:
+    lap = laplacian(faces, test_f.offsets.shape[1])
+    n = test_f.offsets.shape[1]
+
+    def errors(rec):
+        d = (rec - test_f.offsets).numpy()
+        lap_d = np.stack([lap @ x for x in d])
+        return vertex_error(rec, test_f.offsets), float(np.linalg.norm(lap_d, axis=-1).mean() * 1000)
+
+    rows = []
+    for dims in DIMS:
+        mean, basis, _ = principal_basis(train_f.offsets, dims)
+        x = test_f.offsets.reshape(len(test_f.offsets), -1) - mean
+        pca = ((x @ basis) @ basis.T + mean).view(-1, n, 3)
+        desc = model.descriptor if dims == model.cfg.shape_dims else train_descriptor(
+            train_f.offsets, faces, tcfg, dims, log)
+        with torch.no_grad():
+            ours = desc.decode(desc.encode(test_f.offsets))
+        row = {"dims": dims, "pca_mm": errors(pca)[0], "pca_laplacian_mm": errors(pca)[1],
+               "ours_mm": errors(ours)[0], "ours_laplacian_mm": errors(ours)[1]}
+        if dims == model.cfg.shape_dims:
+            plain = train_descriptor(train_f.offsets, faces, replace(tcfg, model=replace(tcfg.model, laplacian=0.0)),
+                                     dims, log)
+            with torch.no_grad():
+                e = errors(plain.decode(plain.encode(test_f.offsets)))
+            row |= {"no_laplacian_mm": e[0], "no_laplacian_laplacian_mm": e[1]}
+        rows.append(row)
+        log(f"descriptor {row}")
+    return rows
+
+
+def invariance(model: AuthorModel, f: Frames, lead: int) -> dict:
+    """Same-motion reconstruction error and cross-motion error (z of the middle frame of each window
+    decoded on the other windows of its parameter set), mm."""
+    with torch.no_grad():
+        floor = model.descriptor.decode(model.descriptor.encode(f.offsets))
+        z = model.latent(f.offsets, f.sig)
+        same = model.offsets(z, f.sig)
+    cross = []
+    for s in torch.unique(f.set_id):
+        sims = torch.unique(f.sim[f.set_id == s])
+        for a in sims:
+            mine = torch.nonzero(f.sim == a)[:, 0]
+            ref = mine[len(mine) // 2]
+            for b in sims:
+                if b == a:
+                    continue
+                other = torch.nonzero(f.sim == b)[:, 0]
+                dec = model.offsets(z[ref].expand(len(other), -1), f.sig[other])
+                cross.append(vertex_error(dec, f.offsets[other]))
+    return {"descriptor_mm": vertex_error(floor, f.offsets), "same_motion_mm": vertex_error(same, f.offsets),
+            "cross_motion_mm": float(np.mean(cross))}
+
+
+def keyframes(t: int, lead: int, ratio: float) -> list[int]:
+    """max(2, ratio x frames) keyframes evenly spread over the frames after the lead."""
+    n = t - lead
+    k = max(2, int(round(ratio * n)))
+    return [lead + int((i + 0.5) * n / k) for i in range(k)]
+
+
+def interpolate(values: torch.Tensor, frames: list[int], t: int) -> torch.Tensor:
+    """Per-frame linear interpolation of ``values`` (K, ...) given at ``frames``, held at the ends."""
+    flat = values.reshape(len(values), -1)
+    return interpolate_latents(flat, frames, t).reshape(t, *values.shape[1:])
+
+
+def propagation(model: AuthorModel, sims, folder: Path, lead: int, body, pbns: PBNS, shape: torch.Tensor,
+                log=print) -> dict:
+    """Per ratio and method the mean vertex error (mm) of the hanging part over the frames after the
+    lead, over all windows x parameter sets; and material carried from another window."""
+    idx = model.index
+    dresser = Dresser(model.outfit)
+    motions = Motions(body, shape[None], teacher_config(model.outfit).smooth_motion)
+    errs: dict[str, dict[str, list[float]]] = {}
+    carried: list[float] = []
+    latents: dict[tuple[int, int], torch.Tensor] = {}
+    cache = {}
+    for s in sims:
+        x = torch.from_numpy(np.load(folder / f"{s.name}.npy").astype(np.float32))
+        key = (s.chunk.clip, s.chunk.start)
+        if key not in cache:
+            rot, transl = motions.motion(s.chunk)
+            static, yaw, joints = clip_inputs(body, pbns, shape, rot, transl)
+            ncs = torch.from_numpy(dresser.animate(body, rot, shape, transl, 30.0).vertices[:, idx])
+            cache[key] = (static, yaw, joints, ncs)
+        static, yaw, joints, ncs = cache[key]
+        t = len(x)
+        truth = static.clone()
+        truth[:, idx] += x
+        ev = slice(lead, None)
+        true_h = truth[ev][:, idx]
+        session = Session(model, static, yaw, joints)
+        pelvis = joints[:, PELVIS:PELVIS + 1]
+        for ratio in RATIOS:
+            keys = keyframes(t, lead, ratio)
+            row = errs.setdefault(f"{ratio:g}", {})
+            session.keys = {k: truth[k] for k in keys}
+            session.fade = 10
+            faded = session.propagate()
+            session.fade = None
+            got = {"ours": session.propagate(), "ours, no residual": session.propagate(residuals=False),
+                   "ours, residual faded over 10 frames": faded,
+                   "NCS (default parameters)": static.clone(), "PBNS": static}
+            got["NCS (default parameters)"][:, idx] = ncs
+            char = torch.einsum("kji,knj->kni", yaw[keys], truth[keys] - pelvis[keys])
+            got["interpolation: vertices"] = torch.einsum("tij,tnj->tni", yaw, interpolate(char, keys, t)) + pelvis
+            local = session.local(keys, truth[keys])
+            got["interpolation: offsets"] = static + torch.einsum("tij,tnj->tni", yaw, interpolate(local, keys, t))
+            with torch.no_grad():
+                s_keys = model.descriptor.encode(local[:, idx])
+                dec = model.descriptor.decode(interpolate(s_keys, keys, t))
+            desc = static.clone()
+            desc[:, idx] += torch.einsum("tij,tnj->tni", yaw, dec)
+            got["interpolation: descriptors"] = desc
+            for name, v in got.items():
+                row.setdefault(name, []).append(vertex_error(v[ev][:, idx], true_h))
+            if ratio == RATIOS[0]:
+                latents[(s.set, s.chunk.clip)] = session.latents()
+        log(f"propagated {s.name}: 2 keys ours {errs[f'{RATIOS[0]:g}']['ours'][-1]:.1f} mm, "
+            f"NCS {errs[f'{RATIOS[0]:g}']['NCS (default parameters)'][-1]:.1f}")
+    # the material carried: the 2 keyframes' z of another window of the same set, no residuals
+    for s in sims:
+        other = [z for (st, c), z in latents.items() if st == s.set and c != s.chunk.clip]
+        if not other:
+            continue
+        static, yaw, joints, _ = cache[(s.chunk.clip, s.chunk.start)]
+        x = torch.from_numpy(np.load(folder / f"{s.name}.npy").astype(np.float32))
+        session = Session(model, static, yaw, joints)
+        z = other[0].mean(0, keepdim=True).expand(len(static), -1)
+        got = session.propagate(latents=z, residuals=False)
+        carried.append(vertex_error(got[lead:, idx], static[lead:, idx] + x[lead:]))
+    out = {r: {m: float(np.mean(v)) for m, v in row.items()} for r, row in errs.items()}
+    return {"ratios": out, "keys": {f"{r:g}": len(keyframes(len(static), lead, r)) for r in RATIOS},
+            "material_from_other_clip_mm": float(np.mean(carried)) if carried else None}
+
+
+def speed(model: AuthorModel, body, pbns: PBNS, shape: torch.Tensor, frames: int = 300, repeats: int = 5) -> dict:
+    """Frames a second of re-propagating a ``frames``-frame test clip with 2 keyframes after a
+    keyframe edit (the motion's inputs kept) and after a motion edit (signatures and PBNS redone)."""
+    torch.set_num_threads(1)
+    m = Motions(body, shape[None], teacher_config(model.outfit).smooth_motion)
+    clips = MocapPoses.load("test")
+    c = int(max(np.unique(clips.clip), key=lambda k: (clips.clip == k).sum()))
+    rot, transl = m.motion(Chunk("test", c, 0, frames))
+    static, yaw, joints = clip_inputs(body, pbns, shape, rot, transl)
+    session = Session(model, static, yaw, joints)
+    for k in (frames // 4, 3 * frames // 4):
+        session.set_key(k, static[k])
+    key_times, motion_times = [], []
+    for _ in range(repeats + 1):
+        t0 = time.perf_counter()
+        session.set_key(frames // 4, static[frames // 4] + 0.001)
+        session.propagate()
+        key_times.append(time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        session.set_motion(*clip_inputs(body, pbns, shape, rot, transl))
+        session.propagate()
+        motion_times.append(time.perf_counter() - t0)
+    return {"frames": frames, "threads": 1, "key_edit_fps": frames / float(np.median(key_times[1:])),
+            "motion_edit_fps": frames / float(np.median(motion_times[1:]))}
+
+
+def ensure_variant(outfit: str, variant: str, log=print) -> AuthorModel:
+    path = store.author_path(model_name(outfit, variant))
+    if not path.exists():
+        log(f"training the {variant} variant of {outfit}")
+        train(AuthorTrainConfig(data=AuthorDataConfig(outfit=outfit), variant=variant), log=log)
+    return AuthorModel.load(path)[0]
+
+
+def evaluate(outfit: str = "tshirt-skirt", split: str = "test", log=print) -> dict:
+    torch.set_num_threads(1)
+    body = default_body()
+    folder = sim_folder(AuthorDataConfig(outfit=outfit))
+    dcfg, sims = load_plan(folder)
+    model, meta = AuthorModel.load(store.author_path(outfit))
+    tcfg = AuthorTrainConfig(data=dcfg, model=model.cfg)
+    hanging = hanging_outfit(body, outfit)
+    pbns, _ = PBNS.load(store.trained_pbns(outfit))
+    train_f, _, lead = load_frames(folder, "train", model.cfg, body, log)
+    test_f, test_sims, _ = load_frames(folder, split, model.cfg, body, log)
+    out = {"outfit": outfit, "split": split, "frames": {"train": len(train_f.offsets), split: len(test_f.offsets)},
+           "sets": {"train": int(len(torch.unique(train_f.set_id))), split: int(len(torch.unique(test_f.set_id)))},
+           "windows": len({(s.chunk.clip, s.chunk.start) for s in test_sims}), "lead": lead,
+           "vertices": int(len(model.index)), "train_seconds": meta["seconds"],
+           "data_seconds": json.loads((folder / "timing.json").read_text()) if (folder / "timing.json").exists()
+           else None}
+    out["propagation"] = propagation(model, test_sims, folder, lead, body, pbns, hanging.shape, log)
+    out["speed"] = speed(model, body, pbns, hanging.shape)
+    out["descriptor"] = descriptor_table(train_f, test_f, hanging.faces, model, tcfg, log)
+    out["invariance"] = {v: invariance(model if v == "ours" else ensure_variant(outfit, v, log), test_f, lead)
+                         for v in VARIANTS}
+    return out
+
+
+def render(results: list[dict]) -> str:
+    lines = ["# Keyframe garment authoring (intrinsic garment space)", "",
+             "`recon garment eval --model author` (recon/garment/author_eval.py). Simulations of the outfit's "
+             "hanging part with held-out intrinsic parameters (fabric, gravity, damping, friction) on held-out "
+             "clips, by NCS's teacher (recon/garment/author_data.py); errors are mean per-vertex distances of the "
+             "hanging part to the simulation with the true parameters, over the frames after the lead.", ""]
+    for r in results:
+        p = r["propagation"]
+        lines += [f"## {r['outfit']} ({r['split']}: {r['sets'][r['split']]} parameter sets x {r['windows']} windows, "
+                  f"{r['frames'][r['split']]} frames; trained on {r['frames']['train']} frames of "
+                  f"{r['sets']['train']} sets)", "", "### Keyframe propagation (mm)", ""]
+        ratios = list(p["ratios"])
+        methods = list(p["ratios"][ratios[0]])
+        heads = ["method"] + [f"{float(x) * 100:g} % ({p['keys'][x]} keys)" for x in ratios]
+        lines += [report.table([[m] + [p["ratios"][x][m] for x in ratios] for m in methods], heads), ""]
+        if p["material_from_other_clip_mm"] is not None:
+            lines += [f"Material carried from another clip (z of its 2 keyframes, no residuals): "
+                      f"{p['material_from_other_clip_mm']:.1f} mm.", ""]
+        s = r["speed"]
+        lines += [f"Speed ({s['frames']}-frame clip, {s['threads']} thread): {s['key_edit_fps']:.0f} frames/s "
+                  f"after a keyframe edit, {s['motion_edit_fps']:.0f} after a motion edit.", "",
+                  "### Motion-invariant encoding (mm)", ""]
+        inv = r["invariance"]
+        lines += [report.table([[v, inv[v]["descriptor_mm"], inv[v]["same_motion_mm"], inv[v]["cross_motion_mm"]]
+                                for v in inv], ["model", "descriptor alone", "same motion", "cross-motion"]), "",
+                  "### Shape descriptor (mm: vertex error, Laplacian error)", ""]
+        rows = [[d["dims"], d["pca_mm"], d["ours_mm"], d["pca_laplacian_mm"], d["ours_laplacian_mm"],
+                 d.get("no_laplacian_mm"), d.get("no_laplacian_laplacian_mm")] for d in r["descriptor"]]
+        lines += [report.table(rows, ["dims", "PCA", "ours", "PCA lap.", "ours lap.", "no Laplacian term",
+                                      "no Lap. term lap."], ["d", ".2f", ".2f", ".3f", ".3f", ".2f", ".3f"]), "",
+                  f"Simulation (s, workers): {r['data_seconds']}; training time (s): {r['train_seconds']}.", ""]
+    return "\n".join(lines)
+
+
+def evaluate_and_report(outfits: list[str], split: str = "test", out_dir: Path = report.RESULTS, log=print) -> Path:
+    data = [evaluate(o, split, log) for o in outfits]
+    name = "garment-author" if split == "test" else f"garment-author-{split}"
+    return report.write(Path(out_dir) / name, {"outfits": data}, render(data))

@@ -1,0 +1,246 @@
+"""Keyframe authoring in the intrinsic garment space (recon.garment.author, author_data,
+author_train; recon.authoring): U-block mixing, the motion descriptor, the character-space motion
+signature, motion invariance on a toy system, keyframes matched exactly after propagation, the
+latent interpolation, the descriptor's start as PCA, friction, and the command's files."""
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import roma
+import torch
+import trimesh
+from gltf_check import assert_valid, pose_meshes
+
+from recon.authoring import author, parse_key, read_keyframe
+from recon.errors import ReconError
+from recon.garment import store
+from recon.garment.author import (
+    AuthorConfig,
+    AuthorModel,
+    IntrinsicAutoencoder,
+    MotionEncoder,
+    Session,
+    ShapeDescriptor,
+    UBlock,
+    heading,
+    interpolate_latents,
+    residual_weights,
+    signature,
+)
+from recon.garment.author_data import RANGES, Intrinsics, fabric, sample_intrinsics, teacher_config
+from recon.garment.author_train import (
+    AuthorTrainConfig,
+    Frames,
+    hanging_outfit,
+    principal_basis,
+    train_autoencoder,
+    within_variance,
+)
+from recon.garment.integrate import contact_friction
+
+TINY = AuthorConfig(window=3, stride=1, joints=(), shape_dims=6, pca_dims=8, shape_hidden=(16,), motion_hidden=(16,),
+                    subnets=3, latent=5, blocks=2)
+
+
+def tiny_model(index: torch.Tensor, cfg: AuthorConfig = TINY, seed: int = 0) -> AuthorModel:
+    torch.manual_seed(seed)
+    n = len(index)
+    basis, _ = torch.linalg.qr(torch.randn(3 * n, cfg.pca_dims))
+    desc = ShapeDescriptor(torch.zeros(3 * n), basis, 0.01, cfg.shape_dims, cfg.shape_hidden)
+    ae = IntrinsicAutoencoder((cfg.window + 1) * 72, cfg)
+    return AuthorModel(index, desc, ae, "tshirt-skirt", cfg).eval()
+
+
+def test_ublock_blends_its_subnetworks_linearly():
+    torch.manual_seed(0)
+    block = UBlock(4, 3, subnets=3, act=False).double()
+    x = torch.randn(5, 4, dtype=torch.float64)
+    one_hot = torch.eye(3, dtype=torch.float64)
+    singles = [block(x, one_hot[i].expand(5, -1)) for i in range(3)]
+    for i in range(3):  # a one-hot descriptor is that sub-network's linear map
+        assert torch.allclose(singles[i], x @ block.weight[i] + block.bias[i])
+    md = torch.tensor([0.2, 0.5, 0.3], dtype=torch.float64).expand(5, -1)
+    assert torch.allclose(block(x, md), 0.2 * singles[0] + 0.5 * singles[1] + 0.3 * singles[2])
+    assert torch.autograd.gradcheck(lambda a, m: block(a, m), (x.clone().requires_grad_(),
+                                                               md.clone().requires_grad_()))
+
+
+def test_motion_descriptor_is_a_blend():
+    torch.manual_seed(0)
+    enc = MotionEncoder(12, (8,), 5).eval()
+    md = enc(torch.randn(7, 12) * 10)
+    assert (md >= 0).all() and torch.allclose(md.sum(-1), torch.ones(7))
+
+
+def test_signature_is_in_the_character_space_of_each_frame():
+    torch.manual_seed(0)
+    t, w = 6, 3
+    joints = torch.randn(t, 24, 3)
+    rot = roma.rotvec_to_rotmat(torch.randn(t, 3) * 0.5)
+    sig = signature(joints, heading(rot), w)
+    # the whole motion turned about +Y and moved: the same signature
+    turn = roma.rotvec_to_rotmat(torch.tensor([0.0, 1.1, 0.0]))
+    moved = signature(joints @ turn.T + torch.tensor([2.0, 0.1, -3.0]), heading(turn @ rot), w)
+    assert torch.allclose(sig, moved, atol=1e-5)
+    # the heading is a turn about +Y: gravity stays -Y in the character space
+    assert torch.allclose(heading(rot)[:, 1], torch.tensor([0.0, 1.0, 0.0]).expand(t, -1), atol=1e-6)
+    # frame 0's past repeats frame 0; with a loop it comes from the clip's end
+    s0 = sig[0].view(w + 1, 24, 3)
+    assert torch.allclose(s0[0], s0[-1])
+    looped = signature(joints, heading(rot), w, loop=True)[0].view(w + 1, 24, 3)
+    rel = joints[t - 1] - joints[0, 0]
+    assert torch.allclose(looped[-2], rel @ heading(rot)[0], atol=1e-5)
+    # every stride-th past frame and the current one, the joints kept
+    strided = signature(joints, heading(rot), 5, stride=2, keep=(0, 4)).view(t, 3, 2, 3)
+    full = signature(joints, heading(rot), 5).view(t, 6, 24, 3)
+    assert torch.equal(strided, full[:, [1, 3, 5]][:, :, [0, 4]])
+
+
+def test_latents_interpolate_between_keyframes_and_hold_beyond():
+    z = torch.tensor([[0.0], [10.0], [4.0]])
+    out = interpolate_latents(z, [2, 7, 9], 12)[:, 0]
+    assert out[:3].tolist() == [0.0, 0.0, 0.0] and out[7] == 10.0 and out[9] == 4.0 and out[11] == 4.0
+    assert torch.isclose(out[4], torch.tensor(4.0)) and torch.isclose(out[8], torch.tensor(7.0))
+    loop = interpolate_latents(z[[0, 2]], [2, 9], 12, loop=True)[:, 0]  # 9 -> 2 across the end (5 frames)
+    assert torch.isclose(loop[11], torch.tensor(4.0 - 4.0 * 2 / 5)) and torch.isclose(loop[0], torch.tensor(1.6))
+    w = residual_weights([2, 3, 9], 12, fade=4)
+    assert torch.equal(w[[2, 3, 9]], torch.eye(3))  # each key's own residual only, at each key
+
+
+@pytest.mark.parametrize("loop", [False, True])
+def test_keyframes_are_matched_exactly_after_propagation(loop):
+    torch.manual_seed(1)
+    t, n = 20, 30
+    index = torch.arange(5, 25)
+    model = tiny_model(index)
+    static = torch.randn(t, n, 3)
+    yaw = heading(roma.rotvec_to_rotmat(torch.randn(t, 3)))
+    session = Session(model, static, yaw, torch.randn(t, 24, 3), loop=loop, fade=6)
+    keys = {0: torch.randn(n, 3), 1: torch.randn(n, 3), 12: torch.randn(n, 3)}
+    for f, v in keys.items():
+        session.set_key(f, v)
+    out = session.propagate()
+    assert out.shape == (t, n, 3) and np.isfinite(session.fps)
+    for f, v in keys.items():
+        assert torch.allclose(out[f], v, atol=1e-5)
+    free = session.propagate(residuals=False)  # the model alone: the keys' z decoded, not their meshes
+    assert not torch.allclose(free[12], keys[12], atol=1e-3)
+    assert torch.allclose(free[:, :5], static[:, :5]) and torch.allclose(out[2:6, :5], static[2:6, :5])
+    with pytest.raises(ValueError, match="outside"):
+        session.set_key(t, keys[0])
+
+
+def test_descriptor_starts_as_pca_and_the_model_survives_save_load(tmp_path):
+    torch.manual_seed(0)
+    x = torch.randn(40, 3) @ torch.randn(3, 60) * 0.01 + 0.001 * torch.randn(40, 60)
+    offsets = x.view(40, 20, 3)
+    mean, basis, scale = principal_basis(offsets, 8)
+    desc = ShapeDescriptor(mean, basis, scale, 3, (16,)).eval()
+    pca3 = ((offsets.reshape(40, -1) - mean) @ basis[:, :3]) @ basis[:, :3].T + mean
+    with torch.no_grad():
+        got = desc.decode(desc.encode(offsets)).reshape(40, -1)
+    # the nonlinear paths start small: PCA's reconstruction to within 2 % of the data's spread
+    assert (got - pca3).norm() < 0.02 * (offsets.reshape(40, -1) - mean).norm()
+    model = tiny_model(torch.arange(20))
+    path = model.save(tmp_path / "m.pt", {"seconds": {}})
+    loaded, meta = AuthorModel.load(path)
+    sig = torch.randn(4, (TINY.window + 1) * 72)
+    off = torch.randn(4, 20, 3) * 0.01
+    z = model.latent(off, sig)
+    assert torch.allclose(loaded.latent(off, sig), z, atol=2e-2, rtol=2e-2)  # float16 storage
+    assert torch.allclose(loaded.offsets(z, sig), model.offsets(z, sig), atol=1e-4)
+    cfg = replace(TINY, architecture="concat")  # the ablation's networks come back as saved
+    concat = AuthorModel(model.index, model.descriptor, IntrinsicAutoencoder(sig.shape[1], cfg), "x", cfg).eval()
+    again, _ = AuthorModel.load(concat.save(tmp_path / "c.pt", {}))
+    assert again.cfg.architecture == "concat"
+    assert torch.allclose(again.latent(off, sig), concat.latent(off, sig), atol=2e-2, rtol=2e-2)
+
+
+def toy_cloth(theta: torch.Tensor, motion: torch.Tensor) -> torch.Tensor:
+    """A 'cloth' descriptor, nonlinear in 2 intrinsic parameters and a 2-D motion."""
+    return torch.stack([theta[:, 0] * torch.sin(motion[:, 0]), theta[:, 1] * motion[:, 1], theta[:, 0] * theta[:, 1],
+                        (1 + theta[:, 0]) * torch.cos(motion[:, 1])], 1)
+
+
+def test_the_encoding_learns_motion_invariance_on_a_toy_system():
+    """After training, z of one frame decoded on the other motions of its parameter set lands far
+    closer than the same motions under a neighbouring parameter set, and z hardly varies within a
+    set (the motion enters only through the U-blocks' blend)."""
+    torch.manual_seed(0)
+    g = torch.Generator().manual_seed(0)
+    sets, per = 24, 40
+    theta = torch.rand(sets, 2, generator=g)
+    motion = torch.randn(sets * per, 2, generator=g)
+    s = toy_cloth(theta.repeat_interleave(per, 0), motion)
+    set_id = torch.arange(sets).repeat_interleave(per)
+    frames = Frames(s, motion, set_id, theta.repeat_interleave(per, 0), set_id, torch.zeros_like(set_id))
+    cfg = AuthorTrainConfig(model=AuthorConfig(shape_dims=4, motion_hidden=(32,), subnets=8, latent=4, blocks=3,
+                                               lam=1.0), steps=600, groups=6, frames=12, lr=1e-2)
+    ae = train_autoencoder(s, motion, frames, cfg, log=lambda *_: None)
+    with torch.no_grad():
+        md = ae.motion_descriptor(motion)
+        z = ae.encode(s, md)
+        cross = ae.decode(z[torch.arange(sets) * per].repeat_interleave(per, 0), md)  # one frame's z per set
+    err = (cross - s).pow(2).sum(1).mean()
+    other = (toy_cloth(theta.roll(1, 0).repeat_interleave(per, 0), motion) - s).pow(2).sum(1).mean()
+    assert err < 0.5 * other
+    assert within_variance(z, sets) < 0.05
+
+
+def test_friction_slows_touching_cloth_along_the_surface_only():
+    body_v = torch.tensor([[x, 0.0, z] for x in np.linspace(-1, 1, 11) for z in np.linspace(-1, 1, 11)])
+    body_n = torch.tensor([0.0, 1.0, 0.0]).expand(len(body_v), -1)
+    prev = torch.tensor([[0.05, 0.004, 0.0], [0.05, 0.2, 0.0]])  # touching, far
+    step = torch.tensor([0.01, -0.002, 0.005])
+    proj = contact_friction(prev + step, prev, body_v, body_n, eps=0.004, friction=0.5)
+    assert torch.allclose(proj[0] - prev[0], torch.tensor([0.005, -0.002, 0.0025]))
+    assert torch.equal(proj[1], prev[1] + step)
+
+
+def test_intrinsics_span_their_ranges_and_scale_the_fabric():
+    ps = sample_intrinsics(16, seed=0)
+    u = np.stack([p.vector() for p in ps])
+    assert (u >= 0).all() and (u <= 1).all()
+    assert (np.sort(u, 0)[0] < 1 / 16 + 1e-3).all() and (np.sort(u, 0)[-1] > 15 / 16 - 1e-3).all()  # a hypercube
+    base = teacher_config("tshirt-skirt")
+    f = fabric(base, Intrinsics(stretch=2.0, bend=0.5, mass=1.5, gravity=0.8, damping=0.9))
+    assert f.edge.weight == 2.0 * base.edge.weight and f.bend.weight == 0.5 * base.bend.weight
+    assert np.isclose(f.gravity.weight, base.gravity.weight * 1.2) and np.isclose(f.inertia.weight,
+                                                                                   base.inertia.weight * 1.5)
+    assert f.inertia.keep_velocity == 0.9 and Intrinsics() == Intrinsics(**{k: getattr(Intrinsics(), k)
+                                                                          for k in RANGES})
+
+
+def test_key_arguments_are_checked(tmp_path):
+    mesh = tmp_path / "k.obj"
+    mesh.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    assert parse_key(f"12:{mesh}") == (12, mesh)
+    for bad in ("12", f"x:{mesh}", "3:missing.obj"):
+        with pytest.raises(ReconError):
+            parse_key(bad)
+    with pytest.raises(ReconError, match="3 vertices, the outfit has 5"):
+        read_keyframe(mesh, 5)
+
+
+@pytest.mark.slow
+def test_author_command_matches_its_keys_and_writes_a_valid_glb(body, tmp_path, monkeypatch):
+    monkeypatch.setenv("RECON_CACHE_DIR", str(tmp_path / "cache"))
+    with pytest.raises(Exception, match="recon garment train --model author"):
+        author("tshirt-skirt", "walk", tmp_path / "none", render="none", max_seconds=0.3)
+    model = tiny_model(hanging_outfit(body, "tshirt-skirt").index)
+    model.save(store.author_path("tshirt-skirt"), {"seconds": {}})
+    first = author("tshirt-skirt", "walk", tmp_path / "a", export=[4], render="none", max_seconds=0.4)
+    key = trimesh.load(first["frame_4"], process=False)
+    edited = tmp_path / "edited.obj"
+    v = np.asarray(key.vertices).copy()
+    v[model.index.numpy(), 1] += 0.03  # the skirt lifted 3 cm
+    trimesh.Trimesh(v, key.faces, process=False).export(edited)
+    out = author("tshirt-skirt", "walk", tmp_path / "b", keys=[f"4:{edited}"], render="gif", max_seconds=0.4,
+                 size=(64, 48), progress=False)
+    info = json.loads(out["json"].read_text())
+    assert info["keyframe_max_error_mm"]["4"] < 0.01 and info["propagation_frames_per_second"] > 0
+    assert out["video"].exists()
+    assert_valid(out["glb"])
+    posed = pose_meshes(out["glb"], frame=4)["outfit"]
+    assert np.abs(posed - v).max() < info["glb_max_error_mm"] / 1000 + 1e-3
