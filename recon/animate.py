@@ -54,6 +54,13 @@ class Motion:
     def __len__(self) -> int:
         return int(self.rotmats.shape[0])
 
+    def first(self, seconds: float | None) -> Motion:
+        """The clip's first ``seconds`` (at least one frame); the whole clip for None or 0."""
+        if not seconds:
+            return self
+        keep = max(1, int(round(seconds * self.fps)))
+        return Motion(self.rotmats[:keep], self.transl[:keep], self.fps, self.name)
+
 
 @lru_cache(maxsize=1)
 def _pose_set(path: Path) -> MocapPoses:
@@ -207,10 +214,7 @@ def animate(source: str | Path, motion: str | Path, out: str | Path, outfit: str
         tightness = person["outfit"].get("tightness")
     if garment_model is None:
         garment_model = (person.get("outfit") or {}).get("garment_model", "pbns")
-    m = on_the_ground(load_motion(motion, body, shape, asf), body, shape)  # the whole clip's ground
-    if max_seconds:
-        keep = max(1, int(round(max_seconds * m.fps)))
-        m = Motion(m.rotmats[:keep], m.transl[:keep], m.fps, m.name)
+    m = on_the_ground(load_motion(motion, body, shape, asf), body, shape).first(max_seconds)  # the whole clip's ground
     dresser = Dresser(outfit, dynamics=dynamics, garment_model=garment_model) if outfit else None
     written = {"glb": write_glb(out / "animated.glb", body, shape, m.rotmats, m.transl, m.fps, dresser,
                                 tightness=tightness, animation_name=m.name)}

@@ -29,7 +29,6 @@ from recon.garment.dress import DressedOutfit, Dresser
 from recon.garment.gltf import BlendAnimation, write_glb
 from recon.garment.integrate import unpose
 from recon.garment.ncs import smooth_time
-from recon.garment.pbns import PBNS
 
 MORPH_TARGETS = 64  # principal components of the animation's rest-pose displacements in the .glb
 
@@ -61,7 +60,10 @@ class Authoring:
     """Keyframe authoring of one outfit on one motion: ``set_key(frame, vertices)``, ``propagate()``
     -> (T, N, 3); ``set_motion`` after a body-motion edit; ``fps``: the last propagation's rate."""
 
-    def __init__(self, outfit: str, motion: Motion, loop: bool = False, fade: int | None = None, body=None):
+    def __init__(self, outfit: str, motion: Motion | str | Path, loop: bool = False, fade: int | None = None,
+                 body=None, max_seconds: float | None = None):
+        """``motion``: a clip (``recon.animate.Motion``), or what ``load_motion`` reads (a .bvh, an .amc,
+        a shipped clip's name), retargeted to the model's character; its first ``max_seconds``."""
         path = store.author_path(outfit)
         if not path.exists():
             raise MissingFile(f"no authoring model for {outfit} ({path}): run `recon garment train --model author "
@@ -69,10 +71,12 @@ class Authoring:
         self.model, self.meta = AuthorModel.load(path)
         self.body = body or default_body()
         self.outfit = outfit
-        self.pbns, ck = PBNS.load(store.trained_pbns(outfit))
-        self.shape = ck["shape"]  # the character the model was trained on (the paper's fixed character)
         self.dresser = Dresser(outfit)
-        self.motion = self._prepared(motion)
+        self.pbns = self.dresser.model
+        self.shape = self.dresser.shape  # the character the model was trained on (the paper's fixed character)
+        if not isinstance(motion, Motion):
+            motion = load_motion(motion, self.body, self.shape)
+        self.motion = self._prepared(motion.first(max_seconds))
         self.session = Session(self.model, *self._inputs(), loop=loop, fade=fade)
 
     def _prepared(self, m: Motion) -> Motion:
@@ -160,11 +164,8 @@ def author(outfit: str, motion: str | Path, out: str | Path, keys: list[str] = (
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     body = default_body()
-    m = load_motion(motion, body, PBNS.load(store.trained_pbns(outfit))[1]["shape"])
-    if max_seconds:
-        keep = max(1, int(round(max_seconds * m.fps)))
-        m = Motion(m.rotmats[:keep], m.transl[:keep], m.fps, m.name)
-    a = Authoring(outfit, m, loop=loop, body=body)
+    a = Authoring(outfit, motion, loop=loop, body=body, max_seconds=max_seconds)
+    m = a.motion
     n = a.session.static.shape[1]
     for frame, path in parsed:
         if not 0 <= frame < len(a):
@@ -179,10 +180,10 @@ def author(outfit: str, motion: str | Path, out: str | Path, keys: list[str] = (
         mesh = trimesh.Trimesh(vertices[frame].numpy(), faces, process=False)
         written[f"frame_{frame}"] = paths.write_text(out / f"frame_{frame:04d}.obj", mesh.export(file_type="obj"))
     anim, worst = a.blend_animation(vertices)
-    written["glb"] = write_glb(out / "authored.glb", body, a.shape, a.motion.rotmats, a.motion.transl, m.fps,
+    written["glb"] = write_glb(out / "authored.glb", body, a.shape, m.rotmats, m.transl, m.fps,
                                garment=anim, animation_name=m.name)
     if render != "none":
-        frames = render_motion(body, a.shape, a.motion, size=size, progress=progress, dressed=a.dressed(vertices))
+        frames = render_motion(body, a.shape, m, size=size, progress=progress, dressed=a.dressed(vertices))
         written["video"] = write_video(out / f"authored.{render}", frames, m.fps)
     key_error = {str(f): float((vertices[f] - a.session.keys[f]).norm(dim=-1).max()) * 1000 for f, _ in parsed}
     info = {"outfit": outfit, "motion": m.name, "frames": len(a), "fps": m.fps, "loop": loop,

@@ -55,6 +55,10 @@ class AuthorConfig:
     lam: float = 0.1  # lambda: reconstruction against Var(z)
     architecture: str = "ublock"  # "ublock" (the paper's), "concat" (motion concatenated: the ablation)
 
+    def signature(self, joints: torch.Tensor, yaw: torch.Tensor, loop: bool = False) -> torch.Tensor:
+        """``signature`` with this model's window, stride and joints."""
+        return signature(joints, yaw, self.window, loop, self.stride, self.joints)
+
 
 def heading(root_global: torch.Tensor) -> torch.Tensor:
     """(..., 3, 3) root rotations -> (..., 3, 3) their rotation about +Y (the character's heading)."""
@@ -318,8 +322,7 @@ class Session:
     def set_motion(self, static: torch.Tensor, yaw: torch.Tensor, joints: torch.Tensor) -> None:
         """A new or edited body motion (the keyframes' meshes stay as they were given)."""
         self.static, self.yaw = static.float(), yaw.float()
-        c = self.model.cfg
-        self.sig = signature(joints.float(), self.yaw, c.window, self.loop, c.stride, c.joints)
+        self.sig = self.model.cfg.signature(joints.float(), self.yaw, self.loop)
 
     def __len__(self) -> int:
         return len(self.static)
@@ -339,10 +342,14 @@ class Session:
         """Outfit vertices (K, N, 3) at ``frames`` -> offsets from PBNS's drape in the heading frame."""
         return torch.einsum("kji,knj->kni", self.yaw[frames], world - self.static[frames])
 
-    def latents(self) -> torch.Tensor:
-        """z at each keyframe (K, K_z), in keyframe order."""
+    def key_offsets(self) -> tuple[list[int], torch.Tensor]:
+        """The keyframes in order and their outfits as offsets from PBNS's drape (K, N, 3), heading frame."""
         frames = sorted(self.keys)
-        off = self.local(frames, torch.stack([self.keys[f] for f in frames]))
+        return frames, self.local(frames, torch.stack([self.keys[f] for f in frames]))
+
+    def latents(self, key_offsets: torch.Tensor | None = None) -> torch.Tensor:
+        """z at each keyframe (K, K_z), in keyframe order (``key_offsets``: ``key_offsets()``'s, if at hand)."""
+        frames, off = self.key_offsets() if key_offsets is None else (sorted(self.keys), key_offsets)
         return self.model.latent(off[:, self.model.index], self.sig[frames])
 
     @torch.no_grad()
@@ -352,12 +359,12 @@ class Session:
         if latents is None and not self.keys:
             raise ValueError("no keyframe: set one with set_key (or pass latents)")
         t0 = time.perf_counter()
-        frames = sorted(self.keys)
-        z = latents if latents is not None else interpolate_latents(self.latents(), frames, len(self), self.loop)
+        frames, keys = self.key_offsets() if self.keys else ([], None)
+        z = latents if latents is not None else interpolate_latents(self.latents(keys), frames, len(self), self.loop)
         local = torch.zeros_like(self.static)
         local[:, self.model.index] = self.model.offsets(z, self.sig)
         if residuals and frames:
-            res = self.local(frames, torch.stack([self.keys[f] for f in frames])) - local[frames]
+            res = keys - local[frames]
             w = residual_weights(frames, len(self), self.fade, self.loop)
             local = local + torch.einsum("tk,kni->tni", w, res)
         out = self.static + torch.einsum("tij,tnj->tni", self.yaw, local)

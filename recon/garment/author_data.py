@@ -36,6 +36,7 @@ from recon.body import default_body
 from recon.garment import losses, store
 from recon.garment.ncs_config import NCSTrainConfig
 from recon.garment.ncs_teacher import Chunk, Motions, Teacher, chunks_of
+from recon.garment.pbns import PBNS
 
 
 @dataclass(frozen=True)
@@ -162,9 +163,9 @@ def simulate(body, outfit: str, base: NCSTrainConfig, sim: Sim, motions: Motions
 
 def _worker_run(sim: Sim) -> np.ndarray:
     w = _WORKER
-    if "motions" not in w:
-        t = Teacher(w["body"], w["outfit"], w["base"])
-        w["motions"] = Motions(w["body"], t.shape, w["base"].smooth_motion)
+    if "motions" not in w:  # on the body the outfit's PBNS was trained on, as the teacher's
+        shape = PBNS.load(store.trained_pbns(w["outfit"]))[1]["shape"][None]
+        w["motions"] = Motions(w["body"], shape, w["base"].smooth_motion)
     return simulate(w["body"], w["outfit"], w["base"], sim, w["motions"])
 
 

@@ -131,7 +131,7 @@ def propagation(model: AuthorModel, sims, folder: Path, lead: int, body, pbns: P
     errs: dict[str, dict[str, list[float]]] = {}
     carried: list[float] = []
     latents: dict[tuple[int, int], torch.Tensor] = {}
-    cache = {}
+    cache, runs = {}, []
     for s in sims:
         x = torch.from_numpy(np.load(folder / f"{s.name}.npy").astype(np.float32))
         key = (s.chunk.clip, s.chunk.start)
@@ -147,6 +147,7 @@ def propagation(model: AuthorModel, sims, folder: Path, lead: int, body, pbns: P
         ev = slice(lead, None)
         true_h = truth[ev][:, idx]
         session = Session(model, static, yaw, joints)
+        runs.append((s, session, x))
         pelvis = joints[:, PELVIS:PELVIS + 1]
         for ratio in RATIOS:
             keys = keyframes(t, lead, ratio)
@@ -176,16 +177,13 @@ def propagation(model: AuthorModel, sims, folder: Path, lead: int, body, pbns: P
         log(f"propagated {s.name}: 2 keys ours {errs[f'{RATIOS[0]:g}']['ours'][-1]:.1f} mm, "
             f"NCS {errs[f'{RATIOS[0]:g}']['NCS (default parameters)'][-1]:.1f}")
     # the material carried: the 2 keyframes' z of another window of the same set, no residuals
-    for s in sims:
+    for s, session, x in runs:
         other = [z for (st, c), z in latents.items() if st == s.set and c != s.chunk.clip]
         if not other:
             continue
-        static, yaw, joints, _ = cache[(s.chunk.clip, s.chunk.start)]
-        x = torch.from_numpy(np.load(folder / f"{s.name}.npy").astype(np.float32))
-        session = Session(model, static, yaw, joints)
-        z = other[0].mean(0, keepdim=True).expand(len(static), -1)
+        z = other[0].mean(0, keepdim=True).expand(len(session), -1)
         got = session.propagate(latents=z, residuals=False)
-        carried.append(vertex_error(got[lead:, idx], static[lead:, idx] + x[lead:]))
+        carried.append(vertex_error(got[lead:, idx], session.static[lead:, idx] + x[lead:]))
     out = {r: {m: float(np.mean(v)) for m, v in row.items()} for r, row in errs.items()}
     return {"ratios": out, "keys": {f"{r:g}": len(keyframes(len(static), lead, r)) for r in RATIOS},
             "material_from_other_clip_mm": float(np.mean(carried)) if carried else None}

@@ -25,7 +25,6 @@ from recon.garment.author import (
     IntrinsicAutoencoder,
     ShapeDescriptor,
     heading,
-    signature,
 )
 from recon.garment.author_data import AuthorDataConfig, Sim, generate, load_plan, sim_folder, teacher_config
 from recon.garment.data import trained_outfit
@@ -82,7 +81,7 @@ def clip_motion(body, motions: Motions, sim: Sim, cfg: AuthorConfig):
     with torch.no_grad():
         joints = body(rot, motions.shape.expand(len(rot), -1), transl=transl, points_only=True).joints
     yaw = heading(rot[:, 0])
-    return rot, transl, yaw, joints, signature(joints, yaw, cfg.window, stride=cfg.stride, keep=cfg.joints)
+    return rot, transl, yaw, joints, cfg.signature(joints, yaw)
 
 
 def load_frames(folder: Path, split: str, model: AuthorConfig, body=None, log=print) -> tuple[Frames, list[Sim], int]:
