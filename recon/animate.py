@@ -223,7 +223,8 @@ def animate(source: str | Path, motion: str | Path, out: str | Path, outfit: str
         written["video"] = write_video(out / f"animated.{render}", frames, m.fps)
     info = {"source": str(source), "motion": m.name, "frames": len(m), "fps": m.fps, "outfit": outfit,
             "garment_model": None if dresser is None else (
-                "Taylor" if dresser.taylor is not None else "NCS" if dresser.dynamic else "PBNS"),
+                {"taylor": "Taylor", "deepsd": "DeePSD"}.get(dresser.garment_model)
+                or ("NCS" if dresser.dynamic else "PBNS")),
             "tightness": None if tightness is None else [float(t) for t in tightness],
             "files": {k: v.name for k, v in written.items()}}
     written["json"] = paths.write_text(out / "animation.json", json.dumps(info, indent=1))

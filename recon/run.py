@@ -389,8 +389,8 @@ def _write(folder: Path, src: Path, img, small, s: float, k_small, r: Reconstruc
     if dresser is not None:
         js["outfit"] = {"name": dresser.outfit, "garments": dresser.names,
                         "tightness": None if tightness is None else [float(t) for t in tightness]}
-        if dresser.taylor is not None:
-            js["outfit"]["garment_model"] = "taylor"
+        if dresser.garment_model != "pbns":
+            js["outfit"]["garment_model"] = dresser.garment_model
     js["files"] = sorted(p.name for p in folder.iterdir() if not p.name.startswith("."))
     js["made_from"] = stamp
     paths.write_text(folder / "result.json", json.dumps(js, indent=1))

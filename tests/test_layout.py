@@ -27,12 +27,12 @@ STAGES = [
     ("recon.viz",),
     ("recon.bench",),
     ("recon.run",),
-    ("recon.animate", "recon.authoring"),
+    ("recon.animate", "recon.authoring", "recon.sampling"),
     ("recon.video",),
     ("recon.demo",),
     ("recon.cli",),
 ]
-GARMENT_RUNTIME = ("templates", "mesh", "pbns", "ncs", "resize", "dress", "collide", "gltf", "store")
+GARMENT_RUNTIME = ("templates", "mesh", "pbns", "ncs", "resize", "dress", "collide", "gltf", "store", "deepsd")
 
 
 def module_name(path: Path) -> str:

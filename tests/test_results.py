@@ -8,7 +8,7 @@ import pytest
 
 from recon import report
 from recon.bench import runner
-from recon.garment import ncs_eval, pbns_eval
+from recon.garment import deepsd_eval, ncs_eval, pbns_eval
 from recon.smplr import evaluate as smplr_eval
 
 RESULTS = Path(__file__).resolve().parent.parent / "eval" / "results"
@@ -16,7 +16,7 @@ CHECKED = sorted(p for p in RESULTS.glob("*.json") if "check" in json.loads(p.re
 RENDERERS = {"synth-test": runner.render, "synth-wide-test": runner.render, "smplr_anny": smplr_eval.render,
              "garment-pbns": pbns_eval.render_pbns,
              "garment-resize-": pbns_eval.render_resize, "garment-reference-": pbns_eval.render_reference,
-             "garment-ncs": ncs_eval.render}
+             "garment-ncs": ncs_eval.render, "garment-deepsd": deepsd_eval.render}
 def differences(expected, actual, path="", rtol=report.CHECK_TOLERANCE["rtol"], atol=report.CHECK_TOLERANCE["atol"]):
     """Paths where two JSON-like values differ beyond the tolerance."""
     if isinstance(expected, dict):

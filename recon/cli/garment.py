@@ -2,16 +2,20 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 from recon import report
 from recon.authoring import author
 from recon.body import default_body
-from recon.cli.parsing import COUNT, NON_NEGATIVE, POSITIVE, STEPS, Parser, actions, default
+from recon.cli.parsing import COUNT, NON_NEGATIVE, POSITIVE, SEED, STEPS, Parser, actions, default
 from recon.errors import ReconError
 from recon.garment import (
     author_eval,
     author_train,
+    deepsd_eval,
+    deepsd_train,
+    gcvae_train,
     ncs_eval,
     ncs_train,
     pbns_eval,
@@ -21,8 +25,11 @@ from recon.garment import (
     taylor_eval,
 )
 from recon.garment.author_data import AuthorDataConfig
+from recon.garment.deepsd_data import DeePSDDataConfig
+from recon.garment.gcvae import TYPES
 from recon.garment.resize import ResizeConfig
 from recon.garment.templates import PRESETS
+from recon.sampling import sample_command
 
 
 def outfits(names: list[str]) -> list[str]:
@@ -34,7 +41,37 @@ def outfits(names: list[str]) -> list[str]:
     return names
 
 
+def train_deepsd(args) -> None:
+    """DeePSD is one model for every outfit: drapes of generated outfits, then the network (and its
+    ablation variants with ``--variant``)."""
+    data = DeePSDDataConfig(**{k: getattr(args, k) for k in ("train_outfits", "workers") if getattr(args, k)})
+    names = list(deepsd_train.VARIANTS) if args.variant == "all" else [args.variant]
+    for name in names:
+        cfg = deepsd_train.variant_config(name, deepsd_train.DeePSDTrainConfig(data=data))
+        more = {k: getattr(args, k) for k in ("steps", "physics_steps") if getattr(args, k) is not None}
+        if not cfg.physics_steps:  # the variants without a physics branch keep none
+            more.pop("physics_steps", None)
+        if cfg.init_from:  # a physics variant on the shipped supervised part
+            more.pop("steps", None)
+        cfg = replace(cfg, **more)
+        meta = deepsd_train.train(cfg)
+        print(json.dumps({"variant": name, "weights": str(store.deepsd_path(cfg.name)),
+                          **{k: meta[k] for k in ("train_outfits", "train_drapes", "train_seconds", "final_rms_mm")}}))
+
+
 def train(args) -> None:
+    if args.model == "deepsd":
+        return train_deepsd(args)
+    if args.model == "gcvae":
+        names = list(gcvae_train.VARIANTS) if args.variant == "all" else [args.variant]
+        for name in names:
+            cfg = gcvae_train.variant_config(name)
+            if args.epochs:
+                cfg = replace(cfg, epochs=args.epochs)
+            meta = gcvae_train.train(cfg)
+            print(json.dumps({"variant": name, "train_garments": meta["train_garments"],
+                              "train_seconds": meta["train_seconds"], "last": meta["curve"][-1]}))
+        return
     for o in outfits(args.outfit):
         if args.model == "author":
             data = AuthorDataConfig(outfit=o, **({"workers": args.workers} if args.workers else {}))
@@ -83,6 +120,12 @@ def evaluate(args) -> None:
                                                          ncs_weights=weights, log=print, val=args.val,
                                                          update=args.update)).read_text())
         return
+    if args.model == "deepsd":
+        print(Path(deepsd_eval.evaluate_and_report(Path(args.out))).read_text())
+        return
+    if args.model == "gcvae":
+        print(Path(gcvae_train.evaluate_and_report(Path(args.out))).read_text())
+        return
     if args.model == "author":
         print(Path(author_eval.evaluate_and_report(names, "val" if args.val else "test", Path(args.out))).read_text())
         return
@@ -97,6 +140,10 @@ def evaluate(args) -> None:
     for o in names:  # the resizing table, for outfits with a trained resizer
         if store.resizer_path(o).exists():
             print(Path(pbns_eval.evaluate_resizer(body, o, out_dir=Path(args.out))).read_text())
+
+
+def sample(args) -> None:
+    print(json.dumps(sample_command(args.type, args.n, args.out, args.seed, sheet=not args.no_sheet)))
 
 
 def author_clip(args) -> None:
@@ -114,6 +161,8 @@ def reference(args) -> None:
               else pbns_eval.reference_and_report(o, args.n, Path(args.out), args.frames, args.workers))
         print(Path(md).read_text())
 
+
+MODELS = ("pbns", "ncs", "taylor", "author", "deepsd", "gcvae")
 
 # NCS training flags: name -> (type, help); their defaults are NCSTrainConfig's
 NCS_FLAGS = {
@@ -134,10 +183,16 @@ def add_garment(p: Parser) -> None:
                    "+Y up; trained into ~/.cache/recon/garments)")
     help_model = ("pbns: quasi-static (ch. 5); ncs: dynamic (ch. 6), trained from the outfit's PBNS; taylor: the "
                   "example-based model's database (drapes on many bodies at anchor poses; ~45 min); author: keyframe "
-                  "authoring (simulations with random fabrics, then the intrinsic-space networks; ~1.5 h)")
+                  "authoring (simulations with random fabrics, then the intrinsic-space networks; ~1.5 h); "
+                  "deepsd: one model for any outfit (drapes of generated outfits, then the network; --outfit "
+                  "unused); gcvae: the generative garment space (registered generated garments; --outfit unused)")
     a = action("train", train, "train outfits (unsupervised, physics energies): PBNS, then NCS")
     a.add_argument("--outfit", nargs="+", default=["tshirt-trousers"], help=help_outfit)
-    a.add_argument("--model", choices=("pbns", "ncs", "taylor", "author"), default="pbns", help=help_model)
+    a.add_argument("--model", choices=MODELS, default="pbns", help=help_model)
+    a.add_argument("--variant", choices=sorted({*deepsd_train.VARIANTS, *gcvae_train.VARIANTS, "all"}), default="ours",
+                   help="deepsd / gcvae: the model (ours) or an ablation variant")
+    a.add_argument("--train-outfits", type=COUNT, default=None,
+                   help=f"deepsd: generated train outfits (default {default(DeePSDDataConfig, 'train_outfits')})")
     a.add_argument("--anchors", type=COUNT, default=None,
                    help=f"taylor: anchor poses (default {default(taylor_build.TaylorBuildConfig, 'anchors')})")
     a.add_argument("--shapes", type=COUNT, default=None,
@@ -155,9 +210,11 @@ def add_garment(p: Parser) -> None:
     a = action("eval", evaluate, "PBNS (and resizer) tables on held-out poses (and shapes); "
                "--model ncs: skinning, PBNS and NCS on held-out clips and against dynamic simulations")
     a.add_argument("--outfit", nargs="+", default=["tshirt-trousers"], help=help_outfit)
-    a.add_argument("--model", choices=("pbns", "ncs", "taylor", "author"), default="pbns",
+    a.add_argument("--model", choices=MODELS, default="pbns",
                    help="taylor: against drapes of held-out poses x bodies (writes garment-taylor.md); author: "
-                        "keyframe propagation on held-out fabrics and clips (garment-author.md)")
+                        "keyframe propagation on held-out fabrics and clips (garment-author.md); deepsd: held-out "
+                        "outfits and the presets against their drapes (garment-deepsd.md); gcvae: held-out garments "
+                        "(garment-gcvae.md)")
     a.add_argument("--no-simulation", action="store_true",
                    help="--model ncs / taylor: skip the newton simulations (minutes a clip or pose)")
     a.add_argument("--ncs-weights", nargs="+", default=None,
@@ -184,6 +241,12 @@ def add_garment(p: Parser) -> None:
     a.add_argument("--render", choices=("mp4", "gif", "none"), default="mp4")
     a.add_argument("--max-seconds", type=POSITIVE, default=None, help="only the clip's first seconds")
     a.add_argument("--out", required=True, help="output folder: authored.glb, authored.mp4, authoring.json")
+    a = action("sample", sample, "garments drawn from the GCVAE's latent space, dressed by DeePSD")
+    a.add_argument("--type", choices=TYPES, required=True)
+    a.add_argument("-n", type=COUNT, default=8, help="how many")
+    a.add_argument("--seed", type=SEED, default=0)
+    a.add_argument("--no-sheet", action="store_true", help="only the .obj files, no samples.jpg")
+    a.add_argument("--out", required=True, help="output folder: sample_NN.obj, samples.jpg, samples.json")
     a = action("reference", reference, "PBNS against a newton cloth drape (needs newton; minutes a pose)")
     a.add_argument("--outfit", nargs="+", default=["tshirt-trousers"], help="preset names or 'all'")
     a.add_argument("--n", type=COUNT, default=default(pbns_eval.reference_and_report, "poses"),

@@ -11,6 +11,7 @@ from recon.demo import body_demo, dressed_gif, example_photos, photo_demo
 from recon.errors import ReconError
 from recon.fit import FitConfig
 from recon.garment import store
+from recon.garment.dress import GARMENT_MODELS
 from recon.garment.resize import TIGHTNESS_RANGE
 from recon.garment.templates import PRESETS
 from recon.keypoints import SOURCES
@@ -22,9 +23,9 @@ FOCAL = number(float, 0.05, 20.0)  # in units of the longer image side: a fishey
 TIGHTNESS = number(float, -1.0, 1.0)
 
 
-GARMENT_MODELS = ("pbns", "taylor")
-GARMENT_MODEL_HELP = ("with an outfit: pbns (PBNS, NCS for motions) or taylor (example-based: the body-shape dimension "
-                      "from drapes on many bodies; `recon garment train --model taylor` builds its database)")
+GARMENT_MODEL_HELP = ("with an outfit: pbns (PBNS, NCS for motions), taylor (example-based: the body-shape dimension "
+                      "from drapes on many bodies; `recon garment train --model taylor` builds its database) or "
+                      "deepsd (any outfit mesh, no training; what a mesh without PBNS weights gets)")
 
 
 def run_images(args) -> int:
@@ -113,7 +114,8 @@ def add_run(p: Parser) -> None:
                    help="weight of the person mask in that fit, which then also fits the body shape "
                         "(0: keypoints only)")
     p.add_argument("--outfit", default=None, help="dress the bodies: a trained outfit (presets: "
-                   f"{', '.join(PRESETS)}; or your own, `recon garment train`)")
+                   f"{', '.join(PRESETS)}; or your own, `recon garment train`) or any garment mesh (.obj, .ply, "
+                   ".glb; body frame, metres), animated by DeePSD without training")
     p.add_argument("--tightness", type=TIGHTNESS, nargs=2, default=None, metavar=("WEIGHT", "HEIGHT"),
                    help="with --outfit: looser (> 0) or tighter (< 0), offsets of the body's weight and height "
                         f"phenotypes (trained range {TIGHTNESS_RANGE}; needs a resizer)")

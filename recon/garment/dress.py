@@ -15,6 +15,10 @@ frame (quasi-static).
 PBNS's pose deformations plus the body-shape dimension from drapes on many bodies at anchor poses;
 it sizes the outfit to the body itself (no resizer, no tightness) and resolves penetrations its
 own way.
+
+``garment_model="deepsd"``: any outfit without training (recon.garment.deepsd, thesis ch. 4): its
+blend weights and pose-space blend shapes predicted from the template mesh, then as PBNS
+(resized by transfer, quasi-static). A garment mesh with no PBNS weights of its own gets it.
 """
 from __future__ import annotations
 
@@ -25,13 +29,16 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from recon.body import default_body
 from recon.errors import MissingFile, ReconError
 from recon.garment import store
 from recon.garment.collide import CollisionResolver
+from recon.garment.deepsd import animation_model
 from recon.garment.ncs import FPS, NCS
 from recon.garment.pbns import PBNS, pose_features
 from recon.garment.resize import OutfitResizer, Transfer
 from recon.garment.taylor import TaylorGarment
+from recon.garment.templates import MESH_SUFFIXES
 
 
 @dataclass
@@ -42,6 +49,14 @@ class DressedOutfit:
     names: list[str]
 
 
+GARMENT_MODELS = ("pbns", "taylor", "deepsd")
+
+
+def untrained_mesh(outfit: str) -> bool:
+    """Whether ``outfit`` is a garment mesh with no PBNS weights of its own."""
+    return Path(outfit).suffix.lower() in MESH_SUFFIXES and not store.pbns_path(outfit).exists()
+
+
 class Dresser:
     """``Dresser("tshirt-trousers")(body, rotmats, shape, transl) -> DressedOutfit``."""
 
@@ -50,16 +65,29 @@ class Dresser:
         """``resolve_collisions``: push cloth that PBNS leaves inside the body out of it
         (recon.garment.collide; its cost: eval/results/bench-garment-1t.md).
         ``dynamics``: motions through the outfit's NCS (None: when it has one; True: it must).
-        ``garment_model``: "pbns" (PBNS, NCS for motions as ``dynamics`` says) or "taylor" (the
-        example-based model; its database: ``recon garment train --model taylor``)."""
-        if garment_model not in ("pbns", "taylor"):
-            raise ReconError(f"unknown garment model {garment_model!r}: pbns or taylor")
-        if garment_model == "taylor" and dynamics:
-            raise ReconError("the Taylor garment model is quasi-static: no dynamics")
-        path = Path(path) if path else store.trained_pbns(outfit)  # a preset, your own garment, a .pt file
-        if not path.exists():
-            raise MissingFile(f"no trained outfit {path}: run `recon garment train --outfit {outfit}`")
-        self.model, ck = PBNS.load(path)
+        ``garment_model``: "pbns" (PBNS, NCS for motions as ``dynamics`` says), "taylor" (the
+        example-based model; its database: ``recon garment train --model taylor``) or "deepsd" (any
+        outfit animated without training, recon.garment.deepsd; what a garment mesh with no PBNS
+        weights of its own gets)."""
+        if garment_model not in GARMENT_MODELS:
+            raise ReconError(f"unknown garment model {garment_model!r}: {', '.join(GARMENT_MODELS)}")
+        if garment_model in ("taylor", "deepsd") and dynamics:
+            raise ReconError(f"the {garment_model} garment model is quasi-static: no dynamics")
+        if garment_model == "pbns" and path is None and untrained_mesh(outfit):
+            garment_model = "deepsd"  # your own garment without PBNS weights: DeePSD, no training
+        self.garment_model = garment_model
+        if garment_model == "deepsd":
+            store.check_outfit(outfit)
+            self.model, ck = animation_model(default_body(), outfit)
+            name, dynamics = None, False
+            self.outfit = outfit
+        else:
+            path = Path(path) if path else store.trained_pbns(outfit)  # a preset, your own garment, a .pt file
+            if not path.exists():
+                raise MissingFile(f"no trained outfit {path}: run `recon garment train --outfit {outfit}`")
+            self.model, ck = PBNS.load(path)
+            name = json.loads(ck["meta_json"]).get("outfit")
+            self.outfit = name or str(path)  # what Dresser(...) takes to load it again
         self.shape = ck["shape"]
         self.garment_id = ck["garment_id"].numpy()
         self.names = json.loads(ck["meta_json"])["garments"]
@@ -68,8 +96,6 @@ class Dresser:
             self.resolver = CollisionResolver(self.model.faces.numpy(), ck["layer"].numpy())
         self._resized: dict[bytes, torch.Tensor] = {}
         self.resizer, self._resizer_path, self.transfer = None, None, None
-        name = json.loads(ck["meta_json"]).get("outfit")
-        self.outfit = name or str(path)  # what Dresser(...) takes to load it again
         if resizer and name:
             p = store.resizer_path(name, path)
             self._resizer_path = p if p.exists() else None

@@ -70,18 +70,28 @@ def largest_component(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarr
 
 
 def boundary_loops(faces: np.ndarray) -> list[np.ndarray]:
-    """Ordered vertex loops of the open boundary (edges used by one face), oriented as the faces."""
+    """Ordered vertex loops of the open boundary (edges used by one face), oriented as the faces.
+    A vertex where two boundary loops touch (a bowtie, e.g. in a decoded or hand-made mesh) is
+    passed through once per loop; a walk that finds no way on ends its loop there."""
     e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
     key = np.sort(e, 1)
     _, inv, cnt = np.unique(key, axis=0, return_inverse=True, return_counts=True)
-    nxt = {int(a): int(b) for a, b in e[cnt[inv.ravel()] == 1]}
+    nxt: dict[int, list[int]] = {}
+    for a, b in e[cnt[inv.ravel()] == 1]:
+        nxt.setdefault(int(a), []).append(int(b))
     loops = []
     while nxt:
-        start = next(iter(nxt))
-        loop, cur = [start], nxt.pop(start)
-        while cur != start:
-            loop.append(cur)
-            cur = nxt.pop(cur)
+        start = cur = next(iter(nxt))
+        loop = [start]
+        while cur in nxt:
+            outs = nxt[cur]
+            n = outs.pop()
+            if not outs:
+                del nxt[cur]
+            if n == start:
+                break
+            loop.append(n)
+            cur = n
         loops.append(np.array(loop))
     return loops
 

@@ -43,6 +43,18 @@ def author_path(outfit: str) -> Path:
     return user_dir() / f"author_{outfit}.pt"
 
 
+def deepsd_path(name: str = "deepsd") -> Path:
+    """DeePSD's weights (any outfit, no training per outfit): shipped as ``deepsd.pt``; the
+    ablation variants ``recon garment train --model deepsd`` trains beside them go to the cache."""
+    return (SHIPPED_DIR if name == "deepsd" else user_dir()) / f"{name}.pt"
+
+
+def gcvae_path(name: str = "gcvae") -> Path:
+    """The GCVAE garment space (``recon garment train --model gcvae``): built on this machine, in the
+    cache (``name`` may be an ablation variant's)."""
+    return user_dir() / f"{name}.pt"
+
+
 def resizer_path(outfit: str, pbns: str | Path | None = None) -> Path:
     """The resizer of an outfit: shipped for the presets (their templates never change), else
     beside its PBNS weights (``pbns``, default where ``recon garment train`` writes them)."""

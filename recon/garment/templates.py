@@ -67,6 +67,8 @@ class GarmentSpec:
     skirt_flare: float = 0.35  # skirt a1: radius gain per metre down
     smooth: int = 20  # Taubin smoothing iterations
     subdivide_above: float = 0.02  # midpoint-subdivide while the median edge is longer (-> ~1-1.5 cm)
+    remesh: str = "midpoint"  # "loop": one Loop subdivision after the midpoint ones (another connectivity)
+    skirt_step: float = 0.01  # a skirt's ring spacing and its waist loop's vertex spacing (m)
     layer: int = 0  # 0 = innermost
     pin_waist: bool | None = None  # default: lower garments are pinned at the waist
     path: str | None = None  # kind "obj"
@@ -198,7 +200,8 @@ def make_garment(rb: RestBody, spec: GarmentSpec) -> Garment:
         return _from_file(rb, spec)
     pelvis_y = rb.j[J["pelvis"]][1]
     if spec.kind == "skirt":
-        v, f, top = _skirt(rb, spec, _waist_loop(rb, pelvis_y + spec.waist, spec.torso.w0 * 0.5), pelvis_y)
+        loop = _waist_loop(rb, pelvis_y + spec.waist, spec.torso.w0 * 0.5, step=spec.skirt_step)
+        v, f, top = _skirt(rb, spec, loop, pelvis_y)
         pinned = np.zeros(len(v), bool)
         pinned[top] = True
         return _finish(rb, spec, v, f, pinned)
@@ -206,6 +209,10 @@ def make_garment(rb: RestBody, spec: GarmentSpec) -> Garment:
     v, f = mesh.cut(rb.v + rb.n * offset[:, None], rb.f, field_)
     v, f = mesh.largest_component(v, f)
     v, f = _subdivide(v, f, spec.subdivide_above)
+    if spec.remesh == "loop":
+        v, f = trimesh.remesh.subdivide_loop(v, f, iterations=1)
+    elif spec.remesh != "midpoint":
+        raise ValueError(f"unknown remesh {spec.remesh!r}: midpoint or loop")
     pinned = np.zeros(len(v), bool)
     if spec.kind == "trousers":
         pinned = v[:, 1] > pelvis_y + spec.waist - 0.03
@@ -274,13 +281,13 @@ def _smooth(v: np.ndarray, f: np.ndarray, iterations: int) -> np.ndarray:
     return out
 
 
-def _waist_loop(rb: RestBody, y: float, margin: float, n: int | None = None) -> np.ndarray:
+def _waist_loop(rb: RestBody, y: float, margin: float, n: int | None = None, step: float = 0.01) -> np.ndarray:
     """A loop around the torso at height y: max body radius per angle bin, plus margin."""
     sel = (np.abs(rb.v[:, 1] - y) < 0.025) & ~np.isin(rb.owner, ARM["left"] + ARM["right"])
     p = rb.v[sel]
     c = np.array([rb.j[J["pelvis"]][0], y, p[:, 2].mean()])
     r, phi = _polar(p, c)
-    n = n or int(2 * np.pi * r.max() / 0.01)
+    n = n or int(2 * np.pi * r.max() / step)
     angles = np.linspace(-np.pi, np.pi, n, endpoint=False)
     prof = _max_profile(r, phi, angles)
     ok = prof > 0  # angle bins without body samples: interpolate around the loop
@@ -308,7 +315,7 @@ def _skirt(rb: RestBody, spec: GarmentSpec, top: np.ndarray, pelvis_y: float, to
     k = len(top)
     y0 = top[:, 1].mean()
     bottom = pelvis_y + spec.waist - spec.skirt_length
-    rows = max(2, int(np.ceil((y0 - bottom) / 0.01)))
+    rows = max(2, int(np.ceil((y0 - bottom) / spec.skirt_step)))
     c = np.array([rb.j[J["pelvis"]][0], 0.0, top[:, 2].mean()])
     r_top, phi = _polar(top, c)
     body = ~np.isin(rb.owner, ARM["left"] + ARM["right"])
