@@ -80,7 +80,7 @@ class Dresser:
             store.check_outfit(outfit)
             self.model, ck = animation_model(default_body(), outfit)
             name, dynamics = None, False
-            self.outfit = outfit
+            self.outfit = str(Path(outfit).resolve()) if Path(outfit).is_file() else outfit  # found from anywhere
         else:
             path = Path(path) if path else store.trained_pbns(outfit)  # a preset, your own garment, a .pt file
             if not path.exists():
