@@ -3,14 +3,19 @@ calls sized to the run time, the median per call over blocks).
 
 ``compare`` times several functions in interleaved rounds, so that this machine's drift over
 minutes hits all of them alike: speed claims are ratios measured side by side in one run.
+``add_seconds`` keeps a resumable job's total time.
 """
 from __future__ import annotations
 
+import json
 import statistics
 from collections.abc import Callable
+from pathlib import Path
 
 import torch
 from torch.utils import benchmark
+
+from recon import paths
 
 
 def median_ms(fn: Callable[[], object], min_run_time: float = 0.2, threads: int | None = None) -> float:
@@ -29,3 +34,13 @@ def compare(fns: dict[str, Callable[[], object]], rounds: int = 5, min_run_time:
         for name, fn in fns.items():
             per[name].append(median_ms(fn, min_run_time, threads))
     return {name: statistics.median(ms) for name, ms in per.items()}
+
+
+def add_seconds(path: str | Path, seconds: float, workers: int) -> None:
+    """Add ``seconds`` to the total in the JSON file ``path`` (a resumable job's time over its runs),
+    with the number of worker processes of the last run; written atomically."""
+    path = Path(path)
+    done = json.loads(path.read_text()) if path.exists() else {"seconds": 0.0}
+    done["seconds"] += seconds
+    done["workers"] = workers
+    paths.atomic_write(path, lambda t: Path(t).write_text(json.dumps(done)))

@@ -37,6 +37,7 @@ from recon.garment import losses, store
 from recon.garment.ncs_config import NCSTrainConfig
 from recon.garment.ncs_teacher import Chunk, Motions, Teacher, chunks_of
 from recon.garment.pbns import PBNS
+from recon.timing import add_seconds
 
 
 @dataclass(frozen=True)
@@ -190,11 +191,7 @@ def generate(cfg: AuthorDataConfig, log=print) -> Path:
             for fut in tqdm(as_completed(futures), total=len(futures), desc="simulations", unit="run"):
                 s, x = futures[fut], fut.result()
                 paths.atomic_write(folder / f"{s.name}.npy", lambda t, x=x: _save_npy(t, x))
-    timing = folder / "timing.json"
-    done = json.loads(timing.read_text()) if timing.exists() else {"seconds": 0.0}
-    done["seconds"] += time.time() - t0
-    done["workers"] = cfg.workers
-    paths.atomic_write(timing, lambda t: Path(t).write_text(json.dumps(done)))
+    add_seconds(folder / "timing.json", time.time() - t0, cfg.workers)
     return folder
 
 

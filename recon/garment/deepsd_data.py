@@ -34,6 +34,7 @@ from recon.garment.drape import DrapeSolver, DrapeSolverConfig
 from recon.garment.outfits import OutfitSampler
 from recon.garment.pbns import BlendShapeGarment
 from recon.garment.templates import PRESETS, Garment, Outfit, RestBody, make_outfit
+from recon.timing import add_seconds
 
 SPLIT_SEED = {"train": 0, "val": 1, "test": 2, "preset": 3}
 
@@ -153,11 +154,7 @@ def generate(cfg: DeePSDDataConfig, log=print) -> Path:
                 rec = fut.result()
                 paths.atomic_write(out / record_name(rec["split"], rec["index"]),
                                    lambda t, rec=rec: torch.save(rec, t))
-    timing = out / "timing.json"
-    done = json.loads(timing.read_text()) if timing.exists() else {"seconds": 0.0}
-    done["seconds"] += time.time() - t0
-    done["workers"] = cfg.workers
-    paths.atomic_write(timing, lambda t: Path(t).write_text(json.dumps(done)))
+    add_seconds(out / "timing.json", time.time() - t0, cfg.workers)
     return out
 
 
