@@ -200,3 +200,8 @@ def test_recon_help_is_quick_and_lists_every_command():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     for name in COMMANDS:
         assert f"    {name} " in out.stdout, name
+
+
+def test_a_variant_of_another_model_is_refused(capsys):
+    assert main(["garment", "train", "--model", "deepsd", "--variant", "no-normals"]) == 2
+    assert "has no variant 'no-normals'" in capsys.readouterr().err

@@ -59,7 +59,14 @@ def train_deepsd(args) -> None:
                           **{k: meta[k] for k in ("train_outfits", "train_drapes", "train_seconds", "final_rms_mm")}}))
 
 
+def check_variant(args, variants: dict) -> None:
+    if args.variant not in (*variants, "all"):
+        raise ReconError(f"--model {args.model} has no variant {args.variant!r}: {', '.join(variants)} or all")
+
+
 def train(args) -> None:
+    if args.model in ("deepsd", "gcvae"):
+        check_variant(args, deepsd_train.VARIANTS if args.model == "deepsd" else gcvae_train.VARIANTS)
     if args.model == "deepsd":
         return train_deepsd(args)
     if args.model == "gcvae":

@@ -188,7 +188,7 @@ class GCVAE(nn.Module):
         ck = paths.load_checkpoint(path, "recon garment train --model gcvae")
         cfg = GCVAEConfig(**(ck["cfg"] | {"channels": tuple(ck["cfg"]["channels"])}))
         m = cls(BodyGraph(rb, cfg), cfg)
-        m.load_state_dict({k: v.float() for k, v in ck["state"].items()}, strict=False)  # older: no prior
+        m.load_state_dict({k: v.float() for k, v in ck["state"].items()})
         return m.eval(), ck
 
 
