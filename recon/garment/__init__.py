@@ -8,7 +8,8 @@ Runtime: ``templates`` (CLOTH3D-style outfits on the rest body), ``pbns`` (the n
 ``collide`` (collision resolution), ``gltf`` (animated .glb), ``store`` (where weights live),
 ``mesh``. Shared: ``losses`` (PBNS energies), ``metrics`` (what the logs and tables report),
 ``self_intersection`` (where the posed body passes through itself), ``data`` (pose sets,
-conditions), ``outfits`` (a distribution of generated outfits with held-out styles). Training: ``*_train``, ``*_data``, ``taylor_build`` (with ``drape``, the quasi-static drape
+conditions), ``outfits`` (a distribution of generated outfits with held-out styles).
+Training: ``*_train``, ``*_data``, ``taylor_build`` (with ``drape``, the quasi-static drape
 solver); evaluation: ``*_eval``, with ``reference`` (a newton cloth drape, optional extra).
 Runtime modules import nothing from training or evaluation.
 """
