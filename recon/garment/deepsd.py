@@ -32,7 +32,15 @@ from torch import nn
 
 from recon import paths
 from recon.garment import mesh, store
-from recon.garment.pbns import PBNS, PBNSConfig, initial_weights, pose_features, pose_mlp
+from recon.garment.pbns import (
+    PBNS,
+    BlendShapeGarment,
+    PBNSConfig,
+    blend_transforms,
+    initial_weights,
+    pose_features,
+    pose_mlp,
+)
 from recon.garment.templates import Outfit, RestBody, hangs_free, make_outfit
 
 N_JOINTS = 24
@@ -166,10 +174,8 @@ class DeePSD(nn.Module):
         desc, rest, lbs = self.descriptors(g), g.rest, g.lbs_weights
         if subset is not None:
             desc, rest, lbs = desc[subset], rest[subset], lbs[subset]
-        w = self.weights(lbs, desc)
         x = rest + self.displacements(desc, rotmats, physics)
-        t = (w @ transforms.reshape(len(transforms), -1, 12)).view(len(transforms), -1, 3, 4)
-        return torch.einsum("bnij,bnj->bni", t[..., :3], x) + t[..., 3]
+        return BlendShapeGarment.apply_blend(x, blend_transforms(self.weights(lbs, desc), transforms))
 
     @torch.no_grad()
     def outfit(self, g: OutfitGraph, physics: bool = True, smooth: int = SMOOTH) -> PBNS:
@@ -189,7 +195,6 @@ class DeePSD(nn.Module):
         model = PBNS(g.rest, torch.from_numpy(g.faces), w, cfg)
         model.D.copy_(d.view(len(desc), self.cfg.keys, 3).permute(1, 0, 2).reshape(self.cfg.keys, -1))
         model.mlp.load_state_dict(self.theta.state_dict())
-        model.weight_logits.copy_(torch.log(w.clamp_min(1e-12)))
         return model.eval()
 
     # --- persistence ----------------------------------------------------------------------------

@@ -32,7 +32,7 @@ from recon.garment.data import pose_set, posed_bodies
 from recon.garment.deepsd import lbs_weights
 from recon.garment.drape import DrapeSolver, DrapeSolverConfig
 from recon.garment.outfits import OutfitSampler
-from recon.garment.pbns import BlendShapeGarment
+from recon.garment.pbns import BlendShapeGarment, blend_transforms
 from recon.garment.templates import PRESETS, Garment, Outfit, RestBody, make_outfit
 from recon.timing import add_seconds
 
@@ -127,7 +127,7 @@ def drape_outfit(split: str, index: int) -> dict:
     weights = torch.from_numpy(lbs_weights(rb, outfit))
     bv, bn, bt = posed_bodies(body, rotmats, body.mean_shape[None])
     rest = torch.from_numpy(outfit.vertices).float()
-    skinned = BlendShapeGarment.apply_blend(rest, (weights @ bt.reshape(len(bt), -1, 12)).view(len(bt), -1, 3, 4))
+    skinned = BlendShapeGarment.apply_blend(rest, blend_transforms(weights, bt))
     solver = DrapeSolver(outfit, cfg.drape)
     drapes = torch.stack([solver(rest, skinned[k], bv[k], bn[k]) for k in range(len(rotmats))])
     return {"split": split, "index": index, "family": family, "rest": rest, "faces": torch.from_numpy(outfit.faces),

@@ -31,7 +31,7 @@ from recon.garment.deepsd_data import DeePSDDataConfig, folder
 from recon.garment.deepsd_train import VARIANTS, Sample, load_samples, variant_config
 from recon.garment.metrics import physical_metrics
 from recon.garment.outfits import HELD_OUT_FAMILIES
-from recon.garment.pbns import PBNS, pose_features
+from recon.garment.pbns import PBNS, BlendShapeGarment, blend_transforms, pose_features
 from recon.garment.templates import PRESETS, RestBody, make_outfit
 
 METRICS = ("error_mm", "edge_mm", "bend", "collision_pct")
@@ -52,8 +52,7 @@ def predict(method: str, s: Sample, models: dict[str, DeePSD], pbns: dict[str, P
     if method == "drape":
         return s.drapes
     if method == "lbs":
-        t = (g.lbs_weights @ s.transforms.reshape(len(s.transforms), -1, 12)).view(len(s.transforms), -1, 3, 4)
-        return torch.einsum("bnij,bnj->bni", t[..., :3], g.rest.expand(len(t), -1, -1)) + t[..., 3]
+        return BlendShapeGarment.apply_blend(g.rest, blend_transforms(g.lbs_weights, s.transforms))
     if method == "pbns":
         return pbns[s.family].pose(s.rotmats, s.transforms) if s.family in pbns else None
     name, physics = (method[:-len("-no-physics")], False) if method.endswith("-no-physics") else (method, True)

@@ -26,6 +26,7 @@ from recon.garment.data import pose_set, posed_bodies
 from recon.garment.deepsd import DeePSD, DeePSDConfig, OutfitGraph
 from recon.garment.deepsd_data import DeePSDDataConfig, folder, generate, load_split
 from recon.garment.metrics import penetration
+from recon.garment.pbns import BlendShapeGarment, blend_transforms
 from recon.garment.templates import RestBody
 
 
@@ -108,8 +109,7 @@ def physics_loss(model: DeePSD, s: Sample, cached: tuple, rotmats, transforms, b
     k = model.keys(rotmats).detach()
     d_phys = torch.einsum("bp,npk->bnk", k, model.chi(desc).view(len(desc), -1, 3))
     x = s.graph.rest + torch.einsum("bp,npk->bnk", k, d_data) + d_phys
-    t = (w @ transforms.reshape(len(transforms), -1, 12)).view(len(transforms), -1, 3, 4)
-    v = torch.einsum("bnij,bnj->bni", t[..., :3], x) + t[..., 3]
+    v = BlendShapeGarment.apply_blend(x, blend_transforms(w, transforms))
     edge, bend = s.physics_terms()
     terms = {"edge": cfg.edge * edge.strain(v).pow(2).mean(1).mean(), "bend": cfg.bend * bend.energy(v).mean(),
              "collision": cfg.collision * collision_loss(v, body_v, body_n, cfg.eps).mean(),

@@ -32,7 +32,7 @@ from recon.garment.integrate import Preconditioner, integrate, settle, unpose
 from recon.garment.mesh import faces_within
 from recon.garment.ncs import FPS, descriptors, hanging_part, smooth_time, vertex_masses
 from recon.garment.ncs_config import NCSTrainConfig
-from recon.garment.pbns import PBNS, pose_features
+from recon.garment.pbns import PBNS, blend_transforms, pose_features
 from recon.garment.templates import GarmentSpec, Outfit
 from recon.poses.mocap import MocapPoses
 
@@ -169,7 +169,7 @@ class Teacher:
         static = self.pbns.pose(rot, transforms)[:, self.idx]
         carried = self.pbns.skin(self.pbns.rest, transforms)[:, self.idx]
         w = self.pbns.weights[self.idx]
-        blend = (w @ transforms.reshape(len(rot), 24, 12)).view(len(rot), -1, 3, 4)[..., :3]
+        blend = blend_transforms(w, transforms)[..., :3]
         return static, carried, bv, bn, blend, transforms
 
     def __call__(self, rot: torch.Tensor, transl: torch.Tensor) -> torch.Tensor:

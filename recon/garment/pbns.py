@@ -69,6 +69,13 @@ VERTEX_MAJOR_MIN_BATCH = 12
 VERTEX_MAJOR_CHUNK_FLOATS = 1 << 18
 
 
+def blend_transforms(weights: torch.Tensor, transforms: torch.Tensor) -> torch.Tensor:
+    """Each vertex's blended transform (B, N, 3, 4) from blend weights (N, 24) and the joint
+    transforms (B, 24, 3, 4). One matmul: faster than an einsum over joints for batches."""
+    b = transforms.shape[0]
+    return (weights @ transforms.reshape(b, -1, 12)).view(b, -1, 3, 4)
+
+
 def vertex_major(x: torch.Tensor) -> bool:
     """Whether inference on codes ``x`` (B, E) takes the vertex-major form: a batch of at least
     ``VERTEX_MAJOR_MIN_BATCH`` frames on the CPU."""
@@ -107,9 +114,8 @@ class BlendShapeGarment(nn.Module):
 
     def blend(self, transforms: torch.Tensor) -> torch.Tensor:
         """Joint transforms (B, 24, 3, 4) (BodyOutput.transforms, rest -> posed) -> each vertex's
-        blended transform (B, N, 3, 4). One matmul: faster than an einsum over joints for batches."""
-        b = transforms.shape[0]
-        return (self.weights @ transforms.reshape(b, -1, 12)).view(b, -1, 3, 4)
+        blended transform (B, N, 3, 4) with this garment's weights."""
+        return blend_transforms(self.weights, transforms)
 
     def skin(self, x: torch.Tensor, transforms: torch.Tensor) -> torch.Tensor:
         """LBS of rest-pose points x ((N, 3) or (B, N, 3)) with the joint transforms (B, 24, 3, 4)."""
