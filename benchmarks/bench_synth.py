@@ -21,7 +21,7 @@ import numpy as np
 import torch
 
 from recon import report
-from recon.backbone.train import CROP_KEYS
+from recon.backbone.crops import CROP_KEYS
 from recon.body import default_body
 from recon.synth.dataset import SynthDataset, generate, pack
 from recon.synth.scene import SceneSampler

@@ -17,8 +17,9 @@ import torch
 from torch.utils.data import DataLoader, Subset
 
 from recon import report
+from recon.backbone.crops import RenderedCrops
 from recon.backbone.model import Backbone
-from recon.backbone.train import EndToEnd, RenderedCrops, evaluate
+from recon.backbone.train import EndToEnd, evaluate
 from recon.synth.dataset import BENCHMARKS
 
 

@@ -39,12 +39,14 @@ class ImageError(ReconError):
     """The file is not a usable image; the message says why."""
 
 
-def load_image(path: str | Path) -> np.ndarray:
-    """Any file Pillow reads -> (H, W, 3) uint8 RGB, upright (EXIF); ImageError otherwise."""
+def load_image(path: str | Path, data: bytes | None = None) -> np.ndarray:
+    """Any file Pillow reads -> (H, W, 3) uint8 RGB, upright (EXIF); ImageError otherwise.
+    ``data``: the file's bytes, already read (by a driver for a worker on another machine)."""
     path = Path(path)
-    if not path.is_file():
-        raise ImageError(f"{path}: not a file")
-    data = _read(path)
+    if data is None:
+        if not path.is_file():
+            raise ImageError(f"{path}: not a file")
+        data = _read(path)
     if not data:
         raise ImageError(f"{path}: empty file")
     try:
@@ -98,12 +100,13 @@ def _is_heif(data: bytes) -> bool:
     return data[4:8] == b"ftyp" and data[8:12] in HEIF_BRANDS
 
 
-def exif_focal_factor(path: str | Path) -> float | None:
+def exif_focal_factor(path: str | Path, data: bytes | None = None) -> float | None:
     """The camera's focal length in units of the image's longer side, from the EXIF tag
     FocalLengthIn35mmFilm (phones and most cameras write it); None when the file has none.
-    The 35 mm equivalent maps the image diagonal to the 43.27 mm full-frame diagonal."""
+    The 35 mm equivalent maps the image diagonal to the 43.27 mm full-frame diagonal.
+    ``data``: the file's bytes, already read."""
     try:
-        with Image.open(path) as im:
+        with Image.open(path if data is None else io.BytesIO(data)) as im:
             exif = im.getexif()
             f35 = exif.get_ifd(EXIF_IFD).get(FOCAL_35MM) or exif.get(FOCAL_35MM)
             w, h = im.size

@@ -20,7 +20,7 @@ command -v "$PY" >/dev/null || PY=python3
 [ -x .venv/bin/python ] || "$PY" -m venv .venv
 # torch first: the pinned CPU wheel (2.13.0) keeps pip from pulling a CUDA build.
 .venv/bin/pip install -q --disable-pip-version-check torch==2.13.0
-.venv/bin/pip install -q --disable-pip-version-check -e ".[render,test,sim,imagenet,heic]"
+.venv/bin/pip install -q --disable-pip-version-check -e ".[render,test,sim,imagenet,heic,cluster]"
 # pyrender pins PyOpenGL 3.1.0, which lacks working OSMesa/EGL on numpy 2: override after it.
 .venv/bin/pip install -q --disable-pip-version-check --no-deps PyOpenGL==3.1.10
 

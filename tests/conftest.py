@@ -1,7 +1,11 @@
 import os
+import secrets
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
+# Ray's token authentication, one token for every Ray the tests start (read when Ray is imported)
+os.environ.setdefault("RAY_AUTH_MODE", "token")
+os.environ.setdefault("RAY_AUTH_TOKEN", secrets.token_hex(16))
 from recon import kernels  # noqa: E402
 
 kernels.pin()  # before torch loads: the committed check slices are recorded likewise

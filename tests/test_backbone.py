@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 import torch
 
+from recon.backbone import crops
 from recon.backbone import train as T
 from recon.backbone.crop import Crop, grid_to_camera
 from recon.backbone.hourglass import HourglassConfig, StackedHourglass
@@ -114,12 +115,12 @@ def test_hourglass_shapes_and_gradients():
 
 def test_crop_dataset_targets_and_a_resumable_training_run(tmp_path, body, mocap):
     root = generate(tmp_path / "s", "test", 3, 4, shard_size=4, workers=1, progress=False)
-    ds = T.CropDataset([root], 64, jitter=False)
+    ds = crops.CropDataset([root], 64, jitter=False)
     img, grid, crop_vec, k, pts = ds[0]
     assert img.shape == (3, 64, 64) and grid.shape == (42, 3)
     np.testing.assert_allclose(grid_to_camera(grid.double()[None], crop_vec[None], k[None])[0].numpy(), pts.numpy(),
                                atol=1e-4)
-    jittered = T.CropDataset([root], 64, jitter=True)
+    jittered = crops.CropDataset([root], 64, jitter=True)
     assert jittered[1][0].shape == (3, 64, 64)
     cfg = T.BackboneTrainConfig(batch=2, steps=2, eval_every=2, val_images=2, workers=0,
                                 model={"stacks": 1, "width": 16, "depth_bins": 4, "levels": 2, "input_size": 64})
@@ -143,7 +144,7 @@ def test_crop_dataset_targets_and_a_resumable_training_run(tmp_path, body, mocap
 def test_end_to_end_chain_decodes_like_the_crop_and_passes_gradients(tmp_path, body, mocap):
     sampler = SceneSampler(body, "val", 1001, pool=64)
     rng = np.random.default_rng(0)
-    img, grid, crop_vec, k, pts = (torch.stack(x) for x in zip(*[T.make_crop(sampler.sample(i), 64, False, rng)
+    img, grid, crop_vec, k, pts = (torch.stack(x) for x in zip(*[crops.make_crop(sampler.sample(i), 64, False, rng)
                                                                   for i in range(3)]))
     torch.testing.assert_close(grid_to_camera(grid.double(), crop_vec, k), pts, atol=1e-5, rtol=0)
     e2e = T.EndToEnd()

@@ -10,10 +10,10 @@ import torch
 
 from recon import camera
 from recon.backbone.crop import Crop
+from recon.backbone.crops import OnlineCrops
 from recon.backbone.hourglass import StackedHourglass
 from recon.backbone.model import Backbone
 from recon.backbone.search import crop_from_keypoints
-from recon.backbone.train import OnlineCrops
 from recon.backbone.volumetric import soft_argmax_3d, trilinear_target, volumetric_ce
 from recon.body import skeleton
 from recon.fit import FitConfig

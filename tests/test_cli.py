@@ -121,8 +121,8 @@ def test_demo_writes_png_obj_glb(tmp_path, body, mocap):
 def test_synth_generate_framing_wide_is_the_wide_benchmarks_framing(monkeypatch, tmp_path):
     seen = {}
 
-    def generate(out, split, seed, n, workers, store_vertices, cfg):
-        seen["cfg"] = cfg
+    def generate(out, split, seed, n, store_vertices, cfg, executor):
+        seen["cfg"], seen["executor"] = cfg, executor
         raise SystemExit(0)
 
     monkeypatch.setattr(cli_synth.dataset, "generate", generate)
@@ -133,6 +133,7 @@ def test_synth_generate_framing_wide_is_the_wide_benchmarks_framing(monkeypatch,
         if framing == "wide":
             assert seen["cfg"] == cli_synth.dataset.bench_config("synth-wide-val")
     assert seen["cfg"] is None  # standard: the generator's defaults
+    assert (seen["executor"].kind, seen["executor"].workers) == ("local", 2)  # the generator's own default
 
 
 def _numeric_flags(parser: argparse.ArgumentParser, prefix=()):

@@ -12,7 +12,7 @@ ROOT = Path(__file__).resolve().parent.parent / "recon"
 # Each stage may import from itself and from the stages above it, never from those below.
 STAGES = [
     ("recon.errors", "recon.version", "recon.paths", "recon.kernels", "recon.report", "recon.timing", "recon.training",
-     "recon.io"),
+     "recon.io", "recon.executor"),
     ("recon.body",),
     ("recon.metrics", "recon.camera"),
     ("recon.poses",),

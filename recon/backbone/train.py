@@ -1,8 +1,9 @@
 """Train the volumetric stacked hourglass (``recon backbone train``) and export the result.
 
-Data: either ``recon synth`` shard folders, or ``--online``: SURREAL-like samples rendered on
-the fly by the data-loader workers (``recon.synth.scene``; each worker draws its own pose and
-shape pools, so W workers see W x 4,096 poses). Each image is cropped with the thesis' metric
+Data (``recon.backbone.crops``): either ``recon synth`` shard folders, or ``--online``:
+SURREAL-like samples rendered on the fly by the data-loader workers, or by Ray actors on any
+node of a cluster (``render_executor="ray"``) (``recon.synth.scene``; each worker draws its own
+pose and shape pools, so W workers see W x 4,096 poses). Each image is cropped with the thesis' metric
 2.5 m crop around the mean joint (scale/centre jittered) and resized to the network input; the
 batch is then augmented on the training device (``CropAugmentation``: horizontal flip with the
 left/right point map and in-plane rotation through kornia.augmentation, the targets moved with
@@ -24,32 +25,29 @@ import json
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-import cv2
 import kornia.augmentation as KA
-import numpy as np
 import torch
 from kornia.geometry.linalg import transform_points
 from torch import nn
-from torch.utils.data import DataLoader, Dataset, IterableDataset, get_worker_info
+from torch.utils.data import DataLoader
 
 from recon import camera, paths
-from recon.backbone.crop import Crop, grid_to_camera
+from recon.backbone.crop import grid_to_camera
+from recon.backbone.crops import CropDataset, OnlineCrops, RayCrops, RenderedCrops
 from recon.backbone.hourglass import SIZES, HourglassConfig, StackedHourglass
 from recon.backbone.model import WEIGHTS
 from recon.backbone.search import calibrated
 from recon.backbone.volumetric import soft_argmax_3d, volumetric_ce
-from recon.body import create, skeleton
+from recon.body import skeleton
 from recon.errors import ReconError
 from recon.metrics import per_point_error
 from recon.smplr import SMPLR
-from recon.synth.dataset import BENCHMARKS, SynthDataset
-from recon.synth.scene import SceneSampler
+from recon.synth.dataset import BENCHMARKS
 from recon.training import Schedule, Trainer
 
 LR_FLOOR = 0.02  # the cosine schedule decays to this fraction of the peak rate
-CROP_KEYS = ("rgb", "K", "points3d")  # what a training crop reads of a stored sample
 # settings a resumed run may change: longer runs, other machines, other validation cadence
-RESUMABLE_CHANGES = ("steps", "run_minutes", "workers", "eval_every")
+RESUMABLE_CHANGES = ("steps", "run_minutes", "workers", "eval_every", "render_executor", "ray_address")
 
 
 @dataclass
@@ -71,23 +69,8 @@ class BackboneTrainConfig:
     init: str = ""  # start from these weights (e.g. the shipped ones; its architecture wins over size/model)
     smplr_weight: float = 0.0  # > 0: end-to-end through the frozen DAE + SMPLR (see module doc)
     imagenet: bool = False  # start the stem from ImageNet weights (needs model={"stem": "efficientnet-lite0"})
-
-
-def make_crop(s: dict, size: int, jitter: bool, rng: np.random.Generator):
-    """One sample -> (image (3, S, S) float tensor in [0, 1], grid targets (42, 3), crop vector,
-    K, camera points). ``jitter``: the crop's centre and scale are perturbed (training)."""
-    pts = s["points3d"].astype(np.float64)
-    centre = pts[:24].mean(0)
-    extent = 2.5
-    if jitter:
-        centre = centre + rng.normal(0, 0.05, 3) * [1, 1, 0]
-        extent *= rng.uniform(0.9, 1.1)
-    crop = Crop.around(centre, s["K"].astype(np.float64), extent)
-    img = crop.image(s["rgb"], size).astype(np.float32) / 255.0
-    crop_vec = np.array([crop.u0, crop.v0, crop.side, crop.zc, crop.extent], np.float64)
-    return (torch.from_numpy(np.ascontiguousarray(img.transpose(2, 0, 1))).float(),
-            torch.from_numpy(crop.to_grid(pts)).float(), torch.from_numpy(crop_vec),
-            torch.from_numpy(s["K"].astype(np.float64)), torch.from_numpy(pts))
+    render_executor: str = "local"  # online data: "local" loader processes, or "ray" actors on any node
+    ray_address: str | None = None  # render_executor "ray": the cluster (default $RAY_ADDRESS, else a local Ray)
 
 
 class CropAugmentation(nn.Module):
@@ -122,69 +105,6 @@ class CropAugmentation(nn.Module):
         gains = lo + (hi - lo) * torch.rand(b, 3, 1, 1)
         offsets = self.offset * torch.randn(b, 1, 1, 1)
         return (img * gains.to(img) + offsets.to(img)).clamp(0.0, 1.0), grid
-
-
-class CropDataset(Dataset):
-    """Crops of stored ``recon synth`` samples (jittered for training)."""
-
-    def __init__(self, roots: list[Path], input_size: int, jitter: bool, seed: int = 0):
-        self.sets = [SynthDataset(r, keys=CROP_KEYS) for r in roots]
-        self.index = [(i, j) for i, s in enumerate(self.sets) for j in range(len(s))]
-        self.size, self.jitter, self.seed = input_size, jitter, seed
-
-    def __len__(self) -> int:
-        return len(self.index)
-
-    def __getitem__(self, n: int):
-        i, j = self.index[n]
-        rng = np.random.default_rng([self.seed, n, int(torch.randint(1 << 30, ()).item()) if self.jitter else 0])
-        return make_crop(self.sets[i][j], self.size, self.jitter, rng)
-
-
-def _scene_sampler(split: str, seed: int) -> SceneSampler:
-    if get_worker_info() is not None:  # many workers: one thread each, or OpenCV/BLAS pools oversubscribe the CPU
-        torch.set_num_threads(1)
-        cv2.setNumThreads(1)
-    return SceneSampler(create(), split, seed)
-
-
-class RenderedCrops(Dataset):
-    """Samples 0..n-1 of a (split, seed) stream rendered on demand: with a benchmark's split and
-    seed these are that benchmark's images."""
-
-    def __init__(self, split: str, seed: int, n: int, input_size: int):
-        self.split, self.seed, self.n, self.size = split, seed, n, input_size
-        self.sampler = None
-
-    def __len__(self) -> int:
-        return self.n
-
-    def __getitem__(self, i: int):
-        if self.sampler is None:  # per worker process: its own GL context
-            self.sampler = _scene_sampler(self.split, self.seed)
-        return make_crop(self.sampler.sample(i), self.size, False, np.random.default_rng(0))
-
-
-class OnlineCrops(IterableDataset):
-    """Endless jittered training crops rendered by each data-loader worker; worker w uses the
-    stream (train, seed * 1000 + w) from sample ``start`` on. Each render gives ``repeats``
-    crops, mixed through a shuffle buffer (rendering is the bottleneck)."""
-
-    def __init__(self, input_size: int, seed: int = 0, start: int = 0, repeats: int = 1, buffer: int = 64):
-        self.size, self.seed, self.start, self.repeats, self.buffer = input_size, seed, start, repeats, buffer
-
-    def __iter__(self):
-        info = get_worker_info()
-        w = info.id if info is not None else 0
-        sampler = _scene_sampler("train", self.seed * 1000 + w)
-        rng = np.random.default_rng([self.seed, w, self.start, 7])
-        pool, i = [], self.start
-        while True:
-            s = sampler.sample(i)
-            pool += [make_crop(s, self.size, True, rng) for _ in range(self.repeats)]
-            i += 1
-            while len(pool) > (self.buffer if self.repeats > 1 else 0):
-                yield pool.pop(int(rng.integers(len(pool))))
 
 
 class EndToEnd(nn.Module):
@@ -263,7 +183,11 @@ def train(train_roots: list[Path] | None, val: Path | str, out_dir: Path, cfg: B
                       run_minutes=cfg.run_minutes, desc="train backbone", config=asdict(cfg),
                       identity={k: v for k, v in asdict(cfg).items() if k not in RESUMABLE_CHANGES},
                       extra={"config": asdict(mcfg)}, progress=progress)
-    if train_roots is None:
+    if train_roots is None and cfg.render_executor == "ray":
+        loader = RayCrops(mcfg.input_size, cfg.batch, max(cfg.workers, 1), cfg.seed,
+                          start=trainer.step * cfg.batch // max(cfg.workers, 1), repeats=cfg.repeats,
+                          address=cfg.ray_address)
+    elif train_roots is None:
         data = OnlineCrops(mcfg.input_size, cfg.seed, start=trainer.step * cfg.batch // max(cfg.workers, 1),
                            repeats=cfg.repeats)
         loader = _loader(data, cfg.batch, cfg.workers, device)
@@ -304,7 +228,11 @@ def train(train_roots: list[Path] | None, val: Path | str, out_dir: Path, cfg: B
 
     if init and trainer.step == 0 and not trainer.history:  # the starting point, for the curve and as the best so far
         trainer.validate_now(validate, tag="init")
-    log = trainer.fit(_endless(loader), step, validate)
+    batches = _endless(loader)
+    try:
+        log = trainer.fit(batches, step, validate)
+    finally:
+        batches.close()  # Ray's rendering actors stop with it
     return {"best_val_mpjpe_mm": log["best"], "steps": log["steps"], "history": log["history"],
             "seconds": log["seconds"]}
 

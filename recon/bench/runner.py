@@ -19,6 +19,7 @@ from recon import metrics, report
 from recon.bench.methods import METHODS
 from recon.body import default_body
 from recon.errors import ReconError
+from recon.executor import ExecutorConfig, WorkerLost, WorkerSpec, map_tasks
 from recon.synth.dataset import BENCHMARKS, SynthDataset, bench_config, bench_dir
 from recon.synth.raster import Rasterizer, silhouette_iou
 from recon.synth.scene import SceneSampler
@@ -26,55 +27,86 @@ from recon.synth.scene import SceneSampler
 ABBR = {"head": "Hd", "torso": "Ts", "shoulder": "Sr", "elbow": "Ew", "wrist": "Wt", "hip": "Hp", "knee": "Kn",
         "foot": "Ft"}
 COLUMNS = ("MPJPE-P1", "MPJPE-P2 (PA)", "Lm", "PVE", "IoU")
+EVAL_CHUNK = 8  # samples a task: a Ray task's overhead is ~1 ms, a sample's scoring 0.1-2 s
 CHECK_IMAGES = 8  # the slice tests/test_results.py recomputes: the first images of the benchmark
 # how far a checked 8-image mean may move between CPUs: the float kernels' last bits, carried
 # through the networks, the 30-step fit and a rasterised silhouette's edge pixels
 CHECK_TOLERANCE = {"rtol": 2e-3, "atol": 1e-6}
 
 
-def run_method(name: str, ds, body, n: int | None = None, progress: bool = True) -> dict:
-    """Scores of one method on the first ``n`` samples of ``ds`` (a SynthDataset or a list of
-    samples)."""
-    method = METHODS[name](body)
-    raster = None
-    faces = body.faces.numpy()
-    rows = {"p1": [], "p2": [], "lm": [], "pve": [], "iou": [], "joint": [], "depth": [], "height": [],
-            "shape": []}
-    failures, t0 = 0, time.time()
-    for i in tqdm(range(min(n or len(ds), len(ds))), desc=f"eval {name}", unit="img", mininterval=5,
-                  disable=not progress):
-        s = ds[i]
+class MethodScorer:
+    """One method's scores per sample (a worker: built once per process or Ray actor)."""
+
+    def __init__(self, name: str, body=None):
+        self.body = body if body is not None else default_body()
+        self.method = METHODS[name](self.body)
+        self.faces = self.body.faces.numpy()
+        self.raster = None
+
+    def __call__(self, samples: list[dict]) -> list[dict | None]:
+        return [self.score(s) for s in samples]
+
+    def score(self, s: dict) -> dict | None:
+        """The sample's scores (None: the method found no person)."""
+        method, body = self.method, self.body
         extra = {"points2d": s["points2d"], "points3d": s["points3d"]} if getattr(method, "needs_gt", False) else {}
         pred = method(s["rgb"], s["K"], **extra)
         if pred is None:
-            failures += 1
-            continue
+            return None
         gt_j = torch.tensor(s["points3d"][None, :24])
         pj = torch.tensor(pred.joints[None], dtype=torch.float32)
         je = metrics.per_point_error(pj, gt_j)[0]
-        rows["joint"].append(je.numpy())
-        rows["p1"].append(float(je.mean()))
-        rows["p2"].append(float(metrics.per_point_error(metrics.procrustes_align(pj, gt_j), gt_j, None).mean()))
+        row = {"joint": je.numpy(), "p1": float(je.mean()),
+               "p2": float(metrics.per_point_error(metrics.procrustes_align(pj, gt_j), gt_j, None).mean())}
         if pred.landmarks is not None:
             gl = s["points3d"][24:] - s["points3d"][:1]
-            rows["lm"].append(float(np.linalg.norm(pred.landmarks - pred.joints[:1] - gl, axis=1).mean()))
+            row["lm"] = float(np.linalg.norm(pred.landmarks - pred.joints[:1] - gl, axis=1).mean())
         if pred.vertices is not None and "vertices" in s:
             gv = s["vertices"].astype(np.float32) @ s["R"].T  # stored pelvis-relative, body frame
-            rows["pve"].append(float(np.linalg.norm(pred.vertices - pred.joints[:1] - gv, axis=1).mean()))
+            row["pve"] = float(np.linalg.norm(pred.vertices - pred.joints[:1] - gv, axis=1).mean())
         mask = pred.mask
         if mask is None and pred.vertices is not None:
-            raster = raster or Rasterizer(*s["rgb"].shape[1::-1])
-            mask = raster.render(pred.vertices, faces, s["K"])[2] > 0
+            self.raster = self.raster or Rasterizer(*s["rgb"].shape[1::-1])
+            mask = self.raster.render(pred.vertices, self.faces, s["K"])[2] > 0
         if mask is not None:
-            rows["iou"].append(silhouette_iou(mask, s["silhouette"]))
+            row["iou"] = silhouette_iou(mask, s["silhouette"])
         if pred.placed:
-            rows["depth"].append(abs(float(pred.joints[0, 2]) - float(s["points3d"][0, 2])))
+            row["depth"] = abs(float(pred.joints[0, 2]) - float(s["points3d"][0, 2]))
         if pred.shape is not None:
-            rows["height"].append((body_height(body, pred.shape), body_height(body, s["shape"])))
-            rows["shape"].append(np.abs(np.asarray(pred.shape, float) - s["shape"]))
+            row["height"] = (body_height(body, pred.shape), body_height(body, s["shape"]))
+            row["shape"] = np.abs(np.asarray(pred.shape, float) - s["shape"])
+        return row
+
+
+def run_method(name: str, ds, body, n: int | None = None, progress: bool = True,
+               executor: ExecutorConfig | None = None) -> dict:
+    """Scores of one method on the first ``n`` samples of ``ds`` (a SynthDataset or a list of
+    samples). ``executor``: where chunks of ``EVAL_CHUNK`` samples are scored (default this
+    process); the scores do not depend on it."""
+    executor = executor or ExecutorConfig()
+    count = min(n or len(ds), len(ds))
+    chunks = [range(a, min(a + EVAL_CHUNK, count)) for a in range(0, count, EVAL_CHUNK)]
+    spec = WorkerSpec(MethodScorer, (name,), {"body": body} if executor.in_process else {})
+    scored: list = [None] * len(chunks)
+    t0 = time.time()
+    bar = tqdm(total=count, desc=f"eval {name}", unit="img", mininterval=5, disable=not progress)
+    results = map_tasks(spec, chunks, executor, lambda idx: [ds[i] for i in idx])
+    try:
+        for c, chunk in results:
+            if isinstance(chunk, WorkerLost):
+                raise ReconError(f"eval {name}: images {chunks[c].start}-{chunks[c].stop - 1}: {chunk}")
+            scored[c] = chunk
+            bar.update(len(chunk))
+    finally:
+        results.close()
+        bar.close()
+    scores = [r for chunk in scored for r in chunk]
+    rows = {k: [r[k] for r in scores if r is not None and k in r]
+            for k in ("p1", "p2", "lm", "pve", "iou", "joint", "depth", "height", "shape")}
     done = len(rows["p1"])
+    failures = count - done
     joint = np.stack(rows["joint"]) * 1000 if done else np.zeros((0, 24))
-    res = {"method": name, "description": method.description, "images": done + failures,
+    res = {"method": name, "description": METHODS[name].description, "images": done + failures,
            "failures": failures, "seconds_per_image": (time.time() - t0) / max(done + failures, 1)}
     for key, label in zip(("p1", "p2", "lm", "pve"), COLUMNS[:4], strict=True):
         res[label] = float(np.mean(rows[key]) * 1000) if rows[key] else None
@@ -119,11 +151,12 @@ def checked(methods: list[str]) -> list[str]:
     return [m for m in methods if not METHODS[m].detects]
 
 
-def evaluate(bench: str, methods: list[str], n: int | None = None, out_dir: Path = report.RESULTS) -> Path:
+def evaluate(bench: str, methods: list[str], n: int | None = None, out_dir: Path = report.RESULTS,
+             executor: ExecutorConfig | None = None) -> Path:
     """``recon eval``: run ``methods`` on the benchmark (its first ``n`` images) and merge them into
     ``<out_dir>/<bench>.{json,md}`` (re-run methods replaced in place), with the check slice of the
     methods ``checked`` keeps, computed with ``recon.kernels`` pinned (the command line and the
-    tests pin them)."""
+    tests pin them). ``executor``: where the images are scored (``run_method``)."""
     if bench not in BENCHMARKS:
         raise ReconError(f"unknown benchmark {bench!r}; known: {', '.join(BENCHMARKS)}")
     unknown = [m for m in methods if m not in METHODS]
@@ -131,7 +164,7 @@ def evaluate(bench: str, methods: list[str], n: int | None = None, out_dir: Path
         raise ReconError(f"unknown method(s) {unknown}; known: {', '.join(METHODS)}")
     ds = SynthDataset(bench_dir(bench))
     body = default_body()
-    new = [run_method(m, ds, body, n) for m in methods]
+    new = [run_method(m, ds, body, n, executor=executor) for m in methods]
     stem = Path(out_dir) / bench
     old = report.read(stem) if stem.with_suffix(".json").exists() else {"rows": []}
     fresh = {r["method"]: r for r in new}

@@ -19,6 +19,8 @@ from recon.synth import dataset
 def train(args) -> None:
     if args.online == bool(args.train):
         raise ReconError("give --train FOLDERS (stored shards) or --online (rendered on the fly), not both")
+    if args.render_executor == "ray" and not args.online:
+        raise ReconError("--render-executor ray renders --online training data")
     cls = backbone_train.BackboneTrainConfig
     cfg = cls(**{f.name: getattr(args, f.name) for f in dataclasses.fields(cls)
                  if f.name not in ("model", "init") and hasattr(args, f.name)},
@@ -57,7 +59,8 @@ TRAIN_FLAGS = {
     "minutes": (NON_NEGATIVE, "total wall-clock budget; the lr schedule follows it (0: none)"),
     "run_minutes": (NON_NEGATIVE, "stop this invocation after N minutes (resumable; 0: no limit)"),
     "batch": (COUNT, None), "lr": (POSITIVE, None), "eval_every": (COUNT, None), "val_images": (COUNT, None),
-    "repeats": (COUNT, "--online: crops per rendered sample"), "workers": (STEPS, "data-loader processes"),
+    "repeats": (COUNT, "--online: crops per rendered sample"),
+    "workers": (STEPS, "data-loader processes (--render-executor ray: rendering actors)"),
     "seed": (SEED, "data/initialisation seed (use a new one when fine-tuning)"),
     "smplr_weight": (NON_NEGATIVE, "> 0: end-to-end fine-tuning through the frozen DAE + SMPLR "
                                    "(thesis 2.4.5; with --init, --lr 1e-4)"),
@@ -70,6 +73,11 @@ def add_backbone(p: Parser) -> None:
     a = action("train", train, "train on rendered (--online) or stored synthetic data; resumable")
     a.add_argument("--out", required=True, help="checkpoint folder (resumes if it holds a run)")
     a.add_argument("--online", action="store_true", help="render training data on the fly in the loader workers")
+    a.add_argument("--render-executor", choices=("local", "ray"), default=default(cls, "render_executor"),
+                   help="--online: render in local loader processes, or in --workers Ray actors on any node of a "
+                        "cluster (pip install 'recon[cluster]'), streamed to the trainer")
+    a.add_argument("--ray-address", default=None, help="the Ray cluster to join (default: $RAY_ADDRESS, else a local "
+                                                      "Ray with this machine's cores)")
     a.add_argument("--train", nargs="+", help="synth folders with training shards")
     a.add_argument("--val", default="synth-val", help="benchmark name (rendered when --online) or folder")
     a.add_argument("--device", type=device, default="cpu")

@@ -98,3 +98,20 @@ def device(text: str) -> str:
     if dev.type not in ("cpu", "cuda"):
         raise argparse.ArgumentTypeError(f"{text}: recon runs on cpu or cuda")
     return text
+
+
+def add_executor(p: argparse.ArgumentParser, local_workers: int = 1, what: str = "worker processes") -> None:
+    """``--executor``, ``--workers`` and ``--ray-address`` (``recon.executor``)."""
+    p.add_argument("--executor", choices=("local", "ray"), default="local",
+                   help="where the work runs: this machine, or a Ray cluster (pip install 'recon[cluster]'; "
+                        "$RAY_ADDRESS or --ray-address joins one, else a local Ray with this machine's cores); "
+                        "the outputs are the same")
+    p.add_argument("--workers", type=COUNT, default=None,
+                   help=f"{what} (default: {local_workers} local; with Ray one per CPU of the cluster)")
+    p.add_argument("--ray-address", default=None, help="the Ray cluster to join (default: $RAY_ADDRESS)")
+
+
+def executor_args(args, local_workers: int = 1) -> dict:
+    """The ``recon.executor.ExecutorConfig`` keywords of the flags ``add_executor`` added."""
+    workers = args.workers if args.workers is not None else (local_workers if args.executor == "local" else None)
+    return {"kind": args.executor, "workers": workers, "address": args.ray_address}

@@ -6,9 +6,22 @@ import argparse
 from pathlib import Path
 
 from recon.animate import animate, list_motions
-from recon.cli.parsing import COUNT, NON_NEGATIVE, POSITIVE, SEED, STEPS, Parser, default, device, number
+from recon.cli.parsing import (
+    COUNT,
+    NON_NEGATIVE,
+    POSITIVE,
+    SEED,
+    STEPS,
+    Parser,
+    add_executor,
+    default,
+    device,
+    executor_args,
+    number,
+)
 from recon.demo import body_demo, dressed_gif, example_photos, photo_demo
 from recon.errors import ReconError
+from recon.executor import ExecutorConfig
 from recon.fit import FitConfig
 from recon.garment import store
 from recon.garment.dress import GARMENT_MODELS
@@ -38,7 +51,8 @@ def run_images(args) -> int:
     options = RunOptions(outfit=args.outfit, tightness=args.tightness, max_people=args.max_people,
                          overlay=not args.no_overlay, exif_focal=args.focal is None, batch_size=args.batch_size,
                          force=args.force, garment_model=args.garment_model)
-    s = run(args.inputs or example_photos(), Path(args.out), options, config)
+    s = run(args.inputs or example_photos(), Path(args.out), options, config,
+            executor=ExecutorConfig(**executor_args(args)))
     if s.interrupted:
         return 130
     return 1 if s.failed or not (s.done or s.unchanged or s.no_person) else 0
@@ -77,7 +91,8 @@ def add_run(p: Parser) -> None:
                    help="make every image again (default: images already done from the same file and options are "
                         "left as they are)")
     p.add_argument("--batch-size", type=COUNT, default=default(RunOptions, "batch_size"),
-                   help="images per SMPLR/fit batch")
+                   help="images per SMPLR/fit batch (a task of --executor)")
+    add_executor(p, 1, "processes reconstructing batches of images, each loading the models once")
     p.add_argument("--device", type=device, default=default(cfg, "device"), help="torch device of the networks")
     p.add_argument("--focal", type=FOCAL, default=None,
                    help="focal length in units of the longer image side (default: the photo's EXIF 35 mm "

@@ -6,9 +6,12 @@ from pathlib import Path
 from recon import report
 from recon.bench import runner
 from recon.bench.methods import METHODS
-from recon.cli.parsing import COUNT, SEED, Parser, actions, default
+from recon.cli.parsing import COUNT, SEED, Parser, actions, add_executor, default, executor_args
 from recon.errors import ReconError
+from recon.executor import ExecutorConfig
 from recon.synth import dataset
+
+RENDER_WORKERS = default(dataset.generate, "workers")
 
 
 def _verify(out: Path, bench: str | None) -> None:
@@ -24,7 +27,7 @@ def _verify(out: Path, bench: str | None) -> None:
 
 
 def bench(args) -> None:
-    out = dataset.build_benchmark(args.name, workers=args.workers, n=args.n)
+    out = dataset.build_benchmark(args.name, n=args.n, executor=ExecutorConfig(**executor_args(args, RENDER_WORKERS)))
     if args.verify:
         _verify(out, args.name)
     print(f"{out}: {len(dataset.SynthDataset(out))} samples")
@@ -32,15 +35,16 @@ def bench(args) -> None:
 
 def generate(args) -> None:
     cfg = dataset.bench_config("synth-wide-test") if args.framing == "wide" else None
-    out = dataset.generate(Path(args.out), args.split, args.seed, args.n, workers=args.workers,
-                           store_vertices=not args.no_vertices, cfg=cfg)
+    out = dataset.generate(Path(args.out), args.split, args.seed, args.n, store_vertices=not args.no_vertices,
+                           cfg=cfg, executor=ExecutorConfig(**executor_args(args, RENDER_WORKERS)))
     if args.verify:
         _verify(out, None)
     print(f"{out}: {len(dataset.SynthDataset(out))} samples")
 
 
 def evaluate(args) -> None:
-    print(Path(runner.evaluate(args.bench, args.method, n=args.n, out_dir=Path(args.out))).read_text())
+    print(Path(runner.evaluate(args.bench, args.method, n=args.n, out_dir=Path(args.out),
+                               executor=ExecutorConfig(**executor_args(args)))).read_text())
 
 
 def add_synth(p: Parser) -> None:
@@ -48,15 +52,14 @@ def add_synth(p: Parser) -> None:
     a = action("bench", bench, "render (or finish) a fixed benchmark into the cache")
     a.add_argument("name", choices=list(dataset.BENCHMARKS))
     a.add_argument("--n", type=COUNT, default=None, help="only the first N images")
-    a.add_argument("--workers", type=COUNT, default=default(dataset.build_benchmark, "workers"),
-                   help="render processes")
+    add_executor(a, RENDER_WORKERS, "render processes")
     a.add_argument("--verify", action="store_true", help="re-hash the shards; compare with the committed hashes")
     a = action("generate", generate, "render samples of a split into a folder")
     a.add_argument("--out", required=True)
     a.add_argument("--split", default="train", choices=["train", "val", "test"])
     a.add_argument("--seed", type=SEED, default=0)
     a.add_argument("--n", type=COUNT, default=1000)
-    a.add_argument("--workers", type=COUNT, default=default(dataset.generate, "workers"), help="render processes")
+    add_executor(a, RENDER_WORKERS, "render processes")
     a.add_argument("--no-vertices", action="store_true", help="do not store vertices (smaller shards)")
     a.add_argument("--framing", default="standard", choices=["standard", "wide"],
                    help="wide: framed as the synth-wide benchmarks (512 px, people 30-90 %% of the height, off-centre)")
@@ -69,6 +72,7 @@ def add_eval(p: Parser) -> None:
     p.add_argument("--method", nargs="+", default=["mean", "mediapipe"], help=", ".join(METHODS))
     p.add_argument("--n", type=COUNT, default=None, help="only the first N images")
     p.add_argument("--out", default=str(report.RESULTS))
+    add_executor(p, 1, "processes scoring the images")
 
 
 ADD = {"synth": add_synth, "eval": add_eval}

@@ -4,12 +4,14 @@ from __future__ import annotations
 from dataclasses import replace
 from pathlib import Path
 
-from recon.cli.parsing import COUNT, NON_NEGATIVE, POSITIVE, STEPS, Parser, default, number
+from recon.cli.parsing import COUNT, NON_NEGATIVE, POSITIVE, STEPS, Parser, add_executor, default, executor_args, number
 from recon.cli.run import FOCAL, TIGHTNESS
+from recon.executor import ExecutorConfig
 from recon.garment.templates import PRESETS
 from recon.keypoints.mediapipe import MODELS
 from recon.pipeline import ReconstructorConfig
 from recon.video import FrameRange, SmoothConfig, VideoOptions, video
+from recon.video.many import videos
 
 
 def run_video(args) -> int:
@@ -19,8 +21,14 @@ def run_video(args) -> int:
     options = VideoOptions(frames=frames, max_people=args.max_people,
                            smooth=replace(SmoothConfig(), steps=args.smooth_steps), outfit=args.outfit,
                            tightness=args.tightness, overlay=not args.no_overlay, batch=args.batch, force=args.force)
+    executor = ExecutorConfig(**executor_args(args))
+    if len(args.inputs) > 1:
+        s = videos(args.inputs, Path(args.out), options, config, executor)
+        return 130 if s.interrupted else (1 if s.failed else 0)
+    if not executor.in_process:
+        print("one video runs in this process (its frames follow each other); --executor spreads several videos")
     try:
-        video(args.input, Path(args.out), options, config)
+        video(args.inputs[0], Path(args.out), options, config)
     except KeyboardInterrupt:
         print(f"interrupted: run the same command again to continue from the last finished batch ({args.out})")
         return 130
@@ -30,9 +38,12 @@ def run_video(args) -> int:
 def add_video(p: Parser) -> None:
     p.set_defaults(func=run_video)
     opts, cfg = VideoOptions, ReconstructorConfig
-    p.add_argument("input", help="a video file OpenCV reads (mp4, avi, mov, webm, mkv) or a folder of frames")
+    p.add_argument("inputs", nargs="+", metavar="input",
+                   help="a video file OpenCV reads (mp4, avi, mov, webm, mkv) or a folder of frames; several: each "
+                        "into <out>/<name>/, one video a task of --executor, videos.json beside them")
     p.add_argument("--out", required=True, help="output folder: track_<id>/ (motion.bvh, animated.glb, motion.json), "
                                                 "overlay.mp4, video.json; a killed run continues")
+    add_executor(p, 1, "processes each taking one video at a time (with several videos)")
     p.add_argument("--start", type=NON_NEGATIVE, default=0.0, help="first second")
     p.add_argument("--end", type=POSITIVE, default=None, help="last second (exclusive; default: the end)")
     p.add_argument("--every", type=COUNT, default=1, help="take one frame in every N")

@@ -11,8 +11,8 @@ folders carry it in their name.
 from __future__ import annotations
 
 import hashlib
+import io
 import json
-import multiprocessing as mp
 from dataclasses import asdict
 from pathlib import Path
 
@@ -24,6 +24,7 @@ from tqdm import tqdm
 from recon import paths
 from recon.body import default_body
 from recon.errors import MissingFile, ReconError
+from recon.executor import ExecutorConfig, WorkerLost, WorkerSpec, map_tasks
 from recon.synth.scene import SceneSampler, SynthConfig
 
 # Fixed benchmark splits: poses of held-out mocap subjects (recon.poses.mocap.SPLIT_SUBJECTS).
@@ -89,21 +90,27 @@ def pack(samples: list[dict], store_vertices: bool) -> dict[str, np.ndarray]:
     return out
 
 
-_WORKER = {}
+class ShardWriter:
+    """Renders shards (a worker process or Ray actor builds one: its scene sampler, on one torch
+    thread). ``ship``: return the shard's bytes for the driver to write (a worker on another
+    machine), else write it into ``out_dir`` here."""
 
+    def __init__(self, split: str, seed: int, cfg: dict, out_dir: str, store_vertices: bool, ship: bool = False):
+        torch.set_num_threads(1)  # one process per core; also what the committed hashes were made with
+        self.scene = SceneSampler(default_body(), split, seed, SynthConfig(**cfg))
+        self.out_dir, self.store_vertices, self.ship = Path(out_dir), store_vertices, ship
 
-def _init_worker(split: str, seed: int, cfg: dict) -> None:
-    torch.set_num_threads(1)  # one process per core
-    _WORKER["scene"] = SceneSampler(default_body(), split, seed, SynthConfig(**cfg))
-
-
-def _write_shard(args) -> tuple[int, str]:
-    shard, start, stop, out_dir, store_vertices = args
-    scene = _WORKER["scene"]
-    arrays = pack([scene.sample(i) for i in range(start, stop)], store_vertices)
-    path = Path(out_dir) / f"shard-{shard:05d}.npz"
-    paths.atomic_write(path, lambda tmp: np.savez(open(tmp, "wb"), **arrays))
-    return shard, _sha256(path)
+    def __call__(self, task: tuple[int, int, int]) -> tuple[int, str | bytes]:
+        """(shard, first, stop) -> (shard, its hash), or (shard, its .npz bytes) when shipping."""
+        shard, start, stop = task
+        arrays = pack([self.scene.sample(i) for i in range(start, stop)], self.store_vertices)
+        if self.ship:
+            buf = io.BytesIO()
+            np.savez(buf, **arrays)
+            return shard, buf.getvalue()
+        path = self.out_dir / f"shard-{shard:05d}.npz"
+        paths.atomic_write(path, lambda tmp: np.savez(open(tmp, "wb"), **arrays))
+        return shard, _sha256(path)
 
 
 def _sha256(path: Path) -> str:
@@ -116,8 +123,11 @@ def _sha256(path: Path) -> str:
 
 
 def generate(out_dir: Path, split: str, seed: int, n: int, shard_size: int = 250, workers: int = 2,
-             cfg: SynthConfig | None = None, store_vertices: bool = True, progress: bool = True) -> Path:
-    """Generate (or finish generating) ``n`` samples into ``out_dir``."""
+             cfg: SynthConfig | None = None, store_vertices: bool = True, progress: bool = True,
+             executor: ExecutorConfig | None = None) -> Path:
+    """Generate (or finish generating) ``n`` samples into ``out_dir``: shards rendered by
+    ``workers`` local processes, or by ``executor`` (``recon.executor``: any kind, any number of
+    workers, the same bits)."""
     cfg = cfg or SynthConfig()
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -133,32 +143,30 @@ def generate(out_dir: Path, split: str, seed: int, n: int, shard_size: int = 250
         raise ReconError(f"{out_dir} holds a dataset made with other settings or another version of the "
                          "generator; use another folder")
     manifest["n"] = n
-    todo = []
-    for shard, start in enumerate(range(0, n, shard_size)):
-        if not (out_dir / f"shard-{shard:05d}.npz").exists():
-            todo.append((shard, start, min(start + shard_size, n), str(out_dir), store_vertices))
+    todo = [(shard, start, min(start + shard_size, n)) for shard, start in enumerate(range(0, n, shard_size))
+            if not (out_dir / f"shard-{shard:05d}.npz").exists()]
+    executor = executor or ExecutorConfig(workers=workers)
+    spec = WorkerSpec(ShardWriter, (split, seed, asdict(cfg), str(out_dir), store_vertices, executor.remote))
     bar = tqdm(total=len(todo), desc=f"synth {split}", unit="shard", disable=not progress)
-
-    def record(res):
-        shard, digest = res
-        manifest["shards"][str(shard)] = digest
-        paths.write_text(man_path, json.dumps(manifest, indent=1))
-        bar.update(1)
-
-    if todo and workers > 1:
-        ctx = mp.get_context("spawn")  # fresh GL contexts per worker
-        with ctx.Pool(workers, initializer=_init_worker, initargs=(split, seed, asdict(cfg))) as pool:
-            for res in pool.imap_unordered(_write_shard, todo):
-                record(res)
-    elif todo:  # in this process, on one thread as in the workers (the committed hashes), then restored
-        threads = torch.get_num_threads()
-        try:
-            _init_worker(split, seed, asdict(cfg))
-            for t in todo:
-                record(_write_shard(t))
-        finally:
-            torch.set_num_threads(threads)
-    bar.close()
+    threads = torch.get_num_threads()  # in this process a worker sets one thread: restored after
+    results = map_tasks(spec, todo, executor)
+    try:
+        for t, result in results:
+            if isinstance(result, WorkerLost):
+                raise ReconError(f"shard {todo[t][0]} of {out_dir}: {result}; the same command continues with the "
+                                 "shards not yet written")
+            shard, got = result
+            if isinstance(got, bytes):
+                path = out_dir / f"shard-{shard:05d}.npz"
+                paths.atomic_write(path, lambda tmp, b=got: Path(tmp).write_bytes(b))
+                got = _sha256(path)
+            manifest["shards"][str(shard)] = got
+            paths.write_text(man_path, json.dumps(manifest, indent=1))
+            bar.update(1)
+    finally:
+        results.close()
+        bar.close()
+        torch.set_num_threads(threads)
     return out_dir
 
 
@@ -167,9 +175,10 @@ def reference_hashes_path(name: str) -> Path:
     return paths.REPO_ROOT / "eval" / "benchmarks" / f"{name}.sha256.json"
 
 
-def build_benchmark(name: str, workers: int = 2, n: int | None = None) -> Path:
+def build_benchmark(name: str, workers: int = 2, n: int | None = None, executor: ExecutorConfig | None = None) -> Path:
     b = BENCHMARKS[name]
-    return generate(bench_dir(name), b["split"], b["seed"], n or b["n"], workers=workers, cfg=bench_config(name))
+    return generate(bench_dir(name), b["split"], b["seed"], n or b["n"], workers=workers, cfg=bench_config(name),
+                    executor=executor)
 
 
 def compare_with_reference(name: str) -> list[int]:

@@ -127,7 +127,7 @@ def video(path: str | Path, out: str | Path, options: VideoOptions | None = None
         paths.write_text(work / "made_from.json", json.dumps(per_frame_from, indent=1))
     k = camera.default_intrinsics(*src.size, config.focal_factor)
     seconds, t0 = {}, time.perf_counter()
-    rec = reconstructor or _reconstructor(config, options.max_people)
+    rec = reconstructor or video_reconstructor(config, options.max_people)
     bar = tqdm(total=_expected(src), desc="recon video", unit="frame", disable=not progress)
     resumed = []
 
@@ -181,14 +181,19 @@ def video(path: str | Path, out: str | Path, options: VideoOptions | None = None
     return VideoResult(out, motions, frames, dets, fps, seconds)
 
 
-def _reconstructor(config: ReconstructorConfig, max_people: int) -> Reconstructor:
+def video_reconstructor(config: ReconstructorConfig, max_people: int) -> Reconstructor:
+    source = video_source(config, max_people)
+    return Reconstructor(config) if source is None else Reconstructor(config, source=source)
+
+
+def video_source(config: ReconstructorConfig, max_people: int):
+    """A fresh keypoint source for one video (MediaPipe's video mode follows one video's frames in
+    order), or None where the config's source is not MediaPipe's."""
     if config.source != "mediapipe":
-        return Reconstructor(config)
+        return None
     if max_people == 1:
-        source = MediaPipeVideoSource(config.keypoint_model, config.guard, config.backbone_weight)
-    else:
-        source = PeopleVideoSource(config.keypoint_model, config.guard, config.backbone_weight)
-    return Reconstructor(config, source=source)
+        return MediaPipeVideoSource(config.keypoint_model, config.guard, config.backbone_weight)
+    return PeopleVideoSource(config.keypoint_model, config.guard, config.backbone_weight)
 
 
 def _finished(out: Path) -> dict | None:

@@ -1,0 +1,193 @@
+"""recon.executor: the same results from every executor, lost workers replaced and their tasks run
+again, worker errors surfaced; Ray's tests (a local Ray, a two-node cluster on this machine) are
+in the slow tier."""
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from recon import executor as ex
+from recon.cli import main
+from recon.errors import ReconError
+
+needs_ray = pytest.mark.skipif(not ex.ray_available(), reason="Ray is the optional extra recon[cluster]")
+
+
+class Doubler:
+    """A test worker: ``task * 2`` and its process id; kills its own process on ``die_on`` (once,
+    or every time with ``always``), raises ReconError on ``fail_on`` (-1: when built)."""
+
+    def __init__(self, marker: str, die_on: int | None = None, always: bool = False, fail_on: int | None = None,
+                 pause: float = 0.05):
+        if fail_on == -1:
+            raise ReconError("no weights for this worker")
+        self.marker, self.die_on, self.always, self.fail_on, self.pause = Path(marker), die_on, always, fail_on, pause
+
+    def __call__(self, task: int):
+        if task == self.die_on and (self.always or not self.marker.exists()):
+            self.marker.write_text("died")
+            os.kill(os.getpid(), signal.SIGKILL)
+        if task == self.fail_on:
+            raise ReconError(f"task {task} is bad input")
+        time.sleep(self.pause)
+        return task * 2, os.getpid()
+
+
+if ex.ray_available():  # the workers unpickle this test module's classes by value
+    ex.ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])
+
+
+def _run(tmp_path, config, n=12, **kw):
+    spec = ex.WorkerSpec(Doubler, (str(tmp_path / "marker"),), kw)
+    return dict(ex.map_tasks(spec, list(range(n)), config))
+
+
+def test_config_is_checked():
+    with pytest.raises(ReconError, match="executor must be"):
+        ex.ExecutorConfig("dask")
+    with pytest.raises(ReconError, match="at least 1"):
+        ex.ExecutorConfig(workers=0)
+    with pytest.raises(ReconError, match="needs --executor ray"):
+        ex.ExecutorConfig("local", address="127.0.0.1:6379")
+    assert ex.ExecutorConfig().in_process and not ex.ExecutorConfig(workers=2).in_process
+    assert not ex.ExecutorConfig(workers=2).remote
+    if ex.ray_available():
+        assert ex.ExecutorConfig("ray").remote
+
+
+def test_in_process_runs_every_task_in_order(tmp_path):
+    spec = ex.WorkerSpec(Doubler, (str(tmp_path / "m"),), {"pause": 0})
+    out = list(ex.map_tasks(spec, [3, 1, 2], prepare=lambda t: t + 1))
+    assert [(i, r[0]) for i, r in out] == [(0, 8), (1, 4), (2, 6)]
+    assert {r[1] for _, r in out} == {os.getpid()}
+
+
+def test_local_workers_replace_a_killed_worker_and_lose_nothing(tmp_path):
+    got = _run(tmp_path, ex.ExecutorConfig(workers=2), die_on=5)
+    assert (tmp_path / "marker").exists()  # a worker did die
+    assert sorted(got) == list(range(12)) and all(got[i][0] == 2 * i for i in got)
+    assert os.getpid() not in {r[1] for r in got.values()}
+
+
+@pytest.mark.slow
+def test_a_task_that_kills_every_worker_is_given_up_the_others_finish(tmp_path):
+    got = _run(tmp_path, ex.ExecutorConfig(workers=2, retries=1), n=6, die_on=2, always=True)
+    assert isinstance(got[2], ex.WorkerLost)
+    assert all(got[i][0] == 2 * i for i in got if i != 2)
+
+
+def test_a_worker_error_stops_the_job_as_in_this_process(tmp_path):
+    with pytest.raises(ReconError, match="task 3 is bad input"):
+        _run(tmp_path, ex.ExecutorConfig(), fail_on=3)
+    with pytest.raises(ReconError, match="task 3 is bad input"):
+        _run(tmp_path, ex.ExecutorConfig(workers=2), fail_on=3)
+    with pytest.raises(ReconError, match="no weights"):  # a worker that cannot be built
+        _run(tmp_path, ex.ExecutorConfig(workers=2), fail_on=-1)
+
+
+def test_without_ray_the_error_says_how_to_install_it(monkeypatch):
+    monkeypatch.setattr(ex, "ray", None)
+    with pytest.raises(ReconError, match=r"recon\[cluster\]"):
+        ex.ExecutorConfig("ray")
+    with pytest.raises(ReconError, match=r"recon\[cluster\]"):
+        ex.connect()
+
+
+def test_command_line_flags(capsys):
+    from recon.cli import build_parser
+
+    args = build_parser(["run"]).parse_args(["run", "x.jpg", "--out", "o", "--executor", "ray", "--workers", "3",
+                                             "--ray-address", "10.0.0.1:6379"])
+    assert (args.executor, args.workers, args.ray_address) == ("ray", 3, "10.0.0.1:6379")
+    assert main(["run", "x.jpg", "--out", "o", "--ray-address", "10.0.0.1:6379"]) == 2
+    assert "needs --executor ray" in capsys.readouterr().err
+
+
+@pytest.fixture
+def local_ray():
+    """A local Ray for the test (map_tasks then leaves it running)."""
+    ex.connect()
+    yield ex.ray
+
+
+@pytest.mark.slow
+@needs_ray
+def test_ray_runs_every_task_in_actors_and_replaces_a_killed_one(tmp_path, local_ray):
+    got = _run(tmp_path, ex.ExecutorConfig("ray", workers=2), n=16, die_on=5)
+    assert (tmp_path / "marker").exists()
+    assert sorted(got) == list(range(16)) and all(got[i][0] == 2 * i for i in got)
+    assert len({r[1] for r in got.values()}) >= 2
+
+
+@pytest.mark.slow
+@needs_ray
+def test_ray_gives_up_a_poison_task_and_surfaces_worker_errors(tmp_path, local_ray):
+    got = _run(tmp_path, ex.ExecutorConfig("ray", workers=2, retries=1), n=6, die_on=2, always=True)
+    assert isinstance(got[2], ex.WorkerLost) and all(got[i][0] == 2 * i for i in got if i != 2)
+    with pytest.raises(ReconError, match="task 3 is bad input"):
+        _run(tmp_path, ex.ExecutorConfig("ray", workers=2), fail_on=3)
+    with pytest.raises(ReconError, match="no weights"):
+        _run(tmp_path, ex.ExecutorConfig("ray", workers=2), fail_on=-1)
+
+
+def _free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+def _raylets() -> set[int]:
+    pids = set()
+    for proc in Path("/proc").iterdir():
+        try:
+            if proc.name.isdigit() and (proc / "cmdline").read_bytes().split(b"\0")[0].endswith(b"/raylet"):
+                pids.add(int(proc.name))
+        except OSError:
+            continue
+    return pids
+
+
+@pytest.mark.slow
+@needs_ray
+def test_a_lost_node_of_a_two_node_cluster_loses_no_task(tmp_path, caplog):
+    """`ray start --head` and a second raylet on the loopback address, one CPU each (with the
+    session's token, tests/conftest.py); the second node's raylet is killed while its actor has
+    tasks in flight."""
+    ray_cli = str(Path(sys.executable).with_name("ray"))
+    port = _free_port()
+    common = ["--num-cpus", "1", "--node-ip-address", "127.0.0.1", "--disable-usage-stats"]
+    if ex.ray.is_initialized():
+        ex.ray.shutdown()
+    try:
+        subprocess.run([ray_cli, "start", "--head", "--port", str(port), "--include-dashboard", "false", *common],
+                       check=True, capture_output=True, timeout=120)
+        before = _raylets()
+        subprocess.run([ray_cli, "start", "--address", f"127.0.0.1:{port}", *common], check=True,
+                       capture_output=True, timeout=120)
+        [raylet] = _raylets() - before  # the second node's
+        ex.connect(f"127.0.0.1:{port}")
+        nodes = ex.ray.nodes()
+        assert len(nodes) == 2
+        second = next(n for n in nodes if "node:__internal_head__" not in n["Resources"])
+        spec = ex.WorkerSpec(Doubler, (str(tmp_path / "m"),), {"pause": 0.3})
+        got, pids = {}, set()
+        for i, r in ex.map_tasks(spec, list(range(24)), ex.ExecutorConfig("ray", workers=2)):
+            got[i] = r
+            pids.add(r[1])
+            if len(got) == 6:
+                assert len(pids) == 2  # both nodes' actors are working
+                os.kill(raylet, signal.SIGKILL)
+        assert sorted(got) == list(range(24)) and all(got[i][0] == 2 * i for i in got)
+        assert "a Ray worker died" in caplog.text  # its tasks in flight were lost and ran again
+        deadline = time.monotonic() + 120
+        while [n["Alive"] for n in ex.ray.nodes() if n["NodeID"] == second["NodeID"]] != [False]:
+            assert time.monotonic() < deadline, "the killed node is still alive for Ray"
+            time.sleep(1)
+    finally:
+        ex.ray.shutdown()
+        subprocess.run([ray_cli, "stop", "--force"], capture_output=True, timeout=120)
