@@ -94,13 +94,14 @@ def videos(inputs: list[str | Path], out: str | Path, options: VideoOptions | No
     out = Path(out)
     check_writable(out)
     todo = names(inputs)
+    keys = list(todo)
     tasks = [(str(p.resolve()), str((out / key).resolve())) for key, p in todo.items()]  # any worker's cwd
     summary, t0 = VideosSummary(), time.time()
     bar = tqdm(total=len(tasks), desc="recon video", unit="video", disable=not progress)
     results = map_tasks(WorkerSpec(VideoWorker, (options, config or ReconstructorConfig())), tasks, executor)
     try:
         for i, r in results:
-            key, src = list(todo)[i], str(todo[list(todo)[i]])
+            key, src = keys[i], str(todo[keys[i]])
             if isinstance(r, WorkerLost):
                 r = {"status": "failed", "message": f"worker lost: {r}", "log": []}
             for line in r["log"]:
@@ -117,8 +118,7 @@ def videos(inputs: list[str | Path], out: str | Path, options: VideoOptions | No
         results.close()
         bar.close()
         summary.seconds = time.time() - t0
-        order = list(todo)
-        summary.done = dict(sorted(summary.done.items(), key=lambda kv: order.index(kv[0])))
+        summary.done = dict(sorted(summary.done.items(), key=lambda kv: keys.index(kv[0])))
         paths.write_text(out / "videos.json", json.dumps(summary.to_json(), indent=1))
     log(summary.line())
     return summary
