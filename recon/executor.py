@@ -293,6 +293,9 @@ def _ray(spec: WorkerSpec, tasks: Sequence, cfg: ExecutorConfig, prepare) -> Ite
                     i = todo.queue.popleft()
                     running[actor.run.remote(prepare(tasks[i]))] = (i, actor)
                     load[actor] += 1
+            if not load and not starting:
+                raise ReconError("every Ray worker died and none could be replaced (no free CPU left in the "
+                                 "cluster?)")
             if not load and time.monotonic() - waited_from > cfg.start_timeout:
                 raise ReconError(f"no Ray worker started within {cfg.start_timeout:.0f} s (no free CPU in the "
                                  "cluster, or the workers cannot build: run with -v for their logs)")
