@@ -206,7 +206,7 @@ def test_gpu_recipe_resumes_then_ships_only_better_weights(tmp_path, monkeypatch
 
     monkeypatch.setenv("RECON_CACHE_DIR", str(tmp_path / "cache"))
     tiny = {"stacks": 1, "width": 16, "depth_bins": 4, "levels": 2, "input_size": 64}
-    cfg = R.RecipeConfig(minutes=0.25, run_minutes=0.1, init="", lr=1e-3, batch=2, repeats=1, workers=1,
+    cfg = R.RecipeConfig(minutes=0.5, run_minutes=0.1, init="", lr=1e-3, batch=2, repeats=1, workers=1,
                          eval_every=2, val_images=2, calibrate_on=2, score_images=2, model=tiny)
     card = tmp_path / "CARD.md"
     card.write_text("# card\n\ntext\n")
