@@ -64,5 +64,25 @@ if command -v npm >/dev/null && [ ! -d "$GLTF_VALIDATOR" ]; then
     || echo "note: could not install gltf-validator with npm; the .glb validation tests will skip"
 fi
 
+# Real photographs for the other-domain benchmarks (recon.synth.photos: other-val, other-test, ...):
+# Debian's opencv-doc and hugin-data, downloaded (not installed) and their image folders extracted
+# into the cache; recon checks every file it uses against its hash.
+PHOTOS="${RECON_CACHE_DIR:-$HOME/.cache/recon}/photos"
+for spec in opencv-doc:usr/share/doc/opencv-doc/examples/data hugin-data:usr/share/hugin/xrc/data/help_en_EN; do
+  pkg=${spec%%:*}; dir=${spec#*:}
+  [ -d "$PHOTOS/$pkg/$dir" ] && continue
+  tmp=$(mktemp -d)
+  (cd "$tmp" && apt-get download -qq "$pkg" >/dev/null 2>&1) || {
+    SUDO=""; [ "$(id -u)" -ne 0 ] && SUDO="sudo"
+    $SUDO apt-get update -qq && (cd "$tmp" && apt-get download -qq "$pkg" >/dev/null 2>&1); } || true
+  if ls "$tmp"/*.deb >/dev/null 2>&1 && dpkg-deb -x "$tmp"/*.deb "$tmp/x"; then
+    mkdir -p "$(dirname "$PHOTOS/$pkg/$dir")"
+    cp -r "$tmp/x/$dir" "$PHOTOS/$pkg/$dir.part" && mv "$PHOTOS/$pkg/$dir.part" "$PHOTOS/$pkg/$dir"
+  else
+    echo "note: could not download Debian's $pkg; the other-domain benchmarks need its photographs"
+  fi
+  rm -rf "$tmp"
+done
+
 export OMP_NUM_THREADS=1
 .venv/bin/recon body build-cache

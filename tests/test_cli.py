@@ -126,13 +126,16 @@ def test_synth_generate_framing_wide_is_the_wide_benchmarks_framing(monkeypatch,
         raise SystemExit(0)
 
     monkeypatch.setattr(cli_synth.dataset, "generate", generate)
-    for framing, size in (("wide", 512), ("standard", None)):
+    for framing, size in (("wide", 512), ("standard", 256)):
         with pytest.raises(SystemExit):
             main(["synth", "generate", "--out", str(tmp_path), "--n", "2", "--framing", framing])
-        assert (seen["cfg"] and seen["cfg"].size) == size
+        assert seen["cfg"].size == size
         if framing == "wide":
             assert seen["cfg"] == cli_synth.dataset.bench_config("synth-wide-val")
-    assert seen["cfg"] is None  # standard: the generator's defaults
+    assert seen["cfg"] == cli_synth.dataset.SynthConfig()  # standard: the generator's defaults
+    with pytest.raises(SystemExit):
+        main(["synth", "generate", "--out", str(tmp_path), "--n", "2", "--dressed", "0.5", "--any-shape"])
+    assert (seen["cfg"].dressed_prob, seen["cfg"].any_shape) == (0.5, True)
     assert (seen["executor"].kind, seen["executor"].workers) == ("local", 2)  # the generator's own default
 
 

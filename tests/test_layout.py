@@ -16,6 +16,7 @@ STAGES = [
     ("recon.body",),
     ("recon.metrics", "recon.camera"),
     ("recon.poses",),
+    ("recon.garment",),  # before synth: the other domain's and the training generator's clothes
     ("recon.smplr",),
     ("recon.synth",),
     ("recon.backbone",),
@@ -23,7 +24,6 @@ STAGES = [
     ("recon.shape",),
     ("recon.fit",),
     ("recon.pipeline",),
-    ("recon.garment",),
     ("recon.viz",),
     ("recon.bench",),
     ("recon.run",),

@@ -105,7 +105,7 @@ def test_dataset_is_resumable_and_reproducible(tmp_path, body, mocap):
 def test_benchmark_runner_on_a_tiny_set(tmp_path, body, mocap, monkeypatch):
     d = dataset.generate(tmp_path / "tiny", "test", 9, 4, shard_size=4, workers=1, progress=False)
     monkeypatch.setitem(dataset.BENCHMARKS, "tiny", {"split": "test", "seed": 9, "n": 4})
-    monkeypatch.setattr(runner, "bench_dir", lambda name: d)
+    monkeypatch.setattr(runner, "open_bench", lambda name: dataset.SynthDataset(d))
     monkeypatch.setattr(runner, "CHECK_IMAGES", 2)
     md = runner.evaluate("tiny", ["mean"], out_dir=tmp_path / "res")
     data = report.read(md)

@@ -1,12 +1,13 @@
 """``recon synth`` (rendered benchmarks and training data) and ``recon eval`` (methods on a benchmark)."""
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 from recon import report
 from recon.bench import runner
 from recon.bench.methods import METHODS
-from recon.cli.parsing import COUNT, SEED, Parser, actions, add_executor, default, executor_args
+from recon.cli.parsing import COUNT, SEED, Parser, actions, add_executor, default, executor_args, number
 from recon.errors import ReconError
 from recon.executor import ExecutorConfig
 from recon.synth import dataset
@@ -34,7 +35,8 @@ def bench(args) -> None:
 
 
 def generate(args) -> None:
-    cfg = dataset.bench_config("synth-wide-test") if args.framing == "wide" else None
+    cfg = dataset.bench_config("synth-wide-test") if args.framing == "wide" else dataset.SynthConfig()
+    cfg = replace(cfg, dressed_prob=args.dressed, any_shape=args.any_shape)
     out = dataset.generate(Path(args.out), args.split, args.seed, args.n, store_vertices=not args.no_vertices,
                            cfg=cfg, executor=ExecutorConfig(**executor_args(args, RENDER_WORKERS)))
     if args.verify:
@@ -63,6 +65,10 @@ def add_synth(p: Parser) -> None:
     a.add_argument("--no-vertices", action="store_true", help="do not store vertices (smaller shards)")
     a.add_argument("--framing", default="standard", choices=["standard", "wide"],
                    help="wide: framed as the synth-wide benchmarks (512 px, people 30-90 %% of the height, off-centre)")
+    a.add_argument("--dressed", type=number(float, 0.0, 1.0), default=0.0,
+                   help="share of people dressed in CLOTH3D outfits of the training distribution (DeePSD)")
+    a.add_argument("--any-shape", action="store_true",
+                   help="bodies of any anny shape (gender anywhere in [0, 1], ages 18-80) instead of the shape prior")
     a.add_argument("--verify", action="store_true", help="re-hash the shards against the manifest")
 
 

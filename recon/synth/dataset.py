@@ -25,32 +25,92 @@ from recon import paths
 from recon.body import default_body
 from recon.errors import MissingFile, ReconError
 from recon.executor import ExecutorConfig, WorkerLost, WorkerSpec, map_tasks
+from recon.synth.crowd import CrowdConfig, CrowdSampler, EmptySampler
+from recon.synth.other import OtherConfig, OtherSceneSampler
 from recon.synth.scene import SceneSampler, SynthConfig
 
 # Fixed benchmark splits: poses of held-out mocap subjects (recon.poses.mocap.SPLIT_SUBJECTS).
 # The wide ones frame people as photos do: 512 px frames, the body 30-90 % of the height, its
 # centre anywhere in the middle 60 % of the frame, so many are small, off-centre or cut.
+# The other-* ones are the other domain (recon.synth.other): another renderer, clothes, photos,
+# shapes and framing; every choice is made on other-val. other-empty: its frames without a person;
+# other-crowd: street scenes with 4-10 people (recon.synth.crowd).
 WIDE = {"size": 512, "focal_range": (600.0, 1400.0), "fill_range": (0.3, 0.9), "shift": 0.3}
-GENERATOR = 2  # 2: float64 geometry, CPU-independent rendering (0.5.0)
+# The generators by kind: (sampler, config, version). synth 2: float64 geometry, CPU-independent
+# rendering (0.5.0); other 1 (0.12.0).
+KINDS = {"synth": (SceneSampler, SynthConfig, 2), "other": (OtherSceneSampler, OtherConfig, 1),
+         "empty": (EmptySampler, OtherConfig, 1), "crowd": (CrowdSampler, CrowdConfig, 1)}
+GENERATOR = KINDS["synth"][2]
 BENCHMARKS = {
     "synth-val": {"split": "val", "seed": 1001, "n": 2000},
     "synth-test": {"split": "test", "seed": 2002, "n": 2000},
     "synth-wide-val": {"split": "val", "seed": 1101, "n": 1000, "config": WIDE},
     "synth-wide-test": {"split": "test", "seed": 2202, "n": 1000, "config": WIDE},
+    "other-val": {"kind": "other", "split": "val", "seed": 3001, "n": 600},
+    "other-test": {"kind": "other", "split": "test", "seed": 4002, "n": 1000},
+    "other-empty-val": {"kind": "empty", "split": "val", "seed": 3101, "n": 150, "shard_size": 50},
+    "other-empty-test": {"kind": "empty", "split": "test", "seed": 4102, "n": 300, "shard_size": 50},
+    "other-crowd-val": {"kind": "crowd", "split": "val", "seed": 3201, "n": 40, "shard_size": 20},
+    "other-crowd-test": {"kind": "crowd", "split": "test", "seed": 4202, "n": 100, "shard_size": 20},
+    # views: another benchmark's images changed on reading (``open_bench``)
+    "other-val-gray": {"view": "other-val", "gray": True},
+    "other-test-gray": {"view": "other-test", "gray": True},
 }
-
-
-def bench_config(name: str) -> SynthConfig:
-    """The generator settings of a fixed benchmark."""
-    return SynthConfig(**BENCHMARKS[name].get("config", {}))
-IMAGE_KEYS = ("rgb", "mask", "silhouette", "parts", "depth")
+IMAGE_KEYS = ("rgb", "mask", "silhouette", "parts", "depth", "ids")
 ARRAY_KEYS = ("K", "R", "t", "points3d", "points2d", "pose", "shape", "vertices")
+
+
+def bench_kind(name: str) -> str:
+    b = BENCHMARKS[name]
+    return bench_kind(b["view"]) if "view" in b else b.get("kind", "synth")
+
+
+def bench_config(name: str):
+    """The generator settings of a fixed benchmark (its kind's config)."""
+    return KINDS[bench_kind(name)][1](**BENCHMARKS[name].get("config", {}))
+
+
+def make_sampler(kind: str, body, split: str, seed: int, cfg):
+    """The scene sampler of a generator kind (``KINDS``)."""
+    return KINDS[kind][0](body, split, seed, cfg)
+
+
+def bench_sampler(name: str, body):
+    """The sampler that renders sample i of a fixed benchmark on the fly."""
+    b = BENCHMARKS[BENCHMARKS[name].get("view", name)]
+    return make_sampler(bench_kind(name), body, b["split"], b["seed"], bench_config(name))
 
 
 def bench_dir(name: str) -> Path:
     if name not in BENCHMARKS:
         raise ReconError(f"unknown benchmark {name!r}; known: {', '.join(BENCHMARKS)}")
-    return paths.cache_dir() / "synth" / f"{name}-v{GENERATOR}"
+    name = BENCHMARKS[name].get("view", name)
+    return paths.cache_dir() / "synth" / f"{name}-v{KINDS[bench_kind(name)][2]}"
+
+
+def open_bench(name: str, keys: tuple[str, ...] | None = None):
+    """A fixed benchmark to read: its dataset, or for a view (``other-test-gray``) the viewed one's
+    images changed as the view says (gray: the luma in all three channels, as a black-and-white
+    photo loads)."""
+    ds = SynthDataset(bench_dir(name), keys)
+    return GrayView(ds) if BENCHMARKS[name].get("gray") else ds
+
+
+class GrayView:
+    """A dataset whose images are read as grayscale photos (``cv2``'s luma, three equal channels)."""
+
+    def __init__(self, ds):
+        self.ds, self.root = ds, getattr(ds, "root", None)
+
+    def __len__(self) -> int:
+        return len(self.ds)
+
+    def __getitem__(self, i: int) -> dict:
+        s = self.ds[i]
+        if "rgb" in s:
+            g = cv2.cvtColor(s["rgb"], cv2.COLOR_RGB2GRAY)
+            s["rgb"] = np.ascontiguousarray(np.repeat(g[..., None], 3, 2))
+        return s
 
 
 def _encode(key: str, a: np.ndarray) -> bytes:
@@ -77,16 +137,24 @@ def _decode(key: str, b: np.ndarray) -> np.ndarray:
     return a
 
 
+def _blobs(out: dict, member: str, blobs: list[bytes]) -> None:
+    out[member] = np.concatenate([np.frombuffer(b, np.uint8) for b in blobs])
+    out[member.rsplit("_", 1)[0] + "_offsets"] = np.cumsum([0] + [len(b) for b in blobs]).astype(np.int64)
+
+
 def pack(samples: list[dict], store_vertices: bool) -> dict[str, np.ndarray]:
+    """Samples -> a shard's arrays: images as PNG bytes (an ``rgb_jpg`` sample keeps its JPEG
+    bytes instead: the image is that JPEG), other arrays stacked."""
     out: dict[str, np.ndarray] = {}
-    for key in IMAGE_KEYS:
-        blobs = [np.frombuffer(_encode(key, s[key]), np.uint8) for s in samples]
-        out[key + "_png"] = np.concatenate(blobs)
-        out[key + "_offsets"] = np.cumsum([0] + [len(b) for b in blobs]).astype(np.int64)
-    for key in ARRAY_KEYS:
-        if key == "vertices" and not store_vertices:
-            continue
-        out[key] = np.stack([s[key] for s in samples])
+    jpg = "rgb_jpg" in samples[0]
+    for key in samples[0]:
+        if key == "rgb_jpg":
+            _blobs(out, "rgb_jpg", [s["rgb_jpg"] for s in samples])
+        elif key in IMAGE_KEYS:
+            if not (key == "rgb" and jpg):
+                _blobs(out, key + "_png", [_encode(key, s[key]) for s in samples])
+        elif key != "vertices" or store_vertices:
+            out[key] = np.stack([s[key] for s in samples])
     return out
 
 
@@ -95,9 +163,10 @@ class ShardWriter:
     thread). ``ship``: return the shard's bytes for the driver to write (a worker on another
     machine), else write it into ``out_dir`` here."""
 
-    def __init__(self, split: str, seed: int, cfg: dict, out_dir: str, store_vertices: bool, ship: bool = False):
+    def __init__(self, split: str, seed: int, cfg: dict, out_dir: str, store_vertices: bool, ship: bool = False,
+                 kind: str = "synth"):
         torch.set_num_threads(1)  # one process per core; also what the committed hashes were made with
-        self.scene = SceneSampler(default_body(), split, seed, SynthConfig(**cfg))
+        self.scene = make_sampler(kind, default_body(), split, seed, KINDS[kind][1](**cfg))
         self.out_dir, self.store_vertices, self.ship = Path(out_dir), store_vertices, ship
 
     def __call__(self, task: tuple[int, int, int]) -> tuple[int, str | bytes]:
@@ -123,21 +192,24 @@ def _sha256(path: Path) -> str:
 
 
 def generate(out_dir: Path, split: str, seed: int, n: int, shard_size: int = 250, workers: int = 2,
-             cfg: SynthConfig | None = None, store_vertices: bool = True, progress: bool = True,
-             executor: ExecutorConfig | None = None) -> Path:
-    """Generate (or finish generating) ``n`` samples into ``out_dir``: shards rendered by
-    ``workers`` local processes, or by ``executor`` (``recon.executor``: any kind, any number of
-    workers, the same bits)."""
-    cfg = cfg or SynthConfig()
+             cfg=None, store_vertices: bool = True, progress: bool = True,
+             executor: ExecutorConfig | None = None, kind: str = "synth") -> Path:
+    """Generate (or finish generating) ``n`` samples of a generator ``kind`` (``KINDS``) into
+    ``out_dir``: shards rendered by ``workers`` local processes, or by ``executor``
+    (``recon.executor``: any kind, any number of workers, the same bits)."""
+    config_type, version = KINDS[kind][1], KINDS[kind][2]
+    cfg = cfg or config_type()
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     meta = {"split": split, "seed": seed, "n": n, "shard_size": shard_size, "config": asdict(cfg),
-            "store_vertices": store_vertices, "generator": GENERATOR}
+            "store_vertices": store_vertices, "generator": version}
+    if kind != "synth":
+        meta["kind"] = kind
     meta = json.loads(json.dumps(meta))  # tuples -> lists, as stored
     man_path = out_dir / "manifest.json"
     manifest = json.loads(man_path.read_text()) if man_path.exists() else {**meta, "shards": {}}
     # settings added since a folder was made read as their defaults (what made it)
-    defaults = json.loads(json.dumps(asdict(SynthConfig())))
+    defaults = json.loads(json.dumps(asdict(config_type())))
     manifest["config"] = {**defaults, **manifest.get("config", {})}
     if any(manifest.get(k) != v for k, v in meta.items() if k != "n"):
         raise ReconError(f"{out_dir} holds a dataset made with other settings or another version of the "
@@ -146,7 +218,7 @@ def generate(out_dir: Path, split: str, seed: int, n: int, shard_size: int = 250
     todo = [(shard, start, min(start + shard_size, n)) for shard, start in enumerate(range(0, n, shard_size))
             if not (out_dir / f"shard-{shard:05d}.npz").exists()]
     executor = executor or ExecutorConfig(workers=workers)
-    spec = WorkerSpec(ShardWriter, (split, seed, asdict(cfg), str(out_dir), store_vertices, executor.remote))
+    spec = WorkerSpec(ShardWriter, (split, seed, asdict(cfg), str(out_dir), store_vertices, executor.remote, kind))
     bar = tqdm(total=len(todo), desc=f"synth {split}", unit="shard", disable=not progress)
     threads = torch.get_num_threads()  # in this process a worker sets one thread: restored after
     results = map_tasks(spec, todo, executor)
@@ -176,9 +248,10 @@ def reference_hashes_path(name: str) -> Path:
 
 
 def build_benchmark(name: str, workers: int = 2, n: int | None = None, executor: ExecutorConfig | None = None) -> Path:
+    name = BENCHMARKS[name].get("view", name)
     b = BENCHMARKS[name]
     return generate(bench_dir(name), b["split"], b["seed"], n or b["n"], workers=workers, cfg=bench_config(name),
-                    executor=executor)
+                    executor=executor, kind=bench_kind(name), shard_size=b.get("shard_size", 250))
 
 
 def compare_with_reference(name: str) -> list[int]:
@@ -209,7 +282,7 @@ class SynthDataset:
         return self.n
 
     def _wanted(self, member: str) -> bool:
-        key = member.removesuffix("_png").removesuffix("_offsets")
+        key = member.removesuffix("_png").removesuffix("_jpg").removesuffix("_offsets")
         return self.keys is None or key in self.keys
 
     def _shard(self, k: int) -> dict:
@@ -226,13 +299,17 @@ class SynthDataset:
         z = self._shard(i // self.shard_size)
         j = i % self.shard_size
         out = {}
-        for key in IMAGE_KEYS:
-            if key + "_png" in z:
+        for member, blob in z.items():
+            key = member.removesuffix("_png").removesuffix("_jpg")
+            if member.endswith("_offsets"):
+                continue
+            if key != member:
                 off = z[key + "_offsets"]
-                out[key] = _decode(key, z[key + "_png"][off[j]:off[j + 1]])
-        for key in ARRAY_KEYS:
-            if key in z:
-                out[key] = z[key][j]
+                data = blob[off[j]:off[j + 1]]
+                out[key] = _decode(key, data) if member.endswith("_png") else \
+                    np.ascontiguousarray(cv2.imdecode(data, cv2.IMREAD_COLOR)[..., ::-1])
+            else:
+                out[key] = blob[j]
         return out
 
     def verify(self) -> list[int]:

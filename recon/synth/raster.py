@@ -10,6 +10,8 @@ each face's shading is computed on the CPU in float64 and drawn flat.
 """
 from __future__ import annotations
 
+from functools import cache
+
 import moderngl
 import numpy as np
 
@@ -76,31 +78,56 @@ def projection(k: np.ndarray, width: int, height: int, near: float = 0.05, far: 
     ], dtype=np.float32)
 
 
+@cache
+def context() -> moderngl.Context:
+    """The process' one OpenGL context: moderngl draws into the current one, so every Rasterizer
+    shares it."""
+    kernels.pin()  # before Mesa loads (a no-op where the command line or the tests did it)
+    try:
+        return moderngl.create_standalone_context(backend="egl")
+    except Exception as e:  # noqa: BLE001 - moderngl raises plain Exceptions
+        raise ReconError(f"no EGL OpenGL context ({e}); run scripts/setup.sh (libegl1, libgl1-mesa-dri)") from e
+
+
 class Rasterizer:
     """Render triangle meshes given in camera coordinates; reuse one instance per process."""
 
     def __init__(self, width: int = 256, height: int = 256):
-        kernels.pin()  # before Mesa loads (a no-op where the command line or the tests did it)
-        try:
-            self.ctx = moderngl.create_standalone_context(backend="egl")
-        except Exception as e:  # noqa: BLE001 - moderngl raises plain Exceptions
-            raise ReconError(f"no EGL OpenGL context ({e}); run scripts/setup.sh (libegl1, libgl1-mesa-dri)") from e
+        self.ctx = context()
+        with self.ctx:
+            self.prog = self.ctx.program(vertex_shader=VERT, fragment_shader=FRAG)
+        self._fbos: dict[tuple[int, int], moderngl.Framebuffer] = {}
+        self.set_size(width, height)
+
+    def set_size(self, width: int, height: int) -> Rasterizer:
+        """Render at this size from now on (framebuffers kept per size, in the process' one context,
+        made current for each call: pyrender's may be current in between)."""
+        if (width, height) not in self._fbos:
+            with self.ctx:
+                attachments = [self.ctx.renderbuffer((width, height), 4),
+                               self.ctx.renderbuffer((width, height), 1, dtype="i4"),
+                               self.ctx.renderbuffer((width, height), 1, dtype="f4")]
+                self._fbos[(width, height)] = self.ctx.framebuffer(attachments,
+                                                                   self.ctx.depth_renderbuffer((width, height)))
         self.w, self.h = width, height
-        self.prog = self.ctx.program(vertex_shader=VERT, fragment_shader=FRAG)
-        self.color = self.ctx.renderbuffer((width, height), 4)
-        self.label = self.ctx.renderbuffer((width, height), 1, dtype="i4")
-        self.depth_out = self.ctx.renderbuffer((width, height), 1, dtype="f4")
-        self.zbuf = self.ctx.depth_renderbuffer((width, height))
-        self.fbo = self.ctx.framebuffer([self.color, self.label, self.depth_out], self.zbuf)
+        self.fbo = self._fbos[(width, height)]
+        return self
 
     def render(self, verts: np.ndarray, faces: np.ndarray, k: np.ndarray, colors: np.ndarray | None = None,
-               labels: np.ndarray | None = None, light_dir=(0.3, 0.6, 1.0), ambient: float = 0.45):
-        """Returns rgb (H,W,3) uint8, labels (H,W) int32 (-1 = background), depth (H,W) float32 (0 = bg)."""
+               labels: np.ndarray | None = None, light_dir=(0.3, 0.6, 1.0), ambient: float = 0.45,
+               flat: bool = True):
+        """Returns rgb (H,W,3) uint8, labels (H,W) int32 (-1 = background), depth (H,W) float32 (0 = bg).
+        ``flat``: each face shaded by ``face_shading``; False: the vertex colours as they are,
+        interpolated over the faces (lit by the caller)."""
+        with self.ctx:  # made current for the call (another library's GL context may be), then restored
+            return self._render(verts, faces, k, colors, labels, light_dir, ambient, flat)
+
+    def _render(self, verts, faces, k, colors, labels, light_dir, ambient, flat):
         faces = np.ascontiguousarray(faces, dtype=np.int64)
         n = len(verts)
         c = np.full((n, 3), 0.8, np.float32) if colors is None else colors.astype(np.float32)
         lab = np.zeros(n, np.int32) if labels is None else labels.astype(np.int32)
-        shade = face_shading(verts, faces, light_dir, ambient).astype(np.float32)
+        shade = (face_shading(verts, faces, light_dir, ambient) if flat else np.ones(len(faces))).astype(np.float32)
         corner = faces.reshape(-1)  # one vertex per face corner: the shade is the face's own
         data = np.concatenate([verts.astype(np.float32)[corner], c[corner], np.repeat(shade, 3)[:, None]], 1)
         vbo = self.ctx.buffer(np.ascontiguousarray(data).tobytes())

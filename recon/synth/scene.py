@@ -15,13 +15,16 @@ from functools import cache
 
 import cv2
 import numpy as np
+import roma
 import skimage.data
 import torch
+from anny.shape_distribution import SimpleShapeDistribution
 from scipy.spatial.transform import Rotation
 
 from recon import camera
 from recon.body import skeleton
 from recon.poses.sampler import PoseSampler, ShapeSampler
+from recon.synth.clothes import Wardrobe
 from recon.synth.raster import Rasterizer
 
 BACKGROUNDS = ("brick", "chelsea", "coffee", "grass", "gravel", "rocket", "cat", "clock", "coins", "colorwheel",
@@ -46,6 +49,12 @@ class SynthConfig:
     roll_sigma_deg: float = 4.0
     occluder_prob: float = 0.5
     pose_noise_deg: float = 8.0
+    # domain randomisation (0.12; the defaults render the benchmarks as before): the share of people
+    # dressed in CLOTH3D outfits of the training distribution (recon.synth.clothes), how many such
+    # outfits a stream draws, and bodies of any anny shape (gender anywhere in [0, 1], ages 18-80)
+    dressed_prob: float = 0.0
+    outfits: int = 12
+    any_shape: bool = False
 
 
 @cache
@@ -76,6 +85,24 @@ def background(rng: np.random.Generator, size: int) -> np.ndarray:
                        tuple(float(v) for v in rng.uniform(0, 255, 3)), -1)
         im += rng.normal(0, rng.uniform(0, 20), im.shape).astype(np.float32)
     return np.clip(im, 0, 255).astype(np.uint8)
+
+
+CLOTH_LABEL = 1000  # the rasteriser's label of cloth (parts: 25 = cloth, after the 24 body parts)
+
+
+def garment_colours(rng: np.random.Generator, rest: np.ndarray) -> np.ndarray:
+    """One garment's colours (N, 3): plain, striped or mottled, as the painted clothes."""
+    base = rng.uniform(0.05, 0.95, 3)
+    kind = rng.integers(3)
+    if kind == 1:
+        f, ax = rng.uniform(10, 60), rng.integers(3)
+        mod = 0.5 + 0.5 * np.sign(np.sin(f * rest[:, ax]))
+        col = base * (0.55 + 0.45 * mod[:, None])
+    elif kind == 2:
+        col = base * rng.uniform(0.7, 1.1, (len(rest), 1))
+    else:
+        col = np.tile(base, (len(rest), 1))
+    return np.clip(col, 0, 1).astype(np.float32)
 
 
 def vertex_colours(rng: np.random.Generator, rest_vertices: np.ndarray, parts: np.ndarray) -> np.ndarray:
@@ -156,6 +183,38 @@ class SceneSampler:
         self.parts = body.weights.argmax(1).numpy()
         self.faces = body.faces.numpy()
         self.raster = Rasterizer(cfg.size, cfg.size)
+        self.wardrobe = Wardrobe(self.body, seed, cfg.outfits, presets=False, held_out=False) \
+            if cfg.dressed_prob > 0 else None
+        self.age_map = SimpleShapeDistribution(body.anny).morphological_age_mapping \
+            if cfg.any_shape and hasattr(body, "anny") else None
+
+    def any_shape(self, rng: np.random.Generator) -> torch.Tensor:
+        """(1, S) every phenotype uniform in [0, 1], the age uniform over 18-80 years."""
+        names = list(self.body.shape_names)
+        s = rng.uniform(0.0, 1.0, len(names))
+        if self.age_map is not None and "age" in names:
+            years = torch.tensor([rng.uniform(18.0, 80.0)], dtype=torch.float32)
+            s[names.index("age")] = float(self.age_map.morphological_to_anny_age(years)[0])
+        return torch.tensor(s, dtype=torch.float32)[None]
+
+    def dress(self, rng: np.random.Generator, pose: torch.Tensor, shape: torch.Tensor, out, v: np.ndarray,
+              colours: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The body with an outfit of the wardrobe on (``dressed_prob``): (vertices, faces, colours,
+        labels), the cloth after the body, labelled ``CLOTH_LABEL``."""
+        labels = self.parts
+        if self.wardrobe is None or rng.random() >= self.cfg.dressed_prob:
+            return v, self.faces, colours, labels
+        k = int(rng.integers(len(self.wardrobe.outfits)))
+        o = self.wardrobe.outfits[k]
+        rot = roma.rotvec_to_rotmat(pose.double())
+        cloth = self.wardrobe.dress(k, rot, shape.double(), out, rng.uniform(0.0, 0.3))
+        col = np.zeros((len(cloth), 3), np.float32)
+        rest = o.model.rest.numpy()
+        for g in np.unique(o.garment_id):
+            m = o.garment_id == g
+            col[m] = garment_colours(rng, rest[m])
+        return (np.concatenate([v, cloth]), np.concatenate([self.faces, o.faces + len(v)]),
+                np.concatenate([colours, col]), np.concatenate([labels, np.full(len(cloth), CLOTH_LABEL)]))
 
     def sample(self, i: int) -> dict[str, np.ndarray]:
         rng = np.random.default_rng([self.seed, i])
@@ -163,16 +222,25 @@ class SceneSampler:
         yaw = Rotation.from_euler("y", rng.uniform(-180, 180), degrees=True)
         pose[0, 0] = torch.tensor((yaw * Rotation.from_rotvec(pose[0, 0].numpy())).as_rotvec(), dtype=torch.float32)
         shape = self.shape_pool[int(rng.integers(len(self.shape_pool)))][None]
+        if self.cfg.any_shape:
+            shape = self.any_shape(rng)
         with torch.no_grad():
             out = self.body(pose.double(), shape.double())
         v = out.vertices[0].numpy().astype(np.float64)
         k, r, t = sample_camera(rng, self.cfg, float(v[:, 1].max() - v[:, 1].min()))
         to_cam = lambda p: p @ r.T + t  # noqa: E731
         colours = vertex_colours(rng, out.rest_vertices[0].numpy(), self.parts)
+        mesh_v, mesh_f, colours, mesh_l = self.dress(rng, pose, shape, out, v, colours) \
+            if self.wardrobe is not None else (v, self.faces, colours, self.parts)
         light = rng.normal(0, 1, 3) * [1, 1, 0.3] + [0, 0, 1.0]
-        rgb, labels, depth = self.raster.render(to_cam(v), self.faces, k, colours, self.parts, light_dir=-light,
+        rgb, labels, depth = self.raster.render(to_cam(mesh_v), mesh_f, k, colours, mesh_l, light_dir=-light,
                                                 ambient=rng.uniform(0.3, 0.6))
-        sil = labels >= 0
+        person = labels >= 0
+        if len(mesh_v) > len(v):  # dressed: the body's own silhouette for IoU, the person's for the mask
+            sil = self.raster.render(to_cam(v), self.faces, k, None, self.parts)[1] >= 0
+            labels = np.where(labels == CLOTH_LABEL, len(skeleton.JOINT_NAMES), labels)
+        else:
+            sil = person
         img = background(rng, self.cfg.size)
         img[sil] = rgb[sil]
         occ = occlude(rng, img, sil) if rng.random() < self.cfg.occluder_prob else np.zeros_like(sil)
@@ -180,8 +248,8 @@ class SceneSampler:
         img = np.clip(img.astype(np.float32) * np.float32(rng.uniform(0.8, 1.2)) + grain, 0, 255)
         pts = to_cam(out.points[0].numpy().astype(np.float64))
         return {
-            "rgb": img.astype(np.uint8), "mask": sil & ~occ, "silhouette": sil,
-            "parts": np.where(sil, labels + 1, 0).astype(np.uint8), "depth": depth.astype(np.float16),
+            "rgb": img.astype(np.uint8), "mask": person & ~occ, "silhouette": sil,
+            "parts": np.where(person, labels + 1, 0).astype(np.uint8), "depth": depth.astype(np.float16),
             "K": k.astype(np.float32), "R": r.astype(np.float32), "t": t.astype(np.float32),
             "points3d": pts.astype(np.float32), "points2d": camera.project(pts, k).astype(np.float32),
             "pose": pose[0].numpy(), "shape": shape[0].numpy(),
