@@ -131,10 +131,11 @@ def mask_weight(cfg: FitConfig, kp: Keypoints) -> float:
 
 
 def fit_body(body, cfg: FitConfig, rot: torch.Tensor, shape: torch.Tensor, t: np.ndarray, kp: Keypoints,
-             k: np.ndarray, image_shape, device="cpu") -> FittedBody:
+             k: np.ndarray, image_shape, device="cpu", fixed: np.ndarray | None = None) -> FittedBody:
     """Fit the body (local rotations ``rot`` (24, 3, 3) with the root in the camera frame,
     ``shape`` (S,), pelvis ``t``) to the detected 2D J+ that lie inside the image and, when the
-    keypoints carry a usable mask (``mask_weight``), to the mask; camera-frame result."""
+    keypoints carry a usable mask (``mask_weight``), to the mask; camera-frame result. ``fixed``
+    (S,) bool: shape parameters that stay as given (a gender or height the user knows)."""
     dev = torch.device(device)
     w = torch.tensor(camera.inside_image(kp.points2d, image_shape), dtype=torch.float32, device=dev)
     uv = torch.tensor(kp.points2d, dtype=torch.float32, device=dev)
@@ -158,7 +159,10 @@ def fit_body(body, cfg: FitConfig, rot: torch.Tensor, shape: torch.Tensor, t: np
     def project(x):
         return camera.project(x, kk, min_depth=1e-3)
 
-    def shaped(d):  # shape offset inside the model's range
+    free = None if fixed is None else torch.tensor(~np.asarray(fixed), dtype=shape0.dtype, device=dev)
+
+    def shaped(d):  # shape offset inside the model's range, none on the fixed parameters
+        d = d if free is None else d * free
         return d if lo_hi is None else (shape0 + d).clamp(*lo_hi) - shape0
 
     for _ in range(cfg.steps):

@@ -31,6 +31,7 @@ from recon.smplr import SMPLR
 from recon.smplr.lifter import Lifter
 
 LIFTS = ("camera", "source", "blend")
+GENDERS = {"female": 1.0, "male": 0.0, "neutral": 0.5}  # anny's gender phenotype; "auto": read from the image
 
 
 class NoPersonFound(ReconError):
@@ -53,6 +54,10 @@ class Reconstruction:
     shape_names: tuple[str, ...] = ()
     timings_ms: dict = field(default_factory=dict)
     fit: dict = field(default_factory=dict)  # the fit after SMPLR: steps, silhouette weight used
+    # how sure the gender is: |2 p - 1| of the shape head's probability p of female (0: it cannot
+    # tell, and the gender is near 0.5; 1: certain, or given by the user); None without a head
+    shape_confidence: float | None = None
+    height_m: float | None = None  # standing height of the body shape (its rest mesh's vertical extent)
 
     def project(self, x: np.ndarray) -> np.ndarray:
         return camera.project(x, self.K)
@@ -87,6 +92,8 @@ class Reconstruction:
             "pose_axis_angle": r(rv),
             "shape": dict(zip(self.shape_names or [f"s{i}" for i in range(len(self.shape))], r(self.shape, 4),
                               strict=True)),
+            "shape_confidence": None if self.shape_confidence is None else round(self.shape_confidence, 3),
+            "height_m": None if self.height_m is None else round(self.height_m, 3),
             "translation": r(self.translation),
             "timings_ms": {k: round(v, 2) for k, v in self.timings_ms.items()},
             "fit": self.fit,
@@ -105,6 +112,8 @@ class ReconstructorConfig:
     the fit's 3D prior follows the same points. denoise: SMPLR's 3D DAE on the J+ first.
     retry: MediaPipe asks again on other views when it finds nobody (more people found, more
     phantoms on person-free images). guard: MediaPipe's answers scored as phantoms are refused.
+    search: where MediaPipe's detector (and its retries) finds nobody, look for a person without a
+    face (``recon.keypoints.proposals``: back views, people cut by a border, small people).
     keypoint_model: MediaPipe's landmark model, "lite", "full" or "heavy" (its own adapter and guard;
     "full" when the file asked for is not installed). fallback: where MediaPipe finds nobody, our
     backbone answers when it is confident; backbone_weight: the weight of our backbone's J+ on
@@ -113,6 +122,10 @@ class ReconstructorConfig:
     shape_head: the phenotypes ``recon.shape.FROM_MASK`` (gender, build) read from the person's mask
     by ``recon.shape.ShapeHead`` instead of SMPLR's guess from the J+ (a source with masks and
     anny-like phenotypes only).
+    gender: "auto" (read from the image by the shape head, else SMPLR's guess), or "female", "male",
+    "neutral" (anny's gender 1, 0, 0.5) for users who know. height_cm: the person's standing
+    height when known: anny's height phenotype is set to give it (with the camera's focal length
+    it also fixes the distance; a single photo cannot tell scale on its own).
     smplr_path / lifter_path / shape_head_path: other weights than the shipped ones.
     """
 
@@ -126,9 +139,12 @@ class ReconstructorConfig:
     retry: bool = True
     guard: bool = True
     keypoint_model: str = DEFAULT_MODEL
-    fallback: bool = True
-    backbone_weight: float = 0.5
+    fallback: bool = False
+    backbone_weight: float = 0.0
+    search: bool = True
     shape_head: bool = True
+    gender: str = "auto"
+    height_cm: float | None = None
     smplr_path: str | None = None
     lifter_path: str | None = None
     shape_head_path: str | None = None
@@ -163,6 +179,10 @@ class Reconstructor:
             raise ReconError(f"lift must be one of {LIFTS}, got {cfg.lift!r}")
         if cfg.keypoint_model not in MODELS:
             raise ReconError(f"keypoint_model must be one of {tuple(MODELS)}, got {cfg.keypoint_model!r}")
+        if cfg.gender != "auto" and cfg.gender not in GENDERS:
+            raise ReconError(f"gender must be auto or one of {tuple(GENDERS)}, got {cfg.gender!r}")
+        if cfg.height_cm is not None and not 50 <= cfg.height_cm <= 250:
+            raise ReconError(f"height_cm must lie between 50 and 250, got {cfg.height_cm}")
         self.config = cfg.as_installed()
         self.body = body or default_body()
         self.device = torch.device(cfg.device)
@@ -174,7 +194,7 @@ class Reconstructor:
         self.phenotypes_from_mask = FROM_MASK  # what the head gives; the rest stays SMPLR's
         self.source = (source if source is not None and not isinstance(source, str)
                        else make_source(cfg.source, self.body, cfg.device, cfg.flip, cfg.retry, cfg.guard,
-                                   self.config.keypoint_model, cfg.fallback, cfg.backbone_weight))
+                                   self.config.keypoint_model, cfg.fallback, cfg.backbone_weight, cfg.search))
 
     @property
     def fit(self) -> FitConfig:
@@ -250,10 +270,15 @@ class Reconstructor:
             points = lifted if self.lift == "camera" else 0.5 * (lifted + points)
             kps = [replace(kp, points3d=p - p[:1]) for kp, p in zip(kps, points, strict=True)]
         t1 = time.perf_counter()
-        known_shape = self._shape_from_masks(kps)
+        known_shape, confidence = self._shape_from_masks(kps)
+        known_shape = self._given_shape(known_shape, len(kps))
         t_shape = (time.perf_counter() - t1) * 1000 / len(found)
-        placed = self.smplr.lift_and_place(points, uv, kk, weights=np.where(seen, 1.0, camera.OUTSIDE_WEIGHT),
-                                           denoise=self.denoise, shape=known_shape)
+        weights = np.where(seen, 1.0, camera.OUTSIDE_WEIGHT)
+        placed = self.smplr.lift_and_place(points, uv, kk, weights=weights, denoise=self.denoise, shape=known_shape)
+        if self.config.height_cm is not None:  # SMPLR's other phenotypes at the given height, placed again
+            known_shape = self._with_height(placed.shape.cpu().numpy(), known_shape)
+            placed = self.smplr.lift_and_place(points, uv, kk, weights=weights, denoise=self.denoise,
+                                               shape=known_shape)
         t_smplr = (time.perf_counter() - t0) * 1000 / len(found) - t_shape
         for n, i in enumerate(found):
             kp, k = kps[n], kmats[n]
@@ -265,7 +290,7 @@ class Reconstructor:
             silhouette = 0.0
             if self.fit.steps:
                 t1 = time.perf_counter()
-                f = fit_body(self.body, self.fit, rot, shape, t, kp, k, images[i].shape, self.device)
+                f = fit_body(self.body, self.fit, rot, shape, t, kp, k, images[i].shape, self.device, self._fixed)
                 rot, shape, t, v, j, lm = f.rotmats, f.shape, f.translation, f.vertices, f.joints, f.landmarks
                 silhouette = f.silhouette
                 timings["refine"] = (time.perf_counter() - t1) * 1000
@@ -273,20 +298,65 @@ class Reconstructor:
                 image_size=tuple(images[i].shape[:2]), K=k, vertices=v, joints=j, landmarks=lm,
                 rotmats=rot.cpu().numpy(), shape=shape.cpu().numpy(), translation=t, keypoints=kp,
                 shape_names=tuple(getattr(self.body, "shape_names", ())), timings_ms=timings,
-                fit={"steps": self.fit.steps, "silhouette": silhouette}))
+                fit={"steps": self.fit.steps, "silhouette": silhouette},
+                shape_confidence=1.0 if self.config.gender != "auto" else confidence[n],
+                height_m=self.standing_height(shape)))
         return results
 
-    def _shape_from_masks(self, kps: list[Keypoints]) -> np.ndarray | None:
+    def _shape_from_masks(self, kps: list[Keypoints]) -> tuple[np.ndarray | None, list[float | None]]:
         """(B, S) phenotypes ``phenotypes_from_mask`` read by the shape head from each person's mask,
-        NaN elsewhere (SMPLR keeps its own); None without a head or masks."""
+        NaN elsewhere (SMPLR keeps its own), or None without a head or masks; and each person's
+        gender confidence (|2 p - 1|; None without a mask)."""
+        confidence: list[float | None] = [None] * len(kps)
         with_mask = [n for n, kp in enumerate(kps) if kp.mask is not None]
         if self.shape_head is None or not with_mask:
-            return None
+            return None, confidence
         pred = self.shape_head.predict([kps[n].mask for n in with_mask], [kps[n].points2d for n in with_mask])
         cols = [PHENOTYPES.index(p) for p in self.phenotypes_from_mask]
         shape = np.full((len(kps), len(PHENOTYPES)), np.nan)
         shape[np.ix_(with_mask, cols)] = pred[:, cols]
-        return shape
+        for n, p in zip(with_mask, pred[:, PHENOTYPES.index("gender")], strict=True):
+            confidence[n] = float(abs(2.0 * p - 1.0))
+        return shape, confidence
+
+    def standing_height(self, shape: torch.Tensor) -> float:
+        """A body shape's standing height (m): its rest mesh's vertical extent."""
+        with torch.no_grad():
+            v = self.body.rest_geometry(shape.reshape(1, -1).to(self.body.mean_shape))[0][0]
+        return float(v[:, 1].max() - v[:, 1].min())
+
+    @property
+    def _fixed(self) -> np.ndarray | None:
+        """(S,) the phenotypes the user gave (gender, height), which the fit keeps."""
+        names = list(getattr(self.body, "shape_names", ()))
+        fixed = np.array([(n == "gender" and self.config.gender != "auto")
+                          or (n == "height" and self.config.height_cm is not None) for n in names])
+        return fixed if fixed.any() else None
+
+    def _given_shape(self, known: np.ndarray | None, b: int) -> np.ndarray | None:
+        """``known`` with the gender the user gave (``config.gender``)."""
+        names = list(getattr(self.body, "shape_names", ()))
+        if self.config.gender == "auto" or "gender" not in names:
+            return known
+        known = np.full((b, len(names)), np.nan) if known is None else known.copy()
+        known[:, names.index("gender")] = GENDERS[self.config.gender]
+        return known
+
+    def _with_height(self, shape: np.ndarray, known: np.ndarray | None) -> np.ndarray:
+        """``known`` with anny's height phenotype set so that each body (its other phenotypes:
+        ``shape`` (B, S)) stands ``config.height_cm`` tall (the nearest reachable height)."""
+        names = list(self.body.shape_names)
+        h = names.index("height")
+        known = np.full_like(shape, np.nan) if known is None else known.copy()
+        grid = np.linspace(0.0, 1.0, 21)
+        for n, s in enumerate(shape):
+            trial = np.repeat(np.where(np.isnan(known[n]), s, known[n])[None], len(grid), 0)
+            trial[:, h] = grid
+            with torch.no_grad():
+                v = self.body.rest_geometry(torch.tensor(trial, dtype=self.body.mean_shape.dtype))[0]
+            heights = (v[..., 1].amax(1) - v[..., 1].amin(1)).cpu().numpy() * 100.0
+            known[n, h] = float(np.interp(self.config.height_cm, heights, grid))  # heights grow with it
+        return known
 
     def posed_body(self, rec: Reconstruction):
         """Re-run the body model from the reconstruction's parameters (camera frame)."""

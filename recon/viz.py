@@ -1,4 +1,5 @@
-"""Offscreen rendering of body meshes with pyrender (demo pictures, overlays).
+"""Offscreen rendering of body meshes: pyrender for demo pictures; the synthetic renderer
+(``draw_overlay``, ``draw_meshes``, lit per vertex, ~20x faster) for `recon run`'s outputs.
 
 Needs the ``render`` extra and EGL or OSMesa (scripts/setup.sh installs both). The
 platform is taken from $PYOPENGL_PLATFORM, default "egl", falling back to "osmesa".
@@ -13,6 +14,8 @@ import trimesh
 
 from recon import camera
 from recon.errors import ReconError
+from recon.synth.clothes import vertex_normals
+from recon.synth.raster import Rasterizer
 
 
 def _pyrender():
@@ -37,6 +40,21 @@ def look_at(eye: np.ndarray, target: np.ndarray, up=(0.0, 1.0, 0.0)) -> np.ndarr
     pose = np.eye(4)
     pose[:3, 0], pose[:3, 1], pose[:3, 2], pose[:3, 3] = x, y, z, eye
     return pose
+
+
+_RENDERERS: dict[tuple[int, int], object] = {}
+KEEP_RENDERERS = 4  # offscreen renderers kept by size: making and deleting one costs more than a picture
+
+
+def _kept(pyrender, width: int, height: int):
+    """An offscreen renderer of this size, kept for the next picture (the oldest of more than
+    ``KEEP_RENDERERS`` sizes is deleted)."""
+    key = (width, height)
+    if key not in _RENDERERS:
+        if len(_RENDERERS) >= KEEP_RENDERERS:
+            _RENDERERS.pop(next(iter(_RENDERERS))).delete()
+        _RENDERERS[key] = _offscreen(pyrender, width, height)
+    return _RENDERERS[key]
 
 
 def _offscreen(pyrender, width: int, height: int):
@@ -78,11 +96,7 @@ def render_meshes(meshes: list[tuple[np.ndarray, np.ndarray, tuple]], size=(512,
     center = 0.5 * (allv.min(0) + allv.max(0)) if center is None else np.asarray(center, float)
     extent = float(np.max(allv.max(0) - allv.min(0)))
     scene = _front_scene(pyrender, meshes, center, distance or 1.6 * extent + 0.5, yaw_deg)
-    renderer = _offscreen(pyrender, *size)
-    try:
-        color, _ = renderer.render(scene)
-    finally:
-        renderer.delete()
+    color, _ = _kept(pyrender, *size).render(scene)
     return np.ascontiguousarray(color[..., :3])
 
 
@@ -127,10 +141,74 @@ def render_overlay(rgb: np.ndarray, meshes: list[tuple[np.ndarray, np.ndarray, t
     far = float(max(np.abs(m[0][:, 2]).max() for m in meshes)) * 2.0 + 1.0
     scene.add(pyrender.IntrinsicsCamera(k[0, 0], k[1, 1], k[0, 2], k[1, 2], znear=0.05, zfar=far))
     scene.add(pyrender.DirectionalLight(intensity=3.0))
-    renderer = _offscreen(pyrender, w, h)
-    try:
-        color, depth = renderer.render(scene)
-    finally:
-        renderer.delete()
+    color, depth = _kept(pyrender, w, h).render(scene)
     a = (depth > 0)[..., None] * alpha  # depth, not colour alpha: OSMesa ignores RGBA
     return (rgb * (1 - a) + color[..., :3] * a + 0.5).astype(np.uint8)
+
+
+# --- fast pictures for `recon run`'s outputs: the synthetic renderer (moderngl), lit per vertex ----
+
+_RASTER: list = []
+
+
+def _raster(w: int, h: int):
+    """The process' rasteriser (``recon.synth.raster``) at this size."""
+    if not _RASTER:
+        _RASTER.append(Rasterizer(w, h))
+    return _RASTER[0].set_size(w, h)
+
+
+def _lit(meshes, light_dirs, ambient: float):
+    """One mesh of all ``meshes`` (camera frame) with per-vertex colours: each mesh's colour under
+    ``ambient`` plus Lambert light from ``light_dirs`` (towards the lights), normals facing the camera."""
+    verts, faces, cols, off = [], [], [], 0
+    for v, f, rgba in meshes:
+        v = np.asarray(v, np.float64)
+        n = vertex_normals(v, np.asarray(f))
+        view = -v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-9)
+        n = np.where(((n * view).sum(1) < 0)[:, None], -n, n)
+        shade = ambient + sum(w * np.maximum(n @ (d / np.linalg.norm(d)), 0.0) for d, w in light_dirs)
+        cols.append(np.clip(np.asarray(rgba[:3], np.float64)[None] * shade[:, None], 0, 1))
+        verts.append(v)
+        faces.append(np.asarray(f) + off)
+        off += len(v)
+    return np.concatenate(verts), np.concatenate(faces), np.concatenate(cols)
+
+
+def draw_overlay(rgb: np.ndarray, meshes: list[tuple[np.ndarray, np.ndarray, tuple]], k: np.ndarray,
+                 alpha: float = 0.75) -> np.ndarray:
+    """``render_overlay`` with the synthetic renderer: meshes in the OpenCV camera frame of ``k``,
+    lit from the camera, anti-aliased (twice the size, averaged), blended over the photo."""
+    h, w = rgb.shape[:2]
+    v, f, c = _lit(meshes, [((0.0, 0.0, -1.0), 0.6), ((0.3, -0.8, -0.4), 0.25)], 0.3)
+    k2 = np.array(k, np.float64)
+    k2[:2, :2] *= 2
+    k2[:2, 2] = 2 * k2[:2, 2] + 0.5
+    col, lab, _ = _raster(2 * w, 2 * h).render(v, f, k2, c, flat=False)
+    a = (lab >= 0).astype(np.float32)
+    cov = 0.25 * (a[0::2, 0::2] + a[1::2, 0::2] + a[0::2, 1::2] + a[1::2, 1::2])[..., None] * alpha
+    c2 = col.astype(np.float32)
+    person = 0.25 * (c2[0::2, 0::2] + c2[1::2, 0::2] + c2[0::2, 1::2] + c2[1::2, 1::2])
+    mean = person / np.maximum(cov / max(alpha, 1e-6), 1e-6)  # the covered sub-samples' colour
+    return np.clip(rgb * (1 - cov) + mean * cov + 0.5, 0, 255).astype(np.uint8)
+
+
+def draw_meshes(meshes: list[tuple[np.ndarray, np.ndarray, tuple]], size=(512, 512), yaw_deg: float = 0.0
+                ) -> np.ndarray:
+    """``render_meshes`` with the synthetic renderer: [(vertices, faces, rgba)] in the body frame
+    (+Y up) seen from the front turned by ``yaw_deg``, on white, (H, W, 3) uint8; ``size`` (W, H)."""
+    w, h = size
+    allv = np.concatenate([m[0] for m in meshes])
+    centre = 0.5 * (allv.min(0) + allv.max(0))
+    extent = float(np.max(allv.max(0) - allv.min(0)))
+    yaw = np.radians(yaw_deg)
+    # body -> OpenCV camera: turn by -yaw about +Y, then the half turn about X (the camera faces +Z)
+    r = camera.HALF_TURN_X @ np.array([[np.cos(yaw), 0, -np.sin(yaw)], [0, 1, 0], [np.sin(yaw), 0, np.cos(yaw)]])
+    f = 0.5 * h / np.tan(np.radians(20.0))  # pyrender's 40 degree field of view
+    dist = 1.6 * extent + 0.5
+    cam = [((m[0] - centre) @ r.T + [0.0, 0.0, dist], m[1], m[2]) for m in meshes]
+    v, fc, c = _lit(cam, [((0.0, 0.0, -1.0), 0.55), ((0.4, -1.0, -0.5), 0.3)], 0.35)
+    k = np.array([[2 * f, 0, w + 0.5], [0, 2 * f, h + 0.5], [0, 0, 1.0]])
+    col, lab, _ = _raster(2 * w, 2 * h).render(v, fc, k, c, flat=False)
+    img = np.where((lab >= 0)[..., None], col, 255).astype(np.int32)
+    return ((img[0::2, 0::2] + img[1::2, 0::2] + img[0::2, 1::2] + img[1::2, 1::2] + 2) // 4).astype(np.uint8)

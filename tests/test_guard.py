@@ -66,7 +66,7 @@ def test_no_body_on_person_free_images(name):
     img = np.asarray(getattr(skimage.data, name)())
     img = np.ascontiguousarray(np.repeat(img[..., None], 3, 2) if img.ndim == 2 else img[..., :3]).astype(np.uint8)
     k = camera.default_intrinsics(*img.shape[:2])
-    src = MediaPipeSource(fallback=True)  # recon run's: nor does the backbone stand in there
+    src = MediaPipeSource(fallback=True, search=True)  # nor do the backbone or the faceless search find one
     assert src(img, k) is None
     assert src.people(img, k, 4) == []  # nor when asked for several people
 

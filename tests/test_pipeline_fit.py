@@ -6,6 +6,7 @@ import pytest
 import torch
 
 from recon import camera
+from recon.errors import ReconError
 from recon.fit import FitConfig, SilhouetteTarget, fit_body, linear_rest_geometry, mask_weight
 from recon.keypoints import Keypoints
 from recon.pipeline import Reconstructor
@@ -173,3 +174,39 @@ def test_reconstructor_takes_gender_and_build_from_the_shape_head(body, mocap):
     assert "shape" in r.timings_ms
     bare = Reconstructor(body=body, source=no_mask, fit=FitConfig(steps=0))(img, k)
     np.testing.assert_allclose(bare.shape, plain.shape, atol=1e-6)
+
+
+@pytest.mark.skipif(not SHAPE_WEIGHTS.exists(), reason="no shipped shape head weights")
+def test_a_gender_and_height_the_user_gives_are_kept(body):
+    """``gender`` fixes anny's gender (1 female, 0 male) through SMPLR and the fit (which moves the
+    shape with a mask), with confidence 1; ``height_cm`` sets the height phenotype so the body stands
+    that tall; "auto" reports the shape head's confidence |2p - 1|."""
+    batch = generate(body, "test", 1, seed=7, noise_deg=0.0)
+    with torch.no_grad():
+        gt = body(batch["rotmats"], batch["shape"])
+    root, offset = gt.points[0, :1].double().numpy(), np.array([0.0, 0.1, 3.0])
+    cam = camera.to_opencv(gt.points[0].double().numpy() - root) + offset
+    verts = camera.to_opencv(gt.vertices[0].double().numpy() - root) + offset
+    k = camera.default_intrinsics(480, 640)
+    uv = camera.project(cam, k)
+    mask = _mask(verts, body.faces.numpy(), k, (480, 640))
+
+    def source(rgb, kk):
+        return Keypoints(cam - cam[:1], uv, 1.0, (0.0, 0.0, 640.0, 480.0), mask)
+    source.name = "fake"
+
+    img = np.zeros((480, 640, 3), np.uint8)
+    g = PHENOTYPES.index("gender")
+    for gender, value in (("male", 0.0), ("female", 1.0), ("neutral", 0.5)):
+        r = Reconstructor(body=body, source=source, fit=FitConfig(steps=10), gender=gender)(img, k)
+        assert r.shape[g] == pytest.approx(value, abs=1e-6) and r.shape_confidence == 1.0
+    auto = Reconstructor(body=body, source=source, fit=FitConfig(steps=0))
+    r = auto(img, k)
+    p = auto.shape_head.predict([mask], [uv])[0, g]
+    assert r.shape_confidence == pytest.approx(abs(2 * p - 1), abs=1e-6)
+    assert r.to_json()["shape_confidence"] == pytest.approx(r.shape_confidence, abs=1e-3)
+    for cm in (160.0, 185.0):
+        r = Reconstructor(body=body, source=source, fit=FitConfig(steps=10), height_cm=cm)(img, k)
+        assert r.height_m == pytest.approx(cm / 100, abs=0.01)
+    with pytest.raises(ReconError):
+        Reconstructor(body=body, source=source, gender="other")

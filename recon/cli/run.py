@@ -29,7 +29,7 @@ from recon.garment.resize import TIGHTNESS_RANGE
 from recon.garment.templates import PRESETS
 from recon.keypoints import SOURCES
 from recon.keypoints.mediapipe import MODELS
-from recon.pipeline import LIFTS, ReconstructorConfig
+from recon.pipeline import GENDERS, LIFTS, ReconstructorConfig
 from recon.run import RunOptions, run
 
 FOCAL = number(float, 0.05, 20.0)  # in units of the longer image side: a fisheye to a long telephoto
@@ -45,7 +45,8 @@ def run_images(args) -> int:
     config = ReconstructorConfig(source=args.source, device=args.device, flip=args.flip, lift=args.lift,
                                  retry=args.retry, guard=args.guard, keypoint_model=args.keypoint_model,
                                  fallback=args.fallback, backbone_weight=args.backbone_weight,
-                                 shape_head=args.shape_head,
+                                 shape_head=args.shape_head, search=args.search, gender=args.gender,
+                                 height_cm=args.height_cm,
                                  fit=FitConfig(steps=args.refine_steps, silhouette=args.silhouette),
                                  **({} if args.focal is None else {"focal_factor": args.focal}))
     options = RunOptions(outfit=args.outfit, tightness=args.tightness, max_people=args.max_people,
@@ -119,6 +120,15 @@ def add_run(p: Parser) -> None:
     p.add_argument("--shape-head", action=argparse.BooleanOptionalAction, default=default(cfg, "shape_head"),
                    help="gender and build read from the person's mask (recon.shape) rather than guessed from the "
                         "keypoints by SMPLR")
+    p.add_argument("--search", action=argparse.BooleanOptionalAction, default=default(cfg, "search"),
+                   help="MediaPipe: where its face-anchored detector finds nobody, look for a person without a face "
+                        "(back views, people cut by a border, small people)")
+    p.add_argument("--gender", choices=("auto", *GENDERS), default=default(cfg, "gender"),
+                   help="the body's gender when you know it (auto: read from the person's outline; result.json's "
+                        "shape_confidence says how sure)")
+    p.add_argument("--height-cm", type=number(float, 50.0, 250.0), default=None,
+                   help="the person's standing height when you know it: sets the body's height, and with the focal "
+                        "length its distance (a single photo cannot tell scale: docs/pipeline.md)")
     p.add_argument("--lift", choices=LIFTS, default=default(cfg, "lift"),
                    help="SMPLR's 3D J+: the camera-aware lifter on the 2D keypoints, or the source's own 3D")
     p.add_argument("--flip", action=argparse.BooleanOptionalAction, default=None,

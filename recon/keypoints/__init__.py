@@ -17,16 +17,17 @@ SOURCES = ("mediapipe", "backbone")
 
 def make_source(name: str = "mediapipe", body=None, device: str = "cpu", flip: bool | None = None,
                 retry: bool = True, guard: bool = True, keypoint_model: str = DEFAULT_MODEL,
-                fallback: bool = False, backbone_weight: float = 0.0) -> KeypointSource:
+                fallback: bool = False, backbone_weight: float = 0.0, search: bool = False) -> KeypointSource:
     """Keypoint source by name: "mediapipe" (default) or "backbone". ``flip`` (test-time mirror
     averaging, see each source): None = the source's default, on for MediaPipe (cheap next to
     the fit), off for the backbone (its 100 ms latency goal). ``retry``: MediaPipe's retries on
     other views when it finds nobody; ``guard``: refuse MediaPipe's phantoms; ``keypoint_model``:
     MediaPipe's landmark model, "lite", "full" or "heavy"; ``fallback``: our backbone where MediaPipe
-    finds nobody; ``backbone_weight``: its share of the J+ of MediaPipe's people (all ``MediaPipeSource``)."""
+    finds nobody; ``backbone_weight``: its share of the J+ of MediaPipe's people; ``search``: look for
+    people its detector misses without a face (``recon.keypoints.proposals``; all ``MediaPipeSource``)."""
     if name == "mediapipe":
         return MediaPipeSource(flip=True if flip is None else flip, retry=retry, guard=guard, model=keypoint_model,
-                               fallback=fallback, backbone_weight=backbone_weight)
+                               fallback=fallback, backbone_weight=backbone_weight, search=search)
     if name == "backbone":
         return BackboneSource(body, device=device, flip=bool(flip))
     raise ReconError(f"unknown keypoint source {name!r}; choose one of {', '.join(SOURCES)}")

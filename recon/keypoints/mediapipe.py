@@ -30,6 +30,17 @@ class MPPose:
     visibility: np.ndarray  # (33,) in [0, 1]
     world: np.ndarray  # (33, 3) metres, hip-centred, camera-aligned axes (OpenCV: y down, z forward)
     mask: np.ndarray | None  # (H, W) bool person mask
+    aux: np.ndarray | None = None  # (2, 2) pixels: the hips' centre and a point above the head (its ROI)
+
+    def roi(self) -> tuple[float, float, float, float]:
+        """The region MediaPipe would look at next for this person (its tracking rule): (centre x,
+        centre y, side, rotation in radians) in pixels, from ``aux`` (else the landmarks' box)."""
+        if self.aux is None:
+            x0, y0, x1, y1 = self.box(0.0)
+            return 0.5 * (x0 + x1), 0.5 * (y0 + y1), 1.25 * max(x1 - x0, y1 - y0), 0.0
+        c, top = self.aux
+        d = top - c
+        return float(c[0]), float(c[1]), float(2.5 * np.hypot(*d)), float(np.arctan2(d[0], -d[1]))
 
     def box(self, margin: float = 0.15) -> tuple[float, float, float, float]:
         """(x0, y0, x1, y1) around the visible landmarks, grown by ``margin`` of its size."""
@@ -123,3 +134,63 @@ class MediaPipePose:
 
     def close(self) -> None:
         self.pose.close()
+
+
+ROI_GRAPH = """
+input_stream: "image"
+input_stream: "roi"
+output_stream: "landmarks"
+output_stream: "aux"
+output_stream: "world_landmarks"
+output_stream: "segmentation_mask"
+node {
+  calculator: "PoseLandmarkByRoiCpu"
+  input_side_packet: "MODEL_COMPLEXITY:model_complexity"
+  input_side_packet: "ENABLE_SEGMENTATION:enable_segmentation"
+  input_stream: "IMAGE:image"
+  input_stream: "ROI:roi"
+  output_stream: "LANDMARKS:landmarks"
+  output_stream: "AUXILIARY_LANDMARKS:aux"
+  output_stream: "WORLD_LANDMARKS:world_landmarks"
+  output_stream: "SEGMENTATION_MASK:segmentation_mask"
+}
+"""
+
+
+class MediaPipeLandmarks:
+    """MediaPipe's landmark model alone on a region of the image, without its face-anchored person
+    detector: ``MediaPipeLandmarks()(rgb, roi) -> MPPose | None``, ``roi`` = (centre x, centre y,
+    side, rotation in radians) in pixels, a square the model sees upright. None where the model's
+    own presence score says nobody is there (MediaPipe's threshold, 0.5). What finds people the
+    detector misses: back views, bodies cut by a border (``recon.keypoints.sources``)."""
+
+    def __init__(self, model: str = "full", segmentation: bool = True):
+        if not available():
+            raise ReconError("mediapipe is not installed: scripts/setup.sh installs mediapipe==0.10.21")
+        from mediapipe.framework.formats import rect_pb2  # noqa: PLC0415 - optional extra
+        from mediapipe.python.solution_base import SolutionBase  # noqa: PLC0415
+
+        self.model = resolve_model(model)
+        self._rect = rect_pb2.NormalizedRect
+        with quiet_native_logs():
+            self.graph = SolutionBase(graph_config=ROI_GRAPH, side_inputs={
+                "model_complexity": MODELS[self.model], "enable_segmentation": segmentation})
+
+    def __call__(self, rgb: np.ndarray, roi: tuple[float, float, float, float]) -> MPPose | None:
+        h, w = rgb.shape[:2]
+        cx, cy, side, rot = roi
+        rect = self._rect(x_center=cx / w, y_center=cy / h, width=side / w, height=side / h, rotation=rot)
+        with quiet_native_logs():
+            r = self.graph.process({"image": np.ascontiguousarray(rgb), "roi": rect})
+        if r.landmarks is None or r.world_landmarks is None:
+            return None
+        lm = r.landmarks.landmark
+        xy = np.array([[p.x * w, p.y * h] for p in lm], np.float64)[:NUM_MP]
+        vis = np.array([p.visibility for p in lm], np.float64)[:NUM_MP]
+        world = np.array([[p.x, p.y, p.z] for p in r.world_landmarks.landmark], np.float64)[:NUM_MP]
+        aux = np.array([[p.x * w, p.y * h] for p in r.aux.landmark], np.float64) if r.aux is not None else None
+        mask = None if r.segmentation_mask is None else np.asarray(r.segmentation_mask) > 0.5
+        return MPPose(xy, vis, world, mask, aux)
+
+    def close(self) -> None:
+        self.graph.close()

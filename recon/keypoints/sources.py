@@ -20,6 +20,7 @@ from recon.keypoints import guard as person_guard
 from recon.keypoints.adapter import MP_MIRROR, KeypointAdapter
 from recon.keypoints.base import Keypoints
 from recon.keypoints.mediapipe import DEFAULT_MODEL, MediaPipePose, MPPose
+from recon.keypoints.proposals import MIN_SCORE, PersonSearch
 
 GRAY_TINT = (1.05, 0.85, 0.85)  # a warm tint for grayscale images; the choice: CHANGELOG 0.5.0
 GRAY_SMALL = 256  # grayscale images are also searched at this longer side
@@ -141,7 +142,8 @@ class MediaPipeSource:
     name = "mediapipe"
 
     def __init__(self, adapter_path=None, flip: bool = True, retry: bool = True, guard: bool = True,
-                 model: str = DEFAULT_MODEL, fallback: bool = False, backbone_weight: float = 0.0):
+                 model: str = DEFAULT_MODEL, fallback: bool = False, backbone_weight: float = 0.0,
+                 search: bool = False):
         self.mp = MediaPipePose(model)
         self.model = self.mp.model  # the model that runs (full when the file asked for is missing)
         self.adapter = KeypointAdapter.load(adapter_path, self.model)
@@ -151,6 +153,24 @@ class MediaPipeSource:
         self.last_view = None  # which view found the person in the last call (None: nobody)
         self.fallback, self.backbone_weight = fallback, backbone_weight
         self._backbone: BackboneSource | None = None
+        self.search = search
+        self._searcher: PersonSearch | None = None
+
+    @property
+    def searcher(self) -> PersonSearch:
+        if self._searcher is None:
+            self._searcher = PersonSearch(self.model, min_score=MIN_SCORE if self.guard else -np.inf)
+        return self._searcher
+
+    def _search(self, rgb: np.ndarray, k: np.ndarray) -> Keypoints | None:
+        """A person the detector missed, found without a face (``PersonSearch``), or None."""
+        found = self.searcher(rgb)
+        if found is None:
+            return None
+        r, score = found
+        p3, uv = self.adapter.predict(r, k)
+        self.last_view = "search"
+        return Keypoints(p3, uv, float(np.mean(r.visibility)), r.box(), r.mask, score, self.name + "-search")
 
     @property
     def backbone(self) -> BackboneSource:
@@ -229,28 +249,35 @@ class MediaPipeSource:
         return None
 
     def __call__(self, rgb: np.ndarray, k: np.ndarray) -> Keypoints | None:
-        kp = self._find(rgb, k, self.retry, strict=False)
+        kp = self._find(rgb, k, self.retry, strict=False, search=self.search)
         return self._fallback(rgb, k) if kp is None else self._with_backbone(rgb, k, kp)
 
-    def _find(self, rgb: np.ndarray, k: np.ndarray, retry: bool, strict: bool) -> Keypoints | None:
-        """``__call__`` with its retries on or off; ``strict``: even the first answer needs a retry
-        view's evidence (``people`` on windows, which are upscaled views). MediaPipe's detector misses
-        many people in grayscale images: those are searched tinted, as they are, then tinted at
-        ``GRAY_SMALL`` px (the answer mapped back to the image)."""
+    def _find(self, rgb: np.ndarray, k: np.ndarray, retry: bool, strict: bool, search: bool = False
+              ) -> Keypoints | None:
+        """``__call__`` with its retries and the faceless search on or off; ``strict``: even the first
+        answer needs a retry view's evidence (``people`` on windows, which are upscaled views).
+        MediaPipe's detector misses many people in grayscale images: those are searched tinted, as
+        they are, then tinted at ``GRAY_SMALL`` px (the answer mapped back to the image), and only
+        then without a face (as they are, then tinted)."""
         if not is_grayscale(rgb):
-            return self._find_in(rgb, k, retry, strict)
+            return self._find_in(rgb, k, retry, strict, search)
         warm = tinted(rgb)
         found = self._find_in(warm, k, retry, strict) or self._find_in(rgb, k, retry, strict)
         f = GRAY_SMALL / max(rgb.shape[:2])
-        if found is not None or f >= 1.0:
-            return found
-        small = cv2.resize(warm, (round(rgb.shape[1] * f), round(rgb.shape[0] * f)), interpolation=cv2.INTER_AREA)
-        ks = np.array(k, float)
-        ks[:2] *= f
-        found = self._find_in(small, ks, retry, strict)
-        return None if found is None else _scaled(found, 1.0 / f, rgb.shape)
+        if found is None and f < 1.0:
+            small = cv2.resize(warm, (round(rgb.shape[1] * f), round(rgb.shape[0] * f)),
+                               interpolation=cv2.INTER_AREA)
+            ks = np.array(k, float)
+            ks[:2] *= f
+            found = self._find_in(small, ks, retry, strict)
+            found = None if found is None else _scaled(found, 1.0 / f, rgb.shape)
+        if found is None and search:  # the faceless search finds more in the gray itself than tinted
+            found = self._search(rgb, k) or self._search(warm, k)
+        return found
 
-    def _find_in(self, rgb: np.ndarray, k: np.ndarray, retry: bool, strict: bool) -> Keypoints | None:
+    def _find_in(self, rgb: np.ndarray, k: np.ndarray, retry: bool, strict: bool,
+                 search: bool = False) -> Keypoints | None:
+        """The detector on the image, then its retries (``retry``), then the faceless search (``search``)."""
         found = self._detect(rgb, k)
         score = None if found is None else self._person(found[0], rgb, retry=strict)
         found = None if score is None else found
@@ -261,7 +288,7 @@ class MediaPipeSource:
                 r, p3, uv, score = found
                 return Keypoints(p3, uv, float(np.mean(r.visibility)), r.box(), r.mask, score, self.name)
         if found is None:
-            return None
+            return self._search(rgb, k) if search else None
         r, p3, uv = found
         box = r.box()
         if self.flip:
@@ -301,6 +328,7 @@ class MediaPipeSource:
                 # the retries rescue a missed lone person (on painted images they invent); a window
                 # is an upscaled view: its answers need a retry's evidence
                 kp = self._find(np.ascontiguousarray(work[y0:y1, x0:x1]), kw, retry=self.retry and not found,
+                                search=self.search and not found and n_view == 0,
                                 strict=n_view > 0)
                 if kp is None:
                     break
@@ -309,6 +337,12 @@ class MediaPipeSource:
                     break
                 found.append(kp)
                 work = blank_person(work, kp)
+        while self.search and found and len(found) < max_people:  # people the detector missed
+            kp = self._search(work, k)
+            if kp is None or any(same_person(kp, f) for f in found):
+                break
+            found.append(kp)
+            work = blank_person(work, kp)
         return [self._with_backbone(rgb, k, kp) for kp in found]
 
 

@@ -15,7 +15,7 @@ from recon.body import skeleton
 from recon.garment.gltf import write_glb
 from recon.pipeline import Reconstruction
 from recon.poses.bvh import write_bvh
-from recon.viz import render_meshes, render_overlay
+from recon.viz import draw_meshes, draw_overlay
 
 BODY_RGBA = (0.45, 0.62, 0.92, 1.0)
 DRESSED_BODY_RGBA = (0.85, 0.75, 0.68, 1.0)
@@ -54,7 +54,7 @@ def write_people(folder: Path, src: Path, img, small, s: float, k_small, people:
         write_person(folder / f"person_{i}", src, img, small, s, k_small, r, rec, options, dresser, focal_from, stamp)
     if options.overlay:
         meshes = [(r.vertices, rec.faces, OVERLAY_COLOURS[i % len(OVERLAY_COLOURS)]) for i, r in enumerate(people)]
-        paths.write_image(folder / "overlay.png", render_overlay(small, meshes, k_small))
+        paths.write_image(folder / "overlay.png", draw_overlay(small, meshes, k_small))
     index = {"source": str(src), "image_size": list(img.shape[:2]), "count": len(people),
              "people": [{"folder": f"person_{i}", "box": np.round(np.asarray(r.keypoints.box) / s, 1).tolist(),
                          "confidence": round(r.keypoints.confidence, 4)} for i, r in enumerate(people)],
@@ -89,9 +89,9 @@ def write_person(folder: Path, src: Path, img, small, s: float, k_small, r: Reco
         write_rigged_glb(folder / "dressed.glb", rec.body, r, small.shape[:2], k_small, dresser, tightness)
         meshes = [(r.vertices, faces, DRESSED_BODY_RGBA), (d.vertices[0], d.faces, OUTFIT_RGBA)]
     if options.overlay:
-        paths.write_image(folder / "overlay.png", render_overlay(small, meshes, k_small))
+        paths.write_image(folder / "overlay.png", draw_overlay(small, meshes, k_small))
         if min(small.shape[:2]) >= 64:
-            side = render_meshes([(camera.to_view(m[0]), m[1], m[2]) for m in meshes],
+            side = draw_meshes([(camera.to_view(m[0]), m[1], m[2]) for m in meshes],
                                  size=(small.shape[0] // 2 * 2, ) * 2, yaw_deg=90)
             paths.write_image(folder / "side.png", side)
     js = r.to_json()

@@ -22,6 +22,10 @@ from recon import paths
 
 WEIGHTS = Path(__file__).resolve().parent / "weights" / "shape_head.pt"
 PHENOTYPES = ("gender", "age", "muscle", "weight", "height", "proportions")  # anny's, in its order
+# The gender logit is divided by this at inference: the head, trained on undressed renders, is
+# surer than it is right on dressed people; the temperature that calibrates it was fitted on
+# other-val (the model card), so that where an outline does not tell the gender stays near 0.5.
+GENDER_TEMPERATURE = 3.4
 
 
 @dataclass
@@ -77,12 +81,14 @@ class ShapeHead(nn.Module):
         return torch.cat([torch.sigmoid(raw[:, :1]), raw[:, 1:].clamp(0.0, 1.0)], 1)
 
     @torch.no_grad()
-    def read(self, crops: np.ndarray) -> np.ndarray:
+    def read(self, crops: np.ndarray, temperature: float | None = None) -> np.ndarray:
         """(B, size, size) uint8 mask crops -> (B, 6) phenotypes (eval mode); the raw outputs are
-        averaged with the mirrored crop's (gender and build do not change in a mirror)."""
+        averaged with the mirrored crop's (gender and build do not change in a mirror), the gender
+        logit divided by ``temperature`` (default ``GENDER_TEMPERATURE``)."""
         self.eval()
         x = torch.tensor(crops, dtype=torch.float32, device=next(self.parameters()).device)[:, None] / 255.0
         raw = 0.5 * (self(x) + self(x.flip(3)))
+        raw[:, 0] /= GENDER_TEMPERATURE if temperature is None else temperature
         return self.phenotypes(raw).cpu().numpy().astype(np.float64)
 
     def predict(self, masks: list[np.ndarray], points2d: list[np.ndarray]) -> np.ndarray:
