@@ -148,8 +148,9 @@ def main() -> None:
     m = a.keypoint_model
     out = Path(a.out or report.RESULTS / ("phantoms" if m == "full" else f"phantoms-{m}"))
     sets = person_free_sets(a.phantom_images)
-    if a.bodies_only:
-        write(out, m, None, bodies_found(sets, m), None)
+    if a.bodies_only:  # the guard's tuning tables of an earlier full run are kept
+        old = report.read(out) if out.with_suffix(".json").exists() else {}
+        write(out, m, old.get("tuning"), bodies_found(sets, m), old.get("refit"))
         return
     detectors = {t: MediaPipePose(m, min_confidence=t) for t in (0.5, 0.3, 0.2, 0.1)}
     suffix = "" if m == "full" else f"-{m}"
@@ -179,15 +180,22 @@ def main() -> None:
 def person_free_sets(n: int) -> dict[str, list]:
     """The person-free image sets and the bundled photos, as (name, rgb) lists."""
     rng = np.random.default_rng(28)
+    other = {}
+    for bench in ("other-empty-val", "other-empty-test"):
+        ds = SynthDataset(bench_dir(bench), keys=("rgb",))
+        other[f"{bench} (the other domain's person-free frames)"] = [(str(i), ds[i]["rgb"]) for i in range(len(ds))]
     return {"30 person-free images (error budget, section 4)": list(person_free_images().items()),
             f"{n} person-free images (generator)": [(str(i), person_free(rng, (256, 512)[i % 2])) for i in range(n)],
+            **other,
             "bundled photos": [(f.path.name, load_image(f.path))
                                for f in scan_inputs([paths.DATA_DIR / "examples"]).files if f.path.suffix != ".md"]}
 
 
 def bodies_found(sets: dict[str, list], model: str) -> list[list]:
-    """Per set: images, bodies found without and with the guard (retries on), and where."""
-    off, on = MediaPipeSource(guard=False, model=model), MediaPipeSource(guard=True, model=model)
+    """Per set: images, bodies found without and with the guard (retries and the faceless search
+    on, as in `recon run`), and where."""
+    off = MediaPipeSource(guard=False, model=model, search=True)
+    on = MediaPipeSource(guard=True, model=model, search=True)
     measured = []
     for name, images in sets.items():
         b_off = bodies(tqdm(images, desc=f"{name}, no guard"), off)
@@ -200,7 +208,7 @@ def write(out: Path, model: str, tuning: list | None, measured: list, refit: dic
     g = guard.for_model(model)
     res = {"keypoint_model": model, "tuning": tuning, "measured": measured,
            "guard": dataclasses.asdict(g), "refit": refit}
-    bodies_table = ["## Bodies found (whole `MediaPipeSource`, retries on)", "",
+    bodies_table = ["## Bodies found (whole `MediaPipeSource`, retries and the faceless search on)", "",
                     report.table(measured, ["images", "n", "bodies, no guard", "where", "bodies, guard", "where"]), ""]
     if tuning is None:
         md = [f"# No phantom bodies with MediaPipe's {model} landmark model", "",

@@ -13,7 +13,8 @@ from recon.smplr import evaluate as smplr_eval
 
 RESULTS = Path(__file__).resolve().parent.parent / "eval" / "results"
 CHECKED = sorted(p for p in RESULTS.glob("*.json") if "check" in json.loads(p.read_text()))
-RENDERERS = {"synth-test": runner.render, "synth-wide-test": runner.render, "smplr_anny": smplr_eval.render,
+RENDERERS = {"synth-test": runner.render, "synth-wide-test": runner.render, "other-": runner.render,
+             "smplr_anny": smplr_eval.render,
              "garment-pbns": pbns_eval.render_pbns,
              "garment-resize-": pbns_eval.render_resize, "garment-reference-": pbns_eval.render_reference,
              "garment-ncs": ncs_eval.render, "garment-deepsd": deepsd_eval.render}

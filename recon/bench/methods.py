@@ -5,6 +5,9 @@ between the image and our networks, so that last-bit differences between CPUs ca
 result by more than float noise (``recon.bench.runner.check`` leaves those methods out)."""
 from __future__ import annotations
 
+import ast
+import dataclasses
+import re
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -14,9 +17,10 @@ import torch
 from recon import camera
 from recon.backbone.crop import Crop
 from recon.body import skeleton
+from recon.errors import ReconError
 from recon.fit import FitConfig, fit_body
 from recon.keypoints import BackboneSource, Keypoints, MediaPipePose
-from recon.pipeline import Reconstructor
+from recon.pipeline import Reconstructor, ReconstructorConfig
 from recon.poses.mocap import MocapPoses
 from recon.smplr import SMPLR
 from recon.smplr.lifter import Lifter
@@ -29,6 +33,7 @@ class Prediction:
     vertices: np.ndarray | None = None  # (V, 3) camera frame, placed in the image
     mask: np.ndarray | None = None  # (H, W) bool person mask, when the method gives one
     shape: np.ndarray | None = None  # (S,) body-model shape parameters, when the method regresses them
+    shape_confidence: float | None = None  # how sure the method is of the shape (recon run's result.json)
     placed: bool = False  # joints are placed in the camera (their depth is a prediction)
 
 
@@ -181,7 +186,8 @@ class MediaPipeSMPLR:
         r = self.rec.batch([rgb], [k])[0]
         if isinstance(r, Exception):
             return None
-        return Prediction(r.joints, r.landmarks, r.vertices, shape=r.shape, placed=True)  # IoU from our mesh
+        return Prediction(r.joints, r.landmarks, r.vertices, shape=r.shape, placed=True,  # IoU from our mesh
+                          shape_confidence=r.shape_confidence)
 
 
 class MediaPipeSMPLRFitKeypoints(MediaPipeSMPLR):
@@ -210,20 +216,32 @@ class ReconRunFallbackOnly(MediaPipeSMPLR):
     """``recon run --backbone-weight 0``: MediaPipe's keypoints, the backbone only where it finds nobody."""
 
     name = "recon-run-fallback-only"
-    description = "`recon run --backbone-weight 0`: MediaPipe's keypoints alone, the backbone where it finds nobody"
+    description = ("`recon run --no-search --fallback --backbone-weight 0`: MediaPipe's keypoints alone, the backbone "
+                   "where it finds nobody")
 
     def __init__(self, body):
-        self.rec = Reconstructor(body=body, backbone_weight=0.0)
+        self.rec = Reconstructor(body=body, search=False, fallback=True, backbone_weight=0.0)
 
 
 class ReconRunMediaPipeOnly(MediaPipeSMPLR):
     """``recon run --no-fallback --backbone-weight 0``: MediaPipe's people and keypoints alone."""
 
     name = "recon-run-mediapipe-only"
-    description = "`recon run --no-fallback --backbone-weight 0`: MediaPipe's people and keypoints, no backbone"
+    description = "`recon run --no-search`: MediaPipe's detector's people and keypoints, no backbone"
 
     def __init__(self, body):
-        self.rec = Reconstructor(body=body, fallback=False, backbone_weight=0.0)
+        self.rec = Reconstructor(body=body, search=False, fallback=False, backbone_weight=0.0)
+
+
+class ReconRun011(MediaPipeSMPLR):
+    """``recon run`` as 0.11.0 shipped it: no search, the backbone where MediaPipe finds nobody and
+    as half of each person's J+ where it is confident."""
+
+    name = "recon-run-0.11"
+    description = "`recon run` of 0.11.0: `--no-search --fallback --backbone-weight 0.5`"
+
+    def __init__(self, body):
+        self.rec = Reconstructor(body=body, search=False, fallback=True, backbone_weight=0.5)
 
 
 class ReconRunNoShapeHead(MediaPipeSMPLR):
@@ -320,9 +338,36 @@ def _backbone(crop: str, stage: str, flip: bool = False) -> type:
 METHODS = {"mean": MeanBaseline, "mediapipe": MediaPipeBaseline, "smplr-gt2d": SMPLROracle2D,
            "smplr-gt2d-dae2d": SMPLROracle2DOrthographic, "recon-run": ReconRun, "recon-run-full": ReconRunFull,
            "recon-run-no-shape-head": ReconRunNoShapeHead, "recon-run-mediapipe-only": ReconRunMediaPipeOnly,
-           "recon-run-fallback-only": ReconRunFallbackOnly,
+           "recon-run-fallback-only": ReconRunFallbackOnly, "recon-run-0.11": ReconRun011,
            "mediapipe-lifter-fit": MediaPipeLifterFit, "mediapipe-smplr": MediaPipeSMPLR,
            "mediapipe-smplr-fit-kp": MediaPipeSMPLRFitKeypoints,
            "mediapipe-smplr-fit": MediaPipeSMPLRFit, "backbone-smplr-fit": BackboneSMPLRFit}
 METHODS.update({c.name: c for c in (_backbone(crop, stage, flip) for flip in (False, True) for crop in ("gt", "self")
                                      for stage in ("net", "dae", "smplr"))})
+
+
+def get_method(name: str) -> type:
+    """A method class by name; ``recon-run[key=value,...]`` is ``recon run`` with those
+    ``ReconstructorConfig`` fields changed (``fit_steps=N``: the fit's steps), for choices made on
+    a validation benchmark (e.g. ``recon-run[backbone_weight=0.0,fallback=False]``)."""
+    if name in METHODS:
+        return METHODS[name]
+    m = re.fullmatch(r"recon-run\[(.*)\]", name)
+    if not m:
+        raise ReconError(f"unknown method {name!r}; known: {', '.join(METHODS)}, recon-run[field=value,...]")
+    overrides = {}
+    for item in filter(None, m.group(1).split(",")):
+        key, _, value = item.partition("=")
+        overrides[key.strip()] = ast.literal_eval(value.strip())
+    steps = overrides.pop("fit_steps", None)
+    fields = {f.name for f in dataclasses.fields(ReconstructorConfig)}
+    if set(overrides) - fields:
+        raise ReconError(f"{name}: no ReconstructorConfig field(s) {sorted(set(overrides) - fields)}")
+
+    def init(self, body):
+        cfg = ReconstructorConfig(**overrides)
+        if steps is not None:
+            cfg = replace(cfg, fit=replace(cfg.fit, steps=steps))
+        self.rec = Reconstructor(cfg, body=body)
+
+    return type(name, (ReconRun,), {"name": name, "description": f"`recon run` with {m.group(1)}", "__init__": init})

@@ -8,6 +8,8 @@ image counts as a failure; it is scored on the images it handled and failures ar
 """
 from __future__ import annotations
 
+import json
+import re
 import time
 from pathlib import Path
 
@@ -16,13 +18,13 @@ import torch
 from tqdm import tqdm
 
 from recon import metrics, report
-from recon.bench.methods import METHODS
+from recon.bench.methods import get_method
 from recon.body import default_body
 from recon.errors import ReconError
 from recon.executor import ExecutorConfig, WorkerLost, WorkerSpec, map_tasks
-from recon.synth.dataset import BENCHMARKS, SynthDataset, bench_config, bench_dir
+from recon.paths import write_text
+from recon.synth.dataset import BENCHMARKS, GrayView, SynthDataset, bench_sampler, open_bench
 from recon.synth.raster import Rasterizer, silhouette_iou
-from recon.synth.scene import SceneSampler
 
 ABBR = {"head": "Hd", "torso": "Ts", "shoulder": "Sr", "elbow": "Ew", "wrist": "Wt", "hip": "Hp", "knee": "Kn",
         "foot": "Ft"}
@@ -39,7 +41,7 @@ class MethodScorer:
 
     def __init__(self, name: str, body=None):
         self.body = body if body is not None else default_body()
-        self.method = METHODS[name](self.body)
+        self.method = get_method(name)(self.body)
         self.faces = self.body.faces.numpy()
         self.raster = None
 
@@ -66,7 +68,7 @@ class MethodScorer:
             row["pve"] = float(np.linalg.norm(pred.vertices - pred.joints[:1] - gv, axis=1).mean())
         mask = pred.mask
         if mask is None and pred.vertices is not None:
-            self.raster = self.raster or Rasterizer(*s["rgb"].shape[1::-1])
+            self.raster = (self.raster or Rasterizer(*s["rgb"].shape[1::-1])).set_size(*s["rgb"].shape[1::-1])
             mask = self.raster.render(pred.vertices, self.faces, s["K"])[2] > 0
         if mask is not None:
             row["iou"] = silhouette_iou(mask, s["silhouette"])
@@ -75,6 +77,9 @@ class MethodScorer:
         if pred.shape is not None:
             row["height"] = (body_height(body, pred.shape), body_height(body, s["shape"]))
             row["shape"] = np.abs(np.asarray(pred.shape, float) - s["shape"])
+            row["shape_pred"] = np.asarray(pred.shape, float)
+        if pred.shape_confidence is not None:
+            row["shape_confidence"] = float(pred.shape_confidence)
         return row
 
 
@@ -102,16 +107,17 @@ def run_method(name: str, ds, body, n: int | None = None, progress: bool = True,
         bar.close()
     scores = [r for chunk in scored for r in chunk]
     rows = {k: [r[k] for r in scores if r is not None and k in r]
-            for k in ("p1", "p2", "lm", "pve", "iou", "joint", "depth", "height", "shape")}
+            for k in ("p1", "p2", "lm", "pve", "iou", "joint", "depth", "height", "shape", "shape_pred")}
     done = len(rows["p1"])
     failures = count - done
     joint = np.stack(rows["joint"]) * 1000 if done else np.zeros((0, 24))
-    res = {"method": name, "description": METHODS[name].description, "images": done + failures,
+    res = {"method": name, "description": get_method(name).description, "images": done + failures,
            "failures": failures, "seconds_per_image": (time.time() - t0) / max(done + failures, 1)}
     for key, label in zip(("p1", "p2", "lm", "pve"), COLUMNS[:4], strict=True):
         res[label] = float(np.mean(rows[key]) * 1000) if rows[key] else None
     res["IoU"] = float(np.mean(rows["iou"])) if rows["iou"] else None
     res["groups"] = {ABBR[g]: float(v) for g, v in metrics.group_errors(torch.tensor(joint)).items()} if done else {}
+    truth = _truth(ds, count)
     if rows["depth"]:
         res["root_depth_mm"] = {"median": float(np.median(rows["depth"]) * 1000),
                                 "mean": float(np.mean(rows["depth"]) * 1000)}
@@ -121,10 +127,60 @@ def run_method(name: str, ds, body, n: int | None = None, progress: bool = True,
         res["body_shape"] = {"height_error_cm": float(np.mean(np.abs(hp - hg)) * 100),
                              "height_correlation": float(np.corrcoef(hp, hg)[0, 1]) if len(hp) > 2 else None,
                              "shape_error": dict(zip(names, map(float, np.mean(rows["shape"], 0)), strict=True))}
-        if "gender" in names:  # anny's gender is 0 or 1 in the benchmarks: right side of 0.5
-            res["body_shape"]["gender_accuracy"] = float(np.mean(np.stack(rows["shape"])[:, list(names).index("gender")]
-                                                                 < 0.5))
+        if "gender" in names:  # right side of 0.5 (synth-*: the true gender is 0 or 1)
+            g = list(names).index("gender")
+            res["body_shape"]["gender_accuracy"] = float(np.mean(np.stack(rows["shape"])[:, g] < 0.5))
+            res["body_shape"] |= gender_extremes(truth["shape"], scores, g)
+    if truth.get("info") is not None:
+        res["found_by_view"] = found_by_view(truth["info"], scores)
+    res["per_image"] = per_image(scores)
     return res
+
+
+def _truth(ds, count: int) -> dict:
+    """The true shapes (count, S) and the other domain's ``info`` rows (or None) of the first
+    ``count`` samples, without decoding their images."""
+    light = SynthDataset(ds.root, keys=("shape", "info")) if isinstance(ds, (SynthDataset, GrayView)) else ds
+    items = [light[i] for i in range(count)]
+    return {"shape": np.stack([x["shape"] for x in items]) if count else np.zeros((0, 0)),
+            "info": np.stack([x["info"] for x in items]) if count and "info" in items[0] else None}
+
+
+def gender_extremes(true_shapes: np.ndarray, scores: list, g: int) -> dict:
+    """On people whose true gender is < 0.2 or > 0.8 (the other domain's gender is anywhere in
+    [0, 1]): the share predicted on the right side of 0.5."""
+    right, n = 0, 0
+    for r, true in zip(scores, true_shapes[:, g], strict=False):
+        if r is None or "shape_pred" not in r or 0.2 <= true <= 0.8:
+            continue
+        n += 1
+        right += (r["shape_pred"][g] > 0.5) == (true > 0.5)
+    return {"gender_right_extremes": right / n if n else None, "gender_extremes_n": n}
+
+
+VIEWS = {"front": (0, 45), "side": (45, 135), "back": (135, 181)}
+
+
+def found_by_view(info: np.ndarray, scores: list) -> dict:
+    """The share of images with a person found, by view (|yaw| of the body to the camera) and by
+    whether a border cuts the person (``info`` of the other domain: yaw, cut share, ...)."""
+    found = np.array([r is not None for r in scores])
+    yaw, cut = np.abs(info[:, 0]), info[:, 1] > 0.05
+    out = {v: float(found[(yaw >= lo) & (yaw < hi)].mean()) for v, (lo, hi) in VIEWS.items()}
+    out |= {"cut": float(found[cut].mean()) if cut.any() else None,
+            "whole": float(found[~cut].mean()) if (~cut).any() else None}
+    return out
+
+
+def per_image(scores: list) -> dict:
+    """Per-image numbers for paired comparisons (eval/compare.py): MPJPE P1 and PA (mm, None where
+    nobody was found) and the predicted shape."""
+    r1 = lambda v: None if v is None else round(float(v) * 1000, 1)  # noqa: E731
+    return {"p1": [None if r is None else r1(r["p1"]) for r in scores],
+            "p2": [None if r is None else r1(r["p2"]) for r in scores],
+            "shape": [None if r is None or "shape_pred" not in r else [round(float(x), 3) for x in r["shape_pred"]]
+                      for r in scores],
+            "shape_confidence": [None if r is None else r.get("shape_confidence") for r in scores]}
 
 
 def body_height(body, shape) -> float:
@@ -137,10 +193,11 @@ def body_height(body, shape) -> float:
 def check(bench: str, methods: list[str], n: int = CHECK_IMAGES) -> dict:
     """The check slice of a benchmark's results: each of ``methods`` on its first ``n`` images,
     rendered on the fly (sample i depends only on the benchmark's split, seed and i)."""
-    b = BENCHMARKS[bench]
     body = default_body()
-    scenes = SceneSampler(body, b["split"], b["seed"], bench_config(bench))
+    scenes = bench_sampler(bench, body)
     samples = [scenes.sample(i) for i in range(n)]
+    if BENCHMARKS[bench].get("gray"):
+        samples = [GrayView([s])[0] for s in samples]
     return {m: {k: r[k] for k in (*COLUMNS, "failures")}
             for m in methods for r in [run_method(m, samples, body, progress=False)]}
 
@@ -148,7 +205,7 @@ def check(bench: str, methods: list[str], n: int = CHECK_IMAGES) -> dict:
 def checked(methods: list[str]) -> list[str]:
     """The methods a check slice holds: those with no detector or search before our networks,
     whose numbers move only by float noise between CPUs (``METHODS[m].detects``)."""
-    return [m for m in methods if not METHODS[m].detects]
+    return [m for m in methods if not get_method(m).detects]
 
 
 def evaluate(bench: str, methods: list[str], n: int | None = None, out_dir: Path = report.RESULTS,
@@ -159,12 +216,14 @@ def evaluate(bench: str, methods: list[str], n: int | None = None, out_dir: Path
     tests pin them). ``executor``: where the images are scored (``run_method``)."""
     if bench not in BENCHMARKS:
         raise ReconError(f"unknown benchmark {bench!r}; known: {', '.join(BENCHMARKS)}")
-    unknown = [m for m in methods if m not in METHODS]
-    if unknown:
-        raise ReconError(f"unknown method(s) {unknown}; known: {', '.join(METHODS)}")
-    ds = SynthDataset(bench_dir(bench))
+    for m in methods:
+        get_method(m)  # an unknown name fails before any work
+    ds = open_bench(bench)
     body = default_body()
-    new = [run_method(m, ds, body, n, executor=executor) for m in methods]
+    new = []
+    for m in methods:  # per-image numbers beside the table, for paired comparisons (eval/compare.py)
+        new.append(run_method(m, ds, body, n, executor=executor))
+        write_text(scores_path(out_dir, bench, m), json.dumps(new[-1].pop("per_image")) + "\n")
     stem = Path(out_dir) / bench
     old = report.read(stem) if stem.with_suffix(".json").exists() else {"rows": []}
     fresh = {r["method"]: r for r in new}
@@ -180,6 +239,11 @@ def evaluate(bench: str, methods: list[str], n: int | None = None, out_dir: Path
     return report.write(stem, data, render(data))
 
 
+def scores_path(out_dir: Path, bench: str, method: str) -> Path:
+    """Where ``evaluate`` keeps a method's per-image numbers on a benchmark."""
+    return Path(out_dir) / "scores" / bench / (re.sub(r"[^A-Za-z0-9_.=,-]+", "_", method) + ".json")
+
+
 def camera_and_shape(rows: list[dict]) -> list[str]:
     """The rows' camera and body-shape errors, for the methods that measured them (since 0.3)."""
     measured = [r for r in rows if "root_depth_mm" in r or "body_shape" in r]
@@ -188,13 +252,28 @@ def camera_and_shape(rows: list[dict]) -> list[str]:
     names = next((list(r["body_shape"]["shape_error"]) for r in measured if "body_shape" in r), [])
     table = [[r["method"], r.get("root_depth_mm", {}).get("median"), r.get("root_depth_mm", {}).get("mean"),
               r.get("body_shape", {}).get("height_error_cm"), r.get("body_shape", {}).get("height_correlation"),
-              r.get("body_shape", {}).get("gender_accuracy"),
+              r.get("body_shape", {}).get("gender_accuracy"), r.get("body_shape", {}).get("gender_right_extremes"),
               *(r.get("body_shape", {}).get("shape_error", {}).get(n) for n in names)] for r in measured]
     return ["Camera and body shape: pelvis depth error (mm; the benchmark's K is given), standing height of the "
-            "predicted body against the true one (mean |error| cm, Pearson correlation), gender right (share, "
-            "measured since 0.6), mean |error| per anny phenotype (0-1 scale; gender 0/1):", "",
+            "predicted body against the true one (mean |error| cm, Pearson correlation), gender right (share with "
+            "|error| < 0.5, measured since 0.6; and where the true gender is < 0.2 or > 0.8, the share on the right "
+            "side of 0.5), mean |error| per anny phenotype (0-1 scale):", "",
             report.table(table, ["method", "depth median", "depth mean", "height cm", "height r", "gender right",
-                                 *names], ["", ".0f", ".0f", ".1f", ".2f", ".3f", *[".3f"] * len(names)]), ""]
+                                 "gender extremes", *names],
+                         ["", ".0f", ".0f", ".1f", ".2f", ".3f", ".3f", *[".3f"] * len(names)]), ""]
+
+
+def found_table(rows: list[dict]) -> list[str]:
+    """People found by view and by border cut, for the benchmarks that record them (other-*)."""
+    measured = [r for r in rows if "found_by_view" in r]
+    if not measured:
+        return []
+    keys = ["front", "side", "back", "cut", "whole"]
+    table = [[r["method"], 1 - r["failures"] / max(r["images"], 1), *(r["found_by_view"].get(k) for k in keys)]
+             for r in measured]
+    return ["People found (share of images), by view (|yaw| < 45, 45-135, > 135 degrees) and by whether a "
+            "border cuts the person:", "",
+            report.table(table, ["method", "all", *keys], ["", ".3f", *[".3f"] * len(keys)]), ""]
 
 
 def render(data: dict) -> str:
@@ -210,4 +289,5 @@ def render(data: dict) -> str:
         "Per joint group (MPJPE-P1, mm):", "",
         report.table(groups, ["method", *ABBR.values()]), "",
         *camera_and_shape(rows),
+        *found_table(rows),
         "Methods: " + "; ".join(f"**{r['method']}**: {r['description']}" for r in rows)])
