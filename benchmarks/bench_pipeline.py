@@ -19,10 +19,16 @@ without the shape head.
 from __future__ import annotations
 
 import argparse
+import os
+import shutil
 import statistics
+import subprocess
+import sys
+import tempfile
 import time
 from pathlib import Path
 
+import cv2
 import torch
 
 from recon import camera, io, report
@@ -36,10 +42,47 @@ from recon.pipeline import Reconstructor, ReconstructorConfig
 OUT = Path(__file__).resolve().parent.parent / "eval" / "results" / "bench-pipeline"
 
 
+COMMANDS = {  # `recon run` over a folder of photos, whole commands (outputs included), on one core
+    "`recon run` (defaults)": [],
+    "`recon run --no-overlay`": ["--no-overlay"],
+    "0.11.0's defaults (`--no-search --fallback --backbone-weight 0.5`)":
+        ["--no-search", "--fallback", "--backbone-weight", "0.5"],
+}
+
+
+def whole_commands(n: int, repeats: int) -> list[list]:
+    """Each of ``COMMANDS`` over the first ``n`` images of other-val (640 x 480 / 480 x 640 JPEGs,
+    written as files), pinned to one core (taskset) with one torch thread; the median wall time of
+    ``repeats`` runs each into a fresh folder, the commands interleaved."""
+    from recon.synth.dataset import SynthDataset, bench_dir  # noqa: PLC0415 - only this mode needs it
+
+    ds = SynthDataset(bench_dir("other-val"), keys=("rgb",))
+    times: dict[str, list[float]] = {c: [] for c in COMMANDS}
+    with tempfile.TemporaryDirectory() as tmp:
+        photos = Path(tmp) / "photos"
+        photos.mkdir()
+        for i in range(n):
+            cv2.imwrite(str(photos / f"{i:03d}.jpg"), ds[i]["rgb"][..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, 95])
+        exe = [sys.executable, "-m", "recon.cli", "--threads", "1", "run", str(photos)]
+        pin = ["taskset", "-c", "0"] if shutil.which("taskset") else []
+        for r in range(repeats):
+            for c, flags in COMMANDS.items():
+                out = Path(tmp) / f"out-{r}-{len(times[c])}-{abs(hash(c))}"
+                t0 = time.perf_counter()
+                subprocess.run(pin + exe + ["--out", str(out), *flags], check=True, capture_output=True,
+                               env={**os.environ, "OMP_NUM_THREADS": "1"})
+                times[c].append(time.perf_counter() - t0)
+    base = statistics.median(times["0.11.0's defaults (`--no-search --fallback --backbone-weight 0.5`)"])
+    return [[c, statistics.median(v), statistics.median(v) / n, n / statistics.median(v), statistics.median(v) / base]
+            for c, v in times.items()]
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--photos", type=int, default=20, help="photos of the whole-command rows (0: none)")
+    ap.add_argument("--command-repeats", type=int, default=2)
     a = ap.parse_args()
     torch.set_num_threads(a.threads)
     body = default_body()
@@ -92,15 +135,24 @@ def main() -> None:
     base = base["keypoints"] + base["smplr"]
     rows = [[s, m["keypoints"], m["one backbone pass"], m["smplr"], m["keypoints"] + m["smplr"],
              (m["keypoints"] + m["smplr"]) / base, m["fit"], m["fit, keypoints only"]] for s, m in med.items()]
-    data = {"machine": report.machine(), "photos": len(images), "repeats": a.repeats, "median_ms": med}
+    commands = whole_commands(a.photos, a.command_repeats) if a.photos else []
+    data = {"machine": report.machine(), "photos": len(images), "repeats": a.repeats, "median_ms": med,
+            "whole_commands": commands}
     where = report.describe(data["machine"])
+    whole = ["", f"## Whole commands: `recon run` over {a.photos} photos of other-val (640 x 480 or 480 x 640 JPEGs), "
+             "outputs included", "",
+             "Pinned to one core (`taskset -c 0`), `recon --threads 1`, each into a fresh folder; median of "
+             f"{a.command_repeats} runs, the commands interleaved. x 0.11: the wall time relative to 0.11.0's "
+             "defaults in the same run.", "",
+             report.table(commands, ["command", "wall s", "s / photo", "photos / s", "x 0.11"],
+                          ["", ".1f", ".2f", ".2f", ".2f"])] if commands else []
     md = "\n".join([
         "# Image pipeline latency, batch 1 (median ms over the bundled photos)", "",
         f"`benchmarks/bench_pipeline.py --repeats {a.repeats} --threads {a.threads}`; {where}. "
         "x MediaPipe: the total without the fit, relative to the first row.", "",
         report.table(rows, ["source", "keypoints", "of which one backbone pass", "SMPLR (+ shape head) + mesh + place",
                             "total without fit", "x MediaPipe", "fit (30 steps; MediaPipe: + mask)",
-                            "fit, keypoints only"], ["", ".1f", ".1f", ".1f", ".1f", ".2f", ".1f", ".1f"])])
+                            "fit, keypoints only"], ["", ".1f", ".1f", ".1f", ".1f", ".2f", ".1f", ".1f"]), *whole])
     print(Path(report.write(OUT, data, md)).read_text())
 
 

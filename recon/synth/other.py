@@ -21,8 +21,9 @@ Every choice of the image -> body stage is made on ``other-val`` and reported on
 
 Sample i depends only on (split, seed, i): ``np.random.default_rng([seed, i])``; the geometry is
 computed in float64 and the pixels with exactly rounded operations, so a sample is the same bits
-on the same CPU kernels; under others a few pixels of some images move (``clothes``). ``EmptySampler``: the same frames without a person; ``CrowdSampler``: street scenes
-with 4-10 people.
+on the same CPU kernels; under others a few pixels of some images move (``clothes``).
+``EmptySampler``: the same frames without a person; ``CrowdSampler``: street scenes with 4-10
+people.
 """
 from __future__ import annotations
 
