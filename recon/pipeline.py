@@ -320,10 +320,14 @@ class Reconstructor:
         return shape, confidence
 
     def standing_height(self, shape: torch.Tensor) -> float:
-        """A body shape's standing height (m): its rest mesh's vertical extent."""
+        """A body shape's standing height (m)."""
+        return float(self.standing_heights(shape.reshape(1, -1))[0])
+
+    def standing_heights(self, shapes) -> np.ndarray:
+        """(B,) standing heights (m) of body shapes (B, S): their rest meshes' vertical extents."""
         with torch.no_grad():
-            v = self.body.rest_geometry(shape.reshape(1, -1).to(self.body.mean_shape))[0][0]
-        return float(v[:, 1].max() - v[:, 1].min())
+            v = self.body.rest_geometry(torch.as_tensor(shapes).to(self.body.mean_shape))[0]
+        return (v[..., 1].amax(1) - v[..., 1].amin(1)).cpu().numpy()
 
     @property
     def _fixed(self) -> np.ndarray | None:
@@ -352,9 +356,7 @@ class Reconstructor:
         for n, s in enumerate(shape):
             trial = np.repeat(np.where(np.isnan(known[n]), s, known[n])[None], len(grid), 0)
             trial[:, h] = grid
-            with torch.no_grad():
-                v = self.body.rest_geometry(torch.tensor(trial, dtype=self.body.mean_shape.dtype))[0]
-            heights = (v[..., 1].amax(1) - v[..., 1].amin(1)).cpu().numpy() * 100.0
+            heights = self.standing_heights(trial) * 100.0
             known[n, h] = float(np.interp(self.config.height_cm, heights, grid))  # heights grow with it
         return known
 

@@ -139,12 +139,10 @@ def test_reconstructor_lifts_a_sources_2d_in_each_lift_mode(body, mocap):
     assert err["camera"] < err["source"] and err["camera"] <= err["blend"] <= err["source"] + 1e-3, err
 
 
-@pytest.mark.skipif(not SHAPE_WEIGHTS.exists(), reason="no shipped shape head weights")
-def test_reconstructor_takes_gender_and_build_from_the_shape_head(body, mocap):
-    """A source that reports a body's exact J+ and its mask: with the shape head the body's
-    FROM_MASK phenotypes are the head's reading of that mask, the others SMPLR's; without it, all
-    SMPLR's. A source without a mask leaves SMPLR's shape."""
-    batch = generate(body, "test", 1, seed=6, noise_deg=0.0)
+def _seen_body(body, seed: int):
+    """A generated body 3 m in front of a 640 x 480 camera: its camera-frame J+, their 2D, its mask
+    and the intrinsics."""
+    batch = generate(body, "test", 1, seed=seed, noise_deg=0.0)
     with torch.no_grad():
         gt = body(batch["rotmats"], batch["shape"])
     root, offset = gt.points[0, :1].double().numpy(), np.array([0.0, 0.1, 3.0])
@@ -153,6 +151,15 @@ def test_reconstructor_takes_gender_and_build_from_the_shape_head(body, mocap):
     k = camera.default_intrinsics(480, 640)
     uv = camera.project(cam, k)
     mask = _mask(verts, body.faces.numpy(), k, (480, 640))
+    return cam, uv, mask, k
+
+
+@pytest.mark.skipif(not SHAPE_WEIGHTS.exists(), reason="no shipped shape head weights")
+def test_reconstructor_takes_gender_and_build_from_the_shape_head(body, mocap):
+    """A source that reports a body's exact J+ and its mask: with the shape head the body's
+    FROM_MASK phenotypes are the head's reading of that mask, the others SMPLR's; without it, all
+    SMPLR's. A source without a mask leaves SMPLR's shape."""
+    cam, uv, mask, k = _seen_body(body, seed=6)
 
     def source(rgb, kk, with_mask=True):
         return Keypoints(cam - cam[:1], uv, 1.0, (0.0, 0.0, 640.0, 480.0), mask if with_mask else None)
@@ -181,15 +188,7 @@ def test_a_gender_and_height_the_user_gives_are_kept(body):
     """``gender`` fixes anny's gender (1 female, 0 male) through SMPLR and the fit (which moves the
     shape with a mask), with confidence 1; ``height_cm`` sets the height phenotype so the body stands
     that tall; "auto" reports the shape head's confidence |2p - 1|."""
-    batch = generate(body, "test", 1, seed=7, noise_deg=0.0)
-    with torch.no_grad():
-        gt = body(batch["rotmats"], batch["shape"])
-    root, offset = gt.points[0, :1].double().numpy(), np.array([0.0, 0.1, 3.0])
-    cam = camera.to_opencv(gt.points[0].double().numpy() - root) + offset
-    verts = camera.to_opencv(gt.vertices[0].double().numpy() - root) + offset
-    k = camera.default_intrinsics(480, 640)
-    uv = camera.project(cam, k)
-    mask = _mask(verts, body.faces.numpy(), k, (480, 640))
+    cam, uv, mask, k = _seen_body(body, seed=7)
 
     def source(rgb, kk):
         return Keypoints(cam - cam[:1], uv, 1.0, (0.0, 0.0, 640.0, 480.0), mask)

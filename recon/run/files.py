@@ -92,7 +92,7 @@ def write_person(folder: Path, src: Path, img, small, s: float, k_small, r: Reco
         paths.write_image(folder / "overlay.png", draw_overlay(small, meshes, k_small))
         if min(small.shape[:2]) >= 64:
             side = draw_meshes([(camera.to_view(m[0]), m[1], m[2]) for m in meshes],
-                                 size=(small.shape[0] // 2 * 2, ) * 2, yaw_deg=90)
+                               size=(small.shape[0] // 2 * 2, ) * 2, yaw_deg=90)
             paths.write_image(folder / "side.png", side)
     js = r.to_json()
     if s != 1.0:  # back to the original image's pixels: same 3D, focal and 2D scaled by 1/s
