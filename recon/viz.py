@@ -14,6 +14,7 @@ import trimesh
 
 from recon import camera
 from recon.errors import ReconError
+from recon.synth import look
 from recon.synth.clothes import vertex_normals
 from recon.synth.raster import Rasterizer
 
@@ -210,5 +211,4 @@ def draw_meshes(meshes: list[tuple[np.ndarray, np.ndarray, tuple]], size=(512, 5
     v, fc, c = _lit(cam, [((0.0, 0.0, -1.0), 0.55), ((0.4, -1.0, -0.5), 0.3)], 0.35)
     k = np.array([[2 * f, 0, w + 0.5], [0, 2 * f, h + 0.5], [0, 0, 1.0]])
     col, lab, _ = _raster(2 * w, 2 * h).render(v, fc, k, c, flat=False)
-    img = np.where((lab >= 0)[..., None], col, 255).astype(np.int32)
-    return ((img[0::2, 0::2] + img[1::2, 0::2] + img[0::2, 1::2] + img[1::2, 1::2] + 2) // 4).astype(np.uint8)
+    return look.downsample2(np.where((lab >= 0)[..., None], col, 255))
