@@ -45,6 +45,15 @@ def test_pooling_hierarchy_shrinks_and_never_crosses_a_segment(rb, graph):
     assert p.shape == (2, graph.sizes[1], 3) and torch.equal(p[:, 0], x[:, graph.assign[0] == 0].max(1).values)
 
 
+def test_every_level_averages_its_neighbours_without_self_loops(graph):
+    for lvl, adj in enumerate(graph.adj):
+        a = adj.coalesce()
+        i, v = a.indices(), a.values()
+        assert not (i[0] == i[1]).any(), f"level {lvl} has self-loops"
+        rows = torch.zeros(a.shape[0]).index_add_(0, i[0], v)  # each row a mean: weights sum to 1
+        assert torch.allclose(rows[rows > 0], torch.ones(1)) and (rows > 0).float().mean() > 0.99
+
+
 def test_registration_reproduces_a_garment_that_follows_the_body(graph, top):
     off, mask = register(graph, top.vertices, top.faces)
     assert off.shape == (graph.sizes[0], 3) and set(np.unique(mask)) <= {0.0, 1.0}
@@ -105,8 +114,6 @@ def test_registered_offsets_find_the_nearest_surface_point(graph, top):
     assert np.all(np.linalg.norm(target - graph.v.numpy()[sel], axis=1) <= d_vertices + 1e-6)
 
 
-@pytest.mark.skipif(not (store.gcvae_path().exists() and store.deepsd_path().exists()),
-                    reason="no GCVAE in the cache (`recon garment train --model gcvae`)")
 def test_sample_command_writes_garments_an_outfit_takes(body, tmp_path):
     info = sample_command("trousers", 2, tmp_path, seed=3)
     assert info["files"] == ["sample_00.obj", "sample_01.obj"] and (tmp_path / "samples.jpg").exists()

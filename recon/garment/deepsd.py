@@ -71,9 +71,14 @@ def mlp(dims: list[int]) -> nn.Sequential:
 
 def mean_adjacency(faces: np.ndarray, n: int) -> torch.Tensor:
     """(n, n) sparse mean over each vertex's edge neighbours (a graph convolution's aggregation)."""
-    a = mesh.neighbour_mean(faces, n).tocoo()
+    return sparse_tensor(mesh.neighbour_mean(faces, n))
+
+
+def sparse_tensor(a) -> torch.Tensor:
+    """A scipy sparse matrix as a coalesced float32 torch sparse COO tensor."""
+    a = a.tocoo()
     idx = torch.from_numpy(np.stack([a.row, a.col]).astype(np.int64))
-    return torch.sparse_coo_tensor(idx, torch.from_numpy(a.data).float(), (n, n), check_invariants=False).coalesce()
+    return torch.sparse_coo_tensor(idx, torch.from_numpy(a.data).float(), a.shape, check_invariants=False).coalesce()
 
 
 class GraphConv(nn.Module):

@@ -33,7 +33,7 @@ from torch import nn
 
 from recon import paths
 from recon.garment import mesh
-from recon.garment.deepsd import GraphConv, mean_adjacency
+from recon.garment.deepsd import GraphConv, mean_adjacency, sparse_tensor
 from recon.garment.templates import J, RestBody
 
 TYPES = ("top", "trousers", "skirt", "dress", "jumpsuit")
@@ -89,9 +89,9 @@ class BodyGraph:
 
 
 def edge_adjacency(edges: np.ndarray, n: int) -> torch.Tensor:
-    """Mean adjacency of a graph given by its edges (the coarse levels have no faces)."""
-    faces = np.concatenate([edges, edges[:, :1]], 1)  # degenerate triangles carry the edges
-    return mean_adjacency(faces, n)
+    """Mean adjacency of a graph given by its edges (the coarse levels have no faces), without
+    self-loops: a vertex's own feature enters through ``GraphConv.own`` only."""
+    return sparse_tensor(mesh.edge_mean(edges, n))
 
 
 def pool(x: torch.Tensor, assign: torch.Tensor, n: int) -> torch.Tensor:

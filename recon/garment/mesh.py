@@ -104,7 +104,12 @@ def unique_edges(faces: np.ndarray) -> np.ndarray:
 def neighbour_mean(faces: np.ndarray, n: int):
     """(n, n) sparse matrix taking per-vertex values to the mean over each vertex's edge neighbours
     (zero for a vertex on no edge)."""
-    e = unique_edges(faces)
+    return edge_mean(unique_edges(faces), n)
+
+
+def edge_mean(edges: np.ndarray, n: int):
+    """``neighbour_mean`` of a graph given by its unique edges (E, 2), i < j: no self-loops."""
+    e = edges
     a = sp.coo_matrix((np.ones(2 * len(e)), (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])), shape=(n, n)).tocsr()
     deg = np.maximum(np.asarray(a.sum(1)).ravel(), 1)
     return (sp.diags(1.0 / deg) @ a).tocsr()

@@ -50,9 +50,9 @@ def deepsd_path(name: str = "deepsd") -> Path:
 
 
 def gcvae_path(name: str = "gcvae") -> Path:
-    """The GCVAE garment space (``recon garment train --model gcvae``): built on this machine, in the
-    cache (``name`` may be an ablation variant's)."""
-    return user_dir() / f"{name}.pt"
+    """The GCVAE garment space (``recon garment train --model gcvae``): shipped as ``gcvae.pt``;
+    its ablation variants go to the cache."""
+    return (SHIPPED_DIR if name == "gcvae" else user_dir()) / f"{name}.pt"
 
 
 def resizer_path(outfit: str, pbns: str | Path | None = None) -> Path:
