@@ -26,7 +26,7 @@ from recon.garment import store
 from recon.garment.collide import CollisionResolver
 from recon.garment.data import pose_set
 from recon.garment.mesh import vertex_normals
-from recon.garment.pbns import PBNS
+from recon.garment.pbns.model import PBNS
 from recon.timing import compare
 
 OUT = Path(__file__).resolve().parent.parent / "eval" / "results"

@@ -18,12 +18,12 @@ import torch
 
 from recon.body import default_body
 from recon.garment import store
-from recon.garment.author import PELVIS, AuthorModel, Session, clip_inputs
-from recon.garment.author_data import AuthorDataConfig, load_plan, sim_folder, teacher_config
-from recon.garment.author_eval import interpolate, keyframes
+from recon.garment.author.data import AuthorDataConfig, load_plan, sim_folder, teacher_config
+from recon.garment.author.eval import interpolate, keyframes
+from recon.garment.author.model import PELVIS, AuthorModel, Session, clip_inputs
 from recon.garment.dress import Dresser
-from recon.garment.ncs_teacher import Motions
-from recon.garment.pbns import PBNS
+from recon.garment.ncs.data import Motions
+from recon.garment.pbns.model import PBNS
 from recon.viz import render_meshes
 
 BODY_RGBA, CLOTH_RGBA = (0.85, 0.72, 0.62, 1.0), (0.35, 0.45, 0.8, 1.0)

@@ -18,10 +18,10 @@ import torch
 from recon.body import default_body
 from recon.garment import store
 from recon.garment.data import posed_bodies
-from recon.garment.deepsd import DeePSD, OutfitGraph
-from recon.garment.deepsd_data import DeePSDDataConfig
-from recon.garment.deepsd_eval import predict
-from recon.garment.deepsd_train import load_samples
+from recon.garment.deepsd.data import DeePSDDataConfig
+from recon.garment.deepsd.eval import predict
+from recon.garment.deepsd.model import DeePSD, OutfitGraph
+from recon.garment.deepsd.train import load_samples
 from recon.garment.templates import RestBody, make_outfit
 from recon.viz import render_meshes
 

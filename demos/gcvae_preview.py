@@ -15,10 +15,10 @@ import torch
 
 from recon.body import default_body
 from recon.garment.data import pose_set
-from recon.garment.gcvae import TYPES
-from recon.garment.gcvae_sample import load_model, sample
+from recon.garment.gcvae.command import dressed_sheet
+from recon.garment.gcvae.model import TYPES
+from recon.garment.gcvae.sample import load_model, sample
 from recon.garment.templates import RestBody
-from recon.sampling import dressed_sheet
 
 SIZE = (150, 200)
 

@@ -18,9 +18,9 @@ import torch
 from recon.animate import BODY_RGBA, OUTFIT_RGBA, write_video
 from recon.body import default_body
 from recon.garment import store
-from recon.garment.ncs import NCS
-from recon.garment.ncs_eval import MODELS, clip_motion, run_models
-from recon.garment.pbns import PBNS
+from recon.garment.ncs.eval import MODELS, clip_motion, run_models
+from recon.garment.ncs.model import NCS
+from recon.garment.pbns.model import PBNS
 from recon.poses.mocap import MocapPoses
 from recon.viz import SequenceRenderer
 

@@ -16,7 +16,7 @@ from PIL import Image
 from recon import camera, io, paths
 from recon.demo import EXAMPLES
 from recon.garment.dress import Dresser
-from recon.garment.pbns import remove_yaw
+from recon.garment.pbns.model import remove_yaw
 from recon.pipeline import Reconstructor
 from recon.viz import render_meshes
 

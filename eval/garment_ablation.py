@@ -19,9 +19,9 @@ from pathlib import Path
 import torch
 
 from recon.body import default_body
-from recon.garment import pbns_train as T
-from recon.garment.pbns import PBNS
-from recon.garment.pbns_eval import error_to_drapes, evaluate
+from recon.garment.pbns import train as T
+from recon.garment.pbns.eval import error_to_drapes, evaluate
+from recon.garment.pbns.model import PBNS
 
 
 def main() -> None:

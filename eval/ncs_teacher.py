@@ -24,11 +24,11 @@ import torch
 
 from recon import report
 from recon.body import default_body
-from recon.garment import ncs_eval as E
 from recon.garment.integrate import IntegrateConfig, Preconditioner, integrate
 from recon.garment.losses import InertiaLoss
-from recon.garment.ncs_config import NCSTrainConfig
-from recon.garment.ncs_teacher import Teacher
+from recon.garment.ncs import eval as E
+from recon.garment.ncs.config import NCSTrainConfig
+from recon.garment.ncs.data import Teacher
 
 
 def plain_lbfgs(iterations: int):

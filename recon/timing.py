@@ -25,6 +25,11 @@ def median_ms(fn: Callable[[], object], min_run_time: float = 0.2, threads: int 
     return timer.blocked_autorange(min_run_time=min_run_time).median * 1000.0
 
 
+def frames_per_second(fn, batch: int) -> float:
+    """Frames a second of ``fn`` processing ``batch`` frames a call (its median time)."""
+    return 1000.0 * batch / median_ms(fn)
+
+
 def compare(fns: dict[str, Callable[[], object]], rounds: int = 5, min_run_time: float = 0.2,
             threads: int | None = None) -> dict[str, float]:
     """Median ms per call of each function, timed in ``rounds`` interleaved rounds (the median

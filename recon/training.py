@@ -61,6 +61,11 @@ def _set_rng_state(g, state) -> None:
         g.bit_generator.state = state
 
 
+def run_dir_for(out: Path) -> Path:
+    """Where an interrupted training of ``out`` keeps its state (removed once ``out`` is written)."""
+    return out.parent / f".{out.stem}.run"
+
+
 class Trainer:
     """``Trainer(modules, optimizer, steps, ...).fit(batches, step, validate) -> log``.
 

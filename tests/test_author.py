@@ -1,5 +1,5 @@
-"""Keyframe authoring in the intrinsic garment space (recon.garment.author, author_data,
-author_train; recon.authoring): U-block mixing, the motion descriptor, the character-space motion
+"""Keyframe authoring in the intrinsic garment space (recon.garment.author.model, author.data,
+author.train; recon.garment.author.command): U-block mixing, the motion descriptor, the character-space motion
 signature, motion invariance on a toy system, keyframes matched exactly after propagation, the
 latent interpolation, the descriptor's start as PCA, friction, and the command's files."""
 import json
@@ -12,10 +12,11 @@ import torch
 import trimesh
 from gltf_check import assert_valid, pose_meshes
 
-from recon.authoring import author, parse_key, read_keyframe
 from recon.errors import ReconError
 from recon.garment import store
-from recon.garment.author import (
+from recon.garment.author.command import author, parse_key, read_keyframe
+from recon.garment.author.data import RANGES, Intrinsics, fabric, sample_intrinsics, teacher_config
+from recon.garment.author.model import (
     AuthorConfig,
     AuthorModel,
     IntrinsicAutoencoder,
@@ -28,8 +29,7 @@ from recon.garment.author import (
     residual_weights,
     signature,
 )
-from recon.garment.author_data import RANGES, Intrinsics, fabric, sample_intrinsics, teacher_config
-from recon.garment.author_train import (
+from recon.garment.author.train import (
     AuthorTrainConfig,
     Frames,
     hanging_outfit,

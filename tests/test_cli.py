@@ -19,7 +19,8 @@ from recon.cli import garment as cli_garment
 from recon.cli import run as cli_run
 from recon.cli import synth as cli_synth
 from recon.fit import FitConfig
-from recon.garment import ncs_train, store
+from recon.garment import store
+from recon.garment.ncs import train as ncs_train
 from recon.garment.templates import RestBody
 
 

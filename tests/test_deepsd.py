@@ -13,9 +13,9 @@ from gltf_check import assert_valid, pose_meshes
 from recon.errors import ReconError
 from recon.garment import store
 from recon.garment.data import posed_bodies
-from recon.garment.deepsd import DeePSD, DeePSDConfig, OutfitGraph, mean_adjacency
-from recon.garment.deepsd_data import shuffled
-from recon.garment.deepsd_train import PhysicsConfig, Sample, collision_loss, physics_loss
+from recon.garment.deepsd.data import shuffled
+from recon.garment.deepsd.model import DeePSD, DeePSDConfig, OutfitGraph, mean_adjacency
+from recon.garment.deepsd.train import PhysicsConfig, Sample, collision_loss, physics_loss
 from recon.garment.dress import Dresser
 from recon.garment.gltf import write_glb
 from recon.garment.outfits import HELD_OUT_BANDS, HELD_OUT_FAMILIES, OutfitSampler

@@ -8,16 +8,16 @@ import trimesh
 from gltf_check import assert_valid, pose_meshes
 from scipy.spatial import cKDTree
 
-import recon.garment.pbns as P
+import recon.garment.pbns.model as P
 from recon.errors import ReconError
 from recon.garment import losses, mesh, store
-from recon.garment import pbns_eval as E
-from recon.garment import pbns_train as T
 from recon.garment.data import pose_set, posed_bodies
 from recon.garment.dress import Dresser
 from recon.garment.gltf import write_glb
 from recon.garment.metrics import collision_pct, penetration, physical_metrics
-from recon.garment.pbns import PBNS, PBNSConfig, initial_weights, pose_features, remove_yaw
+from recon.garment.pbns import eval as E
+from recon.garment.pbns import train as T
+from recon.garment.pbns.model import PBNS, PBNSConfig, initial_weights, pose_features, remove_yaw
 from recon.garment.templates import PRESETS, GarmentSpec, RestBody, hangs_free, make_outfit
 
 

@@ -4,8 +4,8 @@ import roma
 import torch
 
 from recon.body import JOINT_NAMES
-from recon.garment import pbns_eval as E
 from recon.garment.metrics import physical_metrics
+from recon.garment.pbns import eval as E
 from recon.garment.self_intersection import SkinSelfIntersection
 
 

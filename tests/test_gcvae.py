@@ -6,12 +6,11 @@ import torch
 from scipy.spatial import cKDTree
 
 from recon.errors import ReconError
-from recon.garment import store
-from recon.garment.gcvae import GCVAE, TYPES, BodyGraph, GCVAEConfig, garment_mesh, one_hot, pool, register
-from recon.garment.gcvae_sample import decode, interpolate, sample
-from recon.garment.gcvae_train import GCVAELossConfig, chamfer, kl_divergence, losses
+from recon.garment.gcvae.command import sample_command
+from recon.garment.gcvae.model import GCVAE, TYPES, BodyGraph, GCVAEConfig, garment_mesh, one_hot, pool, register
+from recon.garment.gcvae.sample import decode, interpolate, sample
+from recon.garment.gcvae.train import GCVAELossConfig, chamfer, kl_divergence, losses
 from recon.garment.templates import GarmentSpec, RestBody, make_outfit
-from recon.sampling import sample_command
 
 SMALL = GCVAEConfig(channels=(8, 8, 16, 16), latent=8, fc=32)
 

@@ -27,12 +27,20 @@ STAGES = [
     ("recon.viz",),
     ("recon.bench",),
     ("recon.run",),
-    ("recon.animate", "recon.authoring", "recon.sampling"),
+    ("recon.animate", "recon.garment.author.command", "recon.garment.gcvae.command"),
     ("recon.video",),
     ("recon.demo",),
     ("recon.cli",),
 ]
-GARMENT_RUNTIME = ("templates", "mesh", "pbns", "ncs", "resize", "dress", "collide", "gltf", "store", "deepsd")
+# recon.garment: a core, and a district per model family with the same rooms
+GARMENT_FAMILIES = ("pbns", "ncs", "deepsd", "gcvae", "taylor", "author")
+ROOMS = {"model": "inference", "sample": "inference", "data": "training data", "config": "training settings",
+         "losses": "training losses", "train": "training", "eval": "evaluation", "command": "a CLI command"}
+GARMENT_CORE_RUNTIME = ("templates", "outfits", "mesh", "store", "dress", "resize", "collide", "losses", "metrics",
+                        "gltf", "self_intersection")
+GARMENT_CORE_TRAINING = ("data", "drape", "integrate", "reference")
+# a family uses another's inference rooms only; author's data is NCS's teacher run on its own parameters
+CROSS_FAMILY = {("author", "ncs.data"), ("author", "ncs.config")}
 
 
 def module_name(path: Path) -> str:
@@ -44,10 +52,10 @@ MODULES = {module_name(p): p for p in sorted(ROOT.rglob("*.py"))}
 
 
 def stage(module: str) -> int:
-    for i, names in enumerate(STAGES):
-        if any(module == n or module.startswith(n + ".") for n in names):
-            return i
-    raise AssertionError(f"{module} belongs to no stage: add it to STAGES")
+    """The stage of the longest entry of STAGES that names the module or a package above it."""
+    found = [(len(n), i) for i, names in enumerate(STAGES) for n in names if module == n or module.startswith(n + ".")]
+    assert found, f"{module} belongs to no stage: add it to STAGES"
+    return max(found)[1]
 
 
 def imports(path: Path) -> list[tuple[str, int, bool]]:
@@ -100,13 +108,57 @@ def test_the_module_graph_has_no_cycle():
         visit(m, [])
 
 
-def test_runtime_garment_modules_import_no_training_or_evaluation():
-    for name in GARMENT_RUNTIME:
-        module = f"recon.garment.{name}"
+def garment_modules() -> dict[str, str]:
+    """Every module of recon.garment as 'core.<name>' or '<family>.<room>'."""
+    out = {}
+    for m in MODULES:
+        parts = m.split(".")
+        if parts[:2] != ["recon", "garment"] or len(parts) == 2 or parts[-1] == "garment":
+            continue
+        if len(parts) == 3:
+            out[m] = f"{parts[2]}.__init__" if parts[2] in GARMENT_FAMILIES else f"core.{parts[2]}"
+        else:
+            out[m] = ".".join(parts[2:])
+    return out
+
+
+def test_garment_is_a_core_and_one_district_per_family_with_the_same_rooms():
+    where = garment_modules()
+    families = {w.split(".")[0] for w in where.values() if not w.startswith("core.")}
+    assert families == set(GARMENT_FAMILIES)
+    for module, w in where.items():
+        family, room = w.split(".")
+        if family == "core":
+            assert room in GARMENT_CORE_RUNTIME + GARMENT_CORE_TRAINING, f"{module}: a core module no list names"
+        else:
+            assert room in ROOMS or room == "__init__", f"{module}: rooms are {', '.join(ROOMS)}"
+            if room != "__init__":
+                assert family + ".model" in where.values(), f"{family} has no model.py"
+
+
+def test_inference_never_imports_training_or_evaluation():
+    where = garment_modules()
+    runtime = {m for m, w in where.items()
+               if w.split(".")[1] in ("model", "sample") or w in {f"core.{n}" for n in GARMENT_CORE_RUNTIME}}
+    assert "recon.garment.dress" in runtime and "recon.garment.pbns.model" in runtime
+    for module in sorted(runtime):
         for imported, line, _ in imports(MODULES[module]):
-            later = ("recon.garment.pbns_train", "recon.garment.pbns_eval", "recon.garment.ncs_",
-                     "recon.garment.reference", "recon.garment.integrate")
-            assert not imported.startswith(later), f"{module}:{line} imports {imported}"
+            w = where.get(imported, "")
+            if w:
+                assert w.split(".")[1] in ("model", "sample") or w in {f"core.{n}" for n in GARMENT_CORE_RUNTIME}, \
+                    f"{module}:{line} imports {imported} ({ROOMS.get(w.split('.')[1], 'core training')})"
+
+
+def test_a_family_uses_another_family_only_through_its_inference_rooms():
+    where = garment_modules()
+    for module, w in where.items():
+        family = w.split(".")[0]
+        if family == "core":
+            continue
+        for imported, line, _ in imports(MODULES[module]):
+            other = where.get(imported, "core.").split(".")
+            if other[0] not in ("core", family) and other[1] not in ("model", "sample"):
+                assert (family, ".".join(other)) in CROSS_FAMILY, f"{module}:{line} imports {imported}"
 
 
 def test_the_package_facade_exports_what_the_readme_uses():

@@ -11,15 +11,14 @@ from gltf_check import assert_valid, pose_meshes
 
 from recon.body import lbs, skeleton
 from recon.body.lbs import forward_kinematics
-from recon.garment import losses, ncs, store
+from recon.garment import losses, store
 from recon.garment.data import pose_set, posed_bodies, trained_outfit
 from recon.garment.dress import Dresser
 from recon.garment.gltf import write_glb
 from recon.garment.integrate import IntegrateConfig, Preconditioner, integrate, minimise, settle, unpose
-from recon.garment.ncs_config import NCSTrainConfig
-from recon.garment.ncs_eval import clip_motion, hem_vertices
-from recon.garment.ncs_losses import Contact, Fit, FreeMotion, Physics, StaticPoses, gram, principal_fields, project
-from recon.garment.ncs_teacher import (
+from recon.garment.ncs import model as ncs
+from recon.garment.ncs.config import NCSTrainConfig
+from recon.garment.ncs.data import (
     Motions,
     Teacher,
     ankle_taper,
@@ -29,8 +28,10 @@ from recon.garment.ncs_teacher import (
     rest_joint_height,
     sound_chunks,
 )
-from recon.garment.ncs_train import train
-from recon.garment.pbns import PBNS, initial_weights, pose_features
+from recon.garment.ncs.eval import clip_motion, hem_vertices
+from recon.garment.ncs.losses import Contact, Fit, FreeMotion, Physics, StaticPoses, gram, principal_fields, project
+from recon.garment.ncs.train import train
+from recon.garment.pbns.model import PBNS, initial_weights, pose_features
 from recon.garment.templates import Garment, GarmentSpec, Outfit, RestBody, make_outfit
 from recon.poses.mocap import MocapPoses
 
@@ -380,7 +381,7 @@ def test_unpose_bounds_a_near_singular_blend():
     assert torch.allclose(blend @ unpose(blend, good, 0.2), good, atol=1e-12)
 
 
-# --- fitting the network (recon.garment.ncs_train) ----------------------------------------------
+# --- fitting the network (recon.garment.ncs.train) ----------------------------------------------
 
 def test_principal_fields_are_mass_orthogonal_and_project_back():
     g = torch.Generator().manual_seed(0)
@@ -637,7 +638,7 @@ def test_update_keeps_the_other_outfits_rows(tmp_path, monkeypatch):
     """``evaluate_and_report(update=True)`` replaces the evaluated outfit's rows where they were,
     keeps the rest of the existing table and adds a new outfit's at its end; without it the table
     holds only what was evaluated."""
-    from recon.garment import ncs_eval as E
+    from recon.garment.ncs import eval as E
     monkeypatch.setattr(E, "evaluate", lambda body, o, *a, **k: {"outfit": o, "rows": {"new": True}})
     monkeypatch.setattr(E, "ncs_check", lambda names: {n: {} for n in names})
     monkeypatch.setattr(E, "render", lambda data: "table")

@@ -8,7 +8,9 @@ import pytest
 
 from recon import report
 from recon.bench import runner
-from recon.garment import deepsd_eval, ncs_eval, pbns_eval
+from recon.garment.deepsd import eval as deepsd_eval
+from recon.garment.ncs import eval as ncs_eval
+from recon.garment.pbns import eval as pbns_eval
 from recon.smplr import evaluate as smplr_eval
 
 RESULTS = Path(__file__).resolve().parent.parent / "eval" / "results"

@@ -1,4 +1,4 @@
-"""The example-based Taylor garment model (recon.garment.taylor, taylor_build, drape): the Taylor
+"""The example-based Taylor garment model (recon.garment.taylor.model, taylor.train, drape): the Taylor
 term at an anchor, separability on a toy, the blending, the shape model, sensitivity by finite
 differences against autograd, the drape solver, and the model behind Dresser and the .glb."""
 import json
@@ -16,9 +16,9 @@ from recon.garment.data import posed_bodies
 from recon.garment.drape import DrapeSolver, DrapeSolverConfig
 from recon.garment.dress import Dresser
 from recon.garment.gltf import write_glb
-from recon.garment.pbns import PBNS, PBNSConfig, initial_weights, pose_features
+from recon.garment.pbns.model import PBNS, PBNSConfig, initial_weights, pose_features
 from recon.garment.resize import Transfer
-from recon.garment.taylor import (
+from recon.garment.taylor.model import (
     BlendConfig,
     TaylorGarment,
     blend_weights,
@@ -26,7 +26,7 @@ from recon.garment.taylor import (
     region_weights,
     shape_features,
 )
-from recon.garment.taylor_build import (
+from recon.garment.taylor.train import (
     cluster_anchors,
     database_shapes,
     perturbed,

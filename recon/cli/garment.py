@@ -6,30 +6,28 @@ from dataclasses import replace
 from pathlib import Path
 
 from recon import report
-from recon.authoring import author
 from recon.body import default_body
 from recon.cli.parsing import COUNT, NON_NEGATIVE, POSITIVE, SEED, STEPS, Parser, actions, default
 from recon.errors import ReconError
-from recon.garment import (
-    author_eval,
-    author_train,
-    deepsd_eval,
-    deepsd_train,
-    gcvae_train,
-    ncs_eval,
-    ncs_train,
-    pbns_eval,
-    pbns_train,
-    store,
-    taylor_build,
-    taylor_eval,
-)
-from recon.garment.author_data import AuthorDataConfig
-from recon.garment.deepsd_data import DeePSDDataConfig
-from recon.garment.gcvae import TYPES
+from recon.garment import store
+from recon.garment.author import eval as author_eval
+from recon.garment.author import train as author_train
+from recon.garment.author.command import author
+from recon.garment.author.data import AuthorDataConfig
+from recon.garment.deepsd import eval as deepsd_eval
+from recon.garment.deepsd import train as deepsd_train
+from recon.garment.deepsd.data import DeePSDDataConfig
+from recon.garment.gcvae import train as gcvae_train
+from recon.garment.gcvae.command import sample_command
+from recon.garment.gcvae.model import TYPES
+from recon.garment.ncs import eval as ncs_eval
+from recon.garment.ncs import train as ncs_train
+from recon.garment.pbns import eval as pbns_eval
+from recon.garment.pbns import train as pbns_train
 from recon.garment.resize import ResizeConfig
+from recon.garment.taylor import eval as taylor_eval
+from recon.garment.taylor import train as taylor_build
 from recon.garment.templates import PRESETS
-from recon.sampling import sample_command
 
 
 def outfits(names: list[str]) -> list[str]:

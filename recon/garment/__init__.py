@@ -1,15 +1,16 @@
-"""Garments (thesis ch. 3-6).
+"""Garments (thesis ch. 3-6): a core and one district per model family.
 
-Runtime: ``templates`` (CLOTH3D-style outfits on the rest body), ``pbns`` (the network),
-``ncs`` (Neural Cloth Simulation, ch. 6: descriptors, the recurrent model, the inertia term),
-``resize`` (body shape + tightness), ``taylor`` (the example-based body-shape dimension),
-``deepsd`` (any outfit mesh to W and D without training, ch. 4), ``gcvae`` and ``gcvae_sample``
-(the generative garment space, 3.4), ``dress`` (any body shape and pose: ``Dresser``),
-``collide`` (collision resolution), ``gltf`` (animated .glb), ``store`` (where weights live),
-``mesh``. Shared: ``losses`` (PBNS energies), ``metrics`` (what the logs and tables report),
-``self_intersection`` (where the posed body passes through itself), ``data`` (pose sets,
-conditions), ``outfits`` (a distribution of generated outfits with held-out styles).
-Training: ``*_train``, ``*_data``, ``taylor_build`` (with ``drape``, the quasi-static drape
-solver); evaluation: ``*_eval``, with ``reference`` (a newton cloth drape, optional extra).
-Runtime modules import nothing from training or evaluation.
+Core, inference: ``templates`` (CLOTH3D-style outfits on the rest body), ``outfits`` (a
+distribution of generated outfits with held-out styles), ``mesh``, ``resize`` (body shape +
+tightness), ``dress`` (any body shape and pose: ``Dresser``), ``collide`` (collision resolution),
+``gltf`` (animated .glb), ``store`` (where weights live), ``losses`` (the cloth energies),
+``metrics``, ``self_intersection``. Core, training: ``data`` (pose sets, posed bodies),
+``integrate`` (the implicit cloth integrator), ``drape`` (the quasi-static drape), ``reference``
+(a newton cloth drape, an optional extra).
+
+Families, each a subpackage with the same rooms (``model`` for inference, ``data``, ``train``,
+``eval``; a few have ``config``, ``losses``, ``sample`` or ``command``): ``pbns`` (ch. 5),
+``ncs`` (Neural Cloth Simulation, ch. 6), ``deepsd`` (any outfit mesh, ch. 4), ``gcvae`` (the
+generative garment space, 3.4), ``taylor`` (example-based body-shape synthesis), ``author``
+(keyframe authoring). Inference imports nothing from training or evaluation (tests/test_layout.py).
 """

@@ -1,5 +1,5 @@
-"""What PBNS and the resizer are trained and evaluated on: balanced mocap pose sets, the posed
-bodies, and (shape, tightness) conditions with their transferred rest outfits."""
+"""What every garment family trains and evaluates on: balanced mocap pose sets, the posed bodies,
+and the template a trained PBNS file was made for."""
 from __future__ import annotations
 
 import json
@@ -10,12 +10,12 @@ import roma
 import torch
 
 from recon.errors import ReconError
-from recon.garment.mesh import nearest, vertex_normals
-from recon.garment.pbns import PBNS
-from recon.garment.resize import TIGHTNESS_RANGE, Transfer
+from recon.garment.mesh import vertex_normals
+from recon.garment.pbns.model import PBNS
 from recon.garment.templates import Outfit, make_outfit
 from recon.poses.mocap import MocapPoses
-from recon.poses.sampler import ShapeSampler
+
+MIN_POSE_DISTANCE = 0.5  # radians: every pair of a pose set differs this much in some joint (thesis 5.4.3)
 
 
 def balanced_poses(rotvec: np.ndarray, n: int, min_distance: float, seed: int) -> np.ndarray:
@@ -54,31 +54,6 @@ def posed_bodies(body, rotmats: torch.Tensor, shape: torch.Tensor, chunk: int = 
             ns.append(vertex_normals(o.vertices, body.faces))
             ts.append(o.transforms)
     return torch.cat(vs), torch.cat(ns), torch.cat(ts)
-
-
-def sample_conditions(body, n: int, seed: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """n (shape, tightness) conditions: shapes from the body's prior, tightness uniform in
-    TIGHTNESS_RANGE."""
-    shape = ShapeSampler(body, seed=seed).sample(n).float()
-    rng = np.random.default_rng(seed)
-    tight = np.stack([rng.uniform(lo, hi, n) for lo, hi in TIGHTNESS_RANGE], 1)
-    return shape, torch.from_numpy(tight).float()
-
-
-class Conditions:
-    """Per (shape, tightness) condition: the transferred rest outfit E_T and its edge lengths, the
-    rest body of that shape with normals, and nearest-body-vertex candidates of E_T."""
-
-    def __init__(self, body, transfer: Transfer, shape, tight, edges: torch.Tensor, k: int):
-        with torch.no_grad():
-            bv = torch.cat([body.rest_geometry(shape[i:i + 64].to(body.mean_shape))[0]
-                            for i in range(0, len(shape), 64)])
-        self.shape, self.tight = shape, tight
-        self.base = torch.from_numpy(np.concatenate([transfer(shape[i:i + 64], tight[i:i + 64])
-                                                     for i in range(0, len(shape), 64)]))
-        self.rest_len = (self.base[:, edges[:, 0]] - self.base[:, edges[:, 1]]).norm(dim=-1)
-        self.bv, self.bn = bv.float(), vertex_normals(bv.float(), body.faces)
-        self.cand = nearest(self.bv, self.base, k).to(torch.int16 if bv.shape[1] < 32767 else torch.int32)
 
 
 def trained_outfit(body, pbns_path: Path) -> tuple[Outfit, torch.Tensor, str]:

@@ -1,7 +1,7 @@
 """Quasi-static drape of an outfit on a posed body of any shape: the state that minimises the PBNS
 energies (edge, bending, body and layer collision, gravity) with the pinned vertices held where
 the body carries them. The ground truth of the example-based (Taylor) garment model: its database
-and its evaluation (recon.garment.taylor, recon.garment.taylor_eval).
+and its evaluation (recon.garment.taylor.model, recon.garment.taylor.eval).
 
 The garment on a body of shape beta is the template graded to that body (``resize.Transfer``, as
 ``Dresser`` sizes it): its rest edge lengths are those of the transferred rest outfit, and the
@@ -24,9 +24,8 @@ import torch
 
 from recon.garment import losses, mesh
 from recon.garment.integrate import IntegrateConfig, Preconditioner, minimise
-from recon.garment.pbns_train import GarmentTrainConfig
+from recon.garment.losses import FABRIC
 
-FABRIC = GarmentTrainConfig()
 # the preconditioner's least mass term (per mean vertex, like the energies): below it the line search
 # halves most steps; inertia's 5 / 9.81 at 30 fps
 PRECOND_MASS = 460.0  # the fabric PBNS trains with: the drape minimises the same energies

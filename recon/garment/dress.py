@@ -11,12 +11,12 @@ A motion (``Dresser.animate``) is dressed by the outfit's NCS (thesis ch. 6: the
 lags and settles) when the outfit has one and ``dynamics`` is not False, else by PBNS frame by
 frame (quasi-static).
 
-``garment_model="taylor"``: the example-based model (recon.garment.taylor) instead, quasi-static:
+``garment_model="taylor"``: the example-based model (recon.garment.taylor.model) instead, quasi-static:
 PBNS's pose deformations plus the body-shape dimension from drapes on many bodies at anchor poses;
 it sizes the outfit to the body itself (no resizer, no tightness) and resolves penetrations its
 own way.
 
-``garment_model="deepsd"``: any outfit without training (recon.garment.deepsd, thesis ch. 4): its
+``garment_model="deepsd"``: any outfit without training (recon.garment.deepsd.model, thesis ch. 4): its
 blend weights and pose-space blend shapes predicted from the template mesh, then as PBNS
 (resized by transfer, quasi-static). A garment mesh with no PBNS weights of its own gets it.
 """
@@ -33,11 +33,11 @@ from recon.body import default_body
 from recon.errors import MissingFile, ReconError
 from recon.garment import store
 from recon.garment.collide import CollisionResolver
-from recon.garment.deepsd import animation_model
-from recon.garment.ncs import FPS, NCS
-from recon.garment.pbns import PBNS, pose_features
+from recon.garment.deepsd.model import animation_model
+from recon.garment.ncs.model import FPS, NCS
+from recon.garment.pbns.model import PBNS, pose_features
 from recon.garment.resize import OutfitResizer, Transfer
-from recon.garment.taylor import TaylorGarment
+from recon.garment.taylor.model import TaylorGarment
 from recon.garment.templates import MESH_SUFFIXES
 
 
@@ -67,7 +67,7 @@ class Dresser:
         ``dynamics``: motions through the outfit's NCS (None: when it has one; True: it must).
         ``garment_model``: "pbns" (PBNS, NCS for motions as ``dynamics`` says), "taylor" (the
         example-based model; its database: ``recon garment train --model taylor``) or "deepsd" (any
-        outfit animated without training, recon.garment.deepsd; what a garment mesh with no PBNS
+        outfit animated without training, recon.garment.deepsd.model; what a garment mesh with no PBNS
         weights of its own gets)."""
         if garment_model not in GARMENT_MODELS:
             raise ReconError(f"unknown garment model {garment_model!r}: {', '.join(GARMENT_MODELS)}")

@@ -27,7 +27,7 @@ import trimesh
 
 from recon import paths
 from recon.body import skeleton
-from recon.garment.pbns import pose_features
+from recon.garment.pbns.model import pose_features
 
 FLOAT, UBYTE, USHORT, UINT = 5126, 5121, 5123, 5125
 ARRAY_BUFFER, ELEMENT_ARRAY_BUFFER = 34962, 34963

@@ -2,7 +2,7 @@
 minimises the PBNS energies plus the inertia term against the two previous states, which are
 constants (the thesis' point against SNUG). It is the fixed point NCS's training aims at; solved
 frame after frame over free vertices it gives the trajectories NCS's dynamic branch learns
-(recon.garment.ncs_train), from nothing but the body's motion and the energies.
+(recon.garment.ncs.train), from nothing but the body's motion and the energies.
 
 The state is the static model's drape (PBNS) plus a displacement u of the free vertices; the held
 vertices (a skirt's pinned waist, a dress's top band: ``ncs.hanging_part``) stay with the static

@@ -6,7 +6,7 @@ quantities (strain, bending, penetration) are recon.garment.metrics', shared wit
 evaluation."""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
@@ -15,7 +15,7 @@ from torch import nn
 from recon.garment import mesh
 from recon.garment.mesh import nearest, nearest_among
 from recon.garment.metrics import bending, penetration, strain
-from recon.garment.ncs import FPS
+from recon.garment.ncs.model import FPS
 
 
 @dataclass
@@ -171,6 +171,38 @@ class Criterion(nn.Module):
                       "collision": self.collision(v, body_v, body_n, self.faces, body_cand, cloth_cand, body_inside),
                       "gravity": self.gravity(v), "pin": self.pin(dt)}
         return sum(self.terms.values())
+
+
+@dataclass
+class Fabric:
+    """The cloth's energies as PBNS trains them: NCS, its teacher and the quasi-static drape
+    minimise the same ones."""
+    # stiff edges meet the strain target; gravity and bending raised with them keep the sag and the
+    # smoothness they would lose (the garment model card's ablation, fifth round)
+    edge: EdgeConfig = field(default_factory=lambda: EdgeConfig(weight=3e5))
+    bend: BendConfig = field(default_factory=lambda: BendConfig(weight=1.0))
+    collision: CollisionConfig = field(default_factory=lambda: CollisionConfig(weight=1e5))
+    gravity: GravityConfig = field(default_factory=lambda: GravityConfig(weight=5.0))
+    pin: PinConfig = field(default_factory=PinConfig)
+
+
+FABRIC = Fabric()
+
+
+@torch.no_grad()
+def candidates(model, crit: Criterion, rot, bt, bv, k: int, chunk: int = 64, codes=None):
+    """Per pose, the k nearest body vertices (and inner-layer vertices) of every vertex of the
+    skinned template (dT = 0), or of the model's drape at ``codes`` (P, E) where given: the
+    prediction moves a few cm at most, so its nearest neighbour is almost always among them.
+    int16/int32 to keep 3,000 poses in memory."""
+    body_c, cloth_c = [], [[] for _ in crit.collision.pairs()]
+    for i in range(0, len(rot), chunk):
+        rest = model.rest if codes is None else model.rest + model.decode(codes[i:i + chunk])
+        v = model.skin(rest, bt[i:i + chunk])
+        body_c.append(nearest(bv[i:i + chunk], v, k).to(torch.int16 if bv.shape[1] < 32767 else torch.int32))
+        for j, (inner, outer) in enumerate(crit.collision.pairs()):
+            cloth_c[j].append(nearest(v[:, inner], v[:, outer], k).to(torch.int32))
+    return torch.cat(body_c), [torch.cat(c) for c in cloth_c]
 
 
 @dataclass

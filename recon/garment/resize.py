@@ -1,5 +1,5 @@
 """Outfit resizing with PBNS (thesis 5.5.6): body shape + tightness -> rest-pose outfit.
-Trained by ``recon garment resize`` (recon.garment.pbns_train), evaluated by recon.garment.pbns_eval.
+Trained by ``recon garment resize`` (recon.garment.pbns.train), evaluated by recon.garment.pbns.eval.
 
 The pose input of PBNS is replaced by the body shape beta concatenated with the outfit
 tightness gamma (R^2) and skinning is removed:

@@ -19,9 +19,9 @@ import torch
 from scipy.spatial import cKDTree
 
 from recon.garment import mesh, store
-from recon.garment.deepsd import DeePSD, OutfitGraph
+from recon.garment.deepsd.model import DeePSD, OutfitGraph
 from recon.garment.outfits import OutfitSampler
-from recon.garment.pbns import PBNS, PBNSConfig
+from recon.garment.pbns.model import PBNS, PBNSConfig
 from recon.garment.templates import PRESETS, RestBody, make_outfit
 
 PUSH_MARGIN = 0.004  # cloth kept this far (m) in front of the body surface

@@ -14,7 +14,7 @@ from __future__ import annotations
 import json
 import shutil
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import torch
@@ -22,21 +22,21 @@ import torch
 from recon import paths
 from recon.errors import ReconError
 from recon.garment import losses, store
-from recon.garment.data import Conditions, pose_set, posed_bodies, sample_conditions, trained_outfit
-from recon.garment.mesh import nearest
+from recon.garment.data import MIN_POSE_DISTANCE, pose_set, posed_bodies, trained_outfit
 from recon.garment.metrics import collision_pct, rest_metrics
-from recon.garment.pbns import PBNS, PBNSConfig, initial_weights
+from recon.garment.pbns.data import Conditions, sample_conditions
+from recon.garment.pbns.model import PBNS, PBNSConfig, initial_weights
 from recon.garment.resize import TIGHTNESS_PHENOTYPES, TIGHTNESS_RANGE, ResizeConfig, Resizer, Transfer
 from recon.garment.self_intersection import SkinSelfIntersection
 from recon.garment.templates import RestBody, hangs_free, make_outfit, outfit_name
-from recon.training import Trainer, epoch_batches
+from recon.training import Trainer, epoch_batches, run_dir_for
 
 
 @dataclass
 class GarmentTrainConfig:
     outfit: str = "tshirt-trousers"
     poses: int = 3000
-    min_pose_distance: float = 0.5  # radians (thesis 5.4.3)
+    min_pose_distance: float = MIN_POSE_DISTANCE
     val_fraction: float = 0.15
     epochs: int = 6
     batch: int = 16
@@ -52,13 +52,11 @@ class GarmentTrainConfig:
     # gravity; the stiff edges then remove the strain of the sag (ablation, fifth round)
     edge_warmup: float = 0.1
     model: PBNSConfig = field(default_factory=PBNSConfig)
-    # stiff edges meet the strain target; gravity and bending raised with them keep the sag and the
-    # smoothness they would lose (the garment model card's ablation, fifth round)
-    edge: losses.EdgeConfig = field(default_factory=lambda: losses.EdgeConfig(weight=3e5))
-    bend: losses.BendConfig = field(default_factory=lambda: losses.BendConfig(weight=1.0))
-    collision: losses.CollisionConfig = field(default_factory=lambda: losses.CollisionConfig(weight=1e5))
-    gravity: losses.GravityConfig = field(default_factory=lambda: losses.GravityConfig(weight=5.0))
-    pin: losses.PinConfig = field(default_factory=losses.PinConfig)
+    edge: losses.EdgeConfig = field(default_factory=lambda: replace(losses.FABRIC.edge))
+    bend: losses.BendConfig = field(default_factory=lambda: replace(losses.FABRIC.bend))
+    collision: losses.CollisionConfig = field(default_factory=lambda: replace(losses.FABRIC.collision))
+    gravity: losses.GravityConfig = field(default_factory=lambda: replace(losses.FABRIC.gravity))
+    pin: losses.PinConfig = field(default_factory=lambda: replace(losses.FABRIC.pin))
 
 
 # stored in float16: it moves no published number (eval/results/weights-float16.md); PBNS keeps
@@ -79,11 +77,6 @@ def _adam(net: torch.nn.Module, lr: float, lr_psd: float) -> torch.optim.Adam:
                              {"params": [p for n, p in net.named_parameters() if n != "D"], "lr": lr}])
 
 
-def run_dir_for(out: Path) -> Path:
-    """Where an interrupted training of ``out`` keeps its state (removed once ``out`` is written)."""
-    return out.parent / f".{out.stem}.run"
-
-
 def build(body, cfg: GarmentTrainConfig, shape: torch.Tensor | None = None):
     """Outfit template + untrained PBNS for a body shape (default: the body's mean shape)."""
     shape = body.mean_shape[None] if shape is None else shape.reshape(1, -1)
@@ -97,22 +90,6 @@ def build(body, cfg: GarmentTrainConfig, shape: torch.Tensor | None = None):
     w = initial_weights(rb, outfit, mcfg.weight_diffusion)
     model = PBNS(torch.from_numpy(outfit.vertices), torch.from_numpy(outfit.faces), torch.from_numpy(w), mcfg)
     return outfit, model, shape
-
-
-@torch.no_grad()
-def candidates(model: PBNS, crit: losses.Criterion, rot, bt, bv, k: int, chunk: int = 64, codes=None):
-    """Per pose, the k nearest body vertices (and inner-layer vertices) of every vertex of the
-    skinned template (dT = 0), or of the model's drape at ``codes`` (P, E) where given: the
-    prediction moves a few cm at most, so its nearest neighbour is almost always among them.
-    int16/int32 to keep 3,000 poses in memory."""
-    body_c, cloth_c = [], [[] for _ in crit.collision.pairs()]
-    for i in range(0, len(rot), chunk):
-        rest = model.rest if codes is None else model.rest + model.decode(codes[i:i + chunk])
-        v = model.skin(rest, bt[i:i + chunk])
-        body_c.append(nearest(bv[i:i + chunk], v, k).to(torch.int16 if bv.shape[1] < 32767 else torch.int32))
-        for j, (inner, outer) in enumerate(crit.collision.pairs()):
-            cloth_c[j].append(nearest(v[:, inner], v[:, outer], k).to(torch.int32))
-    return torch.cat(body_c), [torch.cat(c) for c in cloth_c]
 
 
 @torch.no_grad()
@@ -148,7 +125,7 @@ def train(body, cfg: GarmentTrainConfig | None = None, out: Path | None = None, 
     perm = torch.randperm(len(poses), generator=torch.Generator().manual_seed(cfg.seed))
     val_idx, tr_idx = perm[:n_val], perm[n_val:]
     crit = losses.Criterion(outfit, model.rest, cfg)
-    body_c, cloth_c = candidates(model, crit, poses, bt, bv, cfg.candidates)
+    body_c, cloth_c = losses.candidates(model, crit, poses, bt, bv, cfg.candidates)
     inside = SkinSelfIntersection(body, shape)(bv) if cfg.collision.skip_self_intersection else None
     opt = _adam(model, cfg.lr, cfg.lr_psd)
     per_epoch = len(tr_idx) // cfg.batch

@@ -1,5 +1,5 @@
 """``recon garment author``: a clip's garment animation from a few edited keyframes, through the
-outfit's intrinsic garment space (recon.garment.author).
+outfit's intrinsic garment space (recon.garment.author.model).
 
 Workflow: ``recon garment author --outfit tshirt-skirt --motion CLIP --export 40 --out DIR`` writes
 the clip dressed with the default material (NCS) and ``DIR/frame_0040.obj``, the outfit at frame 40
@@ -23,12 +23,12 @@ from recon.animate import Motion, load_motion, on_the_ground, render_motion, wri
 from recon.body import default_body
 from recon.errors import MissingFile, ReconError
 from recon.garment import store
-from recon.garment.author import AuthorModel, Session, clip_inputs
-from recon.garment.author_data import teacher_config
+from recon.garment.author.data import teacher_config
+from recon.garment.author.model import AuthorModel, Session, clip_inputs
 from recon.garment.dress import DressedOutfit, Dresser
 from recon.garment.gltf import BlendAnimation, write_glb
 from recon.garment.integrate import unpose
-from recon.garment.ncs import smooth_time
+from recon.garment.ncs.model import smooth_time
 
 MORPH_TARGETS = 64  # principal components of the animation's rest-pose displacements in the .glb
 

@@ -1,6 +1,6 @@
 """``recon garment eval --model deepsd`` -> eval/results/garment-deepsd.{json,md}: DeePSD on held-out
 outfits (``recon.garment.outfits``' held-out family and parameter bands) at poses of the test
-performers, against their drapes (``deepsd_data``; the supervision's solver):
+performers, against their drapes (``deepsd.data``; the supervision's solver):
 
 1. vertex error to the drape (mm), edge error (mm, against the template), bending and collision %
    (vertices inside the body), for DeePSD with and without its physics branch, the ablations that
@@ -26,12 +26,12 @@ from torch.utils import benchmark
 from recon import report
 from recon.body import default_body
 from recon.garment import store
-from recon.garment.deepsd import DeePSD, OutfitGraph
-from recon.garment.deepsd_data import DeePSDDataConfig, folder
-from recon.garment.deepsd_train import VARIANTS, Sample, load_samples, variant_config
+from recon.garment.deepsd.data import DeePSDDataConfig, folder
+from recon.garment.deepsd.model import DeePSD, OutfitGraph
+from recon.garment.deepsd.train import VARIANTS, Sample, load_samples, variant_config
 from recon.garment.metrics import physical_metrics
 from recon.garment.outfits import HELD_OUT_FAMILIES
-from recon.garment.pbns import PBNS, BlendShapeGarment, blend_transforms, pose_features
+from recon.garment.pbns.model import PBNS, BlendShapeGarment, blend_transforms, pose_features
 from recon.garment.templates import PRESETS, RestBody, make_outfit
 
 METRICS = ("error_mm", "edge_mm", "bend", "collision_pct")
@@ -107,7 +107,7 @@ def evaluate(data: DeePSDDataConfig | None = None, log=print) -> dict:
     out["data"] = {"train_outfits": len(list(folder(data).glob("train-*.pt"))),
                    "val_outfits": len(list(folder(data).glob("val-*.pt"))),
                    "seconds": json.loads(timing.read_text())["seconds"] if timing.exists() else None}
-    out["check"] = {"function": "recon.garment.deepsd_eval:check", "kwargs": {"outfit": "top-shorts"},
+    out["check"] = {"function": "recon.garment.deepsd.eval:check", "kwargs": {"outfit": "top-shorts"},
                     "values": check("top-shorts")}
     return out
 
@@ -202,7 +202,7 @@ def render(data: dict) -> str:
               f"nearest-body weights, graph, network; median of 3); {sp['outfit']} ({sp['vertices']:,} vertices) "
               f"then runs at {sp['fps']['1t']:.0f} frames/s at batch 1 on 1 thread, {sp['fps']['2t']:.0f} on 2 (given "
               "the posed body's joint transforms; best of 3: this machine's speed varies from run to run).", "",
-              f"Training data: {data['data']['train_outfits']} train outfits (recon.garment.deepsd_data); model card: "
+              f"Training data: {data['data']['train_outfits']} train outfits (recon.garment.deepsd.data); model card: "
               "recon/garment/weights/MODEL_CARD.md."]
     return "\n".join(lines)
 

@@ -30,9 +30,9 @@ from recon.garment import losses, store
 from recon.garment.data import posed_bodies, trained_outfit
 from recon.garment.integrate import Preconditioner, integrate, settle, unpose
 from recon.garment.mesh import faces_within
-from recon.garment.ncs import FPS, descriptors, hanging_part, smooth_time, vertex_masses
-from recon.garment.ncs_config import NCSTrainConfig
-from recon.garment.pbns import PBNS, blend_transforms, pose_features
+from recon.garment.ncs.config import NCSTrainConfig
+from recon.garment.ncs.model import FPS, descriptors, hanging_part, smooth_time, vertex_masses
+from recon.garment.pbns.model import PBNS, blend_transforms, pose_features
 from recon.garment.templates import GarmentSpec, Outfit
 from recon.poses.mocap import MocapPoses
 

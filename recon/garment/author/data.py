@@ -2,7 +2,7 @@
 of an outfit simulated through mocap chunks with randomly drawn *intrinsic parameters* (fabric,
 environment, solver damping), the dataset of Wang et al. 2019 (section 3.6) on our outfits.
 
-The simulator is NCS's teacher (``ncs_teacher.Teacher``: PBNS's energies plus inertia, integrated
+The simulator is NCS's teacher (``ncs.data.Teacher``: PBNS's energies plus inertia, integrated
 implicitly frame by frame; recon.garment.integrate): the project's own dynamic solver, ~0.5 s a
 frame of the 5k-vertex skirt on one thread where newton's VBD takes minutes, and the solver whose
 default fabric NCS learnt, so "NCS with default parameters" is a fair baseline. Per parameter set
@@ -34,9 +34,9 @@ from tqdm import tqdm
 from recon import paths
 from recon.body import default_body
 from recon.garment import losses, store
-from recon.garment.ncs_config import NCSTrainConfig
-from recon.garment.ncs_teacher import Chunk, Motions, Teacher, chunks_of
-from recon.garment.pbns import PBNS
+from recon.garment.ncs.config import NCSTrainConfig
+from recon.garment.ncs.data import Chunk, Motions, Teacher, chunks_of
+from recon.garment.pbns.model import PBNS
 from recon.timing import add_seconds
 
 

@@ -4,7 +4,7 @@ and number of layers to its animation model, blend weights W and pose-space blen
 
     V_theta = W(T + sum_p Theta(theta)_p D_p, J, theta, W),
 
-which is exactly PBNS's form (``recon.garment.pbns``): a converted outfit is a ``PBNS`` and goes
+which is exactly PBNS's form (``recon.garment.pbns.model``): a converted outfit is a ``PBNS`` and goes
 wherever PBNS goes (resizing, collisions, motions, morph targets in the .glb).
 
 Architecture (fig. 4.2): Phi, 4 graph convolutions over the template's edges (a vertex and the
@@ -32,7 +32,7 @@ from torch import nn
 
 from recon import paths
 from recon.garment import mesh, store
-from recon.garment.pbns import (
+from recon.garment.pbns.model import (
     PBNS,
     BlendShapeGarment,
     PBNSConfig,

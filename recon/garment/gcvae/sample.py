@@ -1,5 +1,5 @@
 """Garments out of the GCVAE's latent space (thesis 3.4): drawn per type, decoded, interpolated
-(``recon garment sample`` is recon.sampling)."""
+(``recon garment sample`` is recon.garment.gcvae.command)."""
 from __future__ import annotations
 
 import numpy as np
@@ -7,7 +7,7 @@ import torch
 
 from recon.errors import MissingFile, ReconError
 from recon.garment import mesh, store
-from recon.garment.gcvae import GCVAE, TYPES, garment_mesh, one_hot
+from recon.garment.gcvae.model import GCVAE, TYPES, garment_mesh, one_hot
 from recon.garment.templates import RestBody
 
 

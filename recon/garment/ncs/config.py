@@ -6,10 +6,8 @@ from dataclasses import dataclass, field
 
 from recon.garment import losses
 from recon.garment.integrate import IntegrateConfig
-from recon.garment.ncs import NCSConfig
-from recon.garment.pbns_train import GarmentTrainConfig
-
-FABRIC = GarmentTrainConfig()  # NCS trains on the fabric its PBNS was trained with
+from recon.garment.losses import FABRIC  # NCS trains on the fabric its PBNS was trained with
+from recon.garment.ncs.model import NCSConfig
 
 
 @dataclass
@@ -44,10 +42,10 @@ class NCSTrainConfig:
     lr: float = 3e-3
     weight_decay: float = 0.01
     # keep the predicted hanging part out of the body at ``contact_frames`` of every 4th frame of each
-    # chunk (``ncs_losses.Contact``), per mean squared penetration past the collision eps. 0: off
+    # chunk (``ncs.losses.Contact``), per mean squared penetration past the collision eps. 0: off
     contact_weight: float = 0.0
     contact_frames: int = 8
-    # the physics steps: the thesis' loss on the predictions (``ncs_losses.Physics``) joins the fitting
+    # the physics steps: the thesis' loss on the predictions (``ncs.losses.Physics``) joins the fitting
     physics_steps: int = 200
     physics_chunks: int = 4  # chunks per step
     physics_frames: int = 8  # frames per chunk
@@ -55,12 +53,12 @@ class NCSTrainConfig:
     # D's new rows (the fields) learn in the physics steps too, on the hanging part only, as the
     # thesis' decoder does. 0: the principal fields stay
     field_lr: float = 1e-3
-    # PBNS's own loss on NCS's static part at poses of the train split (``ncs_losses.StaticPoses``)
+    # PBNS's own loss on NCS's static part at poses of the train split (``ncs.losses.StaticPoses``)
     static_poses: int = 1000
     static_batch: int = 8
     static_weight: float = 1.0
     # the energies every cloth state keeps low (collision, edge, pin) on motions no teacher solved
-    # (``ncs_losses.FreeMotion``). 0: off
+    # (``ncs.losses.FreeMotion``). 0: off
     free_windows: int = 200
     free_batch: int = 4
     free_frames: int = 8

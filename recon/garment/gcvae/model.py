@@ -33,7 +33,7 @@ from torch import nn
 
 from recon import paths
 from recon.garment import mesh
-from recon.garment.deepsd import GraphConv, mean_adjacency, sparse_tensor
+from recon.garment.deepsd.model import GraphConv, mean_adjacency, sparse_tensor
 from recon.garment.templates import J, RestBody
 
 TYPES = ("top", "trousers", "skirt", "dress", "jumpsuit")

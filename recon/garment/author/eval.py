@@ -1,6 +1,6 @@
 """``recon garment eval --model author`` -> eval/results/garment-author.{json,md}: the authoring
 model on held-out parameter sets and held-out clips (the test performers' windows of
-``author_data``; ``--val``: the val performers'), against the simulation with the true parameters.
+``author.data``; ``--val``: the val performers'), against the simulation with the true parameters.
 
 1. Shape descriptor: reconstruction error against PCA at 20/40/50/100/200 dimensions (and without
    the Laplacian term), on the held-out frames.
@@ -25,9 +25,9 @@ import torch
 from recon import report
 from recon.body import default_body
 from recon.garment import store
-from recon.garment.author import PELVIS, AuthorModel, Session, clip_inputs, interpolate_latents
-from recon.garment.author_data import AuthorDataConfig, load_plan, sim_folder, teacher_config
-from recon.garment.author_train import (
+from recon.garment.author.data import AuthorDataConfig, load_plan, sim_folder, teacher_config
+from recon.garment.author.model import PELVIS, AuthorModel, Session, clip_inputs, interpolate_latents
+from recon.garment.author.train import (
     AuthorTrainConfig,
     Frames,
     hanging_outfit,
@@ -39,8 +39,8 @@ from recon.garment.author_train import (
     train_descriptor,
 )
 from recon.garment.dress import Dresser
-from recon.garment.ncs_teacher import Chunk, Motions
-from recon.garment.pbns import PBNS
+from recon.garment.ncs.data import Chunk, Motions
+from recon.garment.pbns.model import PBNS
 from recon.poses.mocap import MocapPoses
 
 DIMS = (20, 40, 50, 100, 200)
@@ -250,9 +250,9 @@ def evaluate(outfit: str = "tshirt-skirt", split: str = "test", log=print) -> di
 
 def render(results: list[dict]) -> str:
     lines = ["# Keyframe garment authoring (intrinsic garment space)", "",
-             "`recon garment eval --model author` (recon/garment/author_eval.py). Simulations of the outfit's "
+             "`recon garment eval --model author` (recon/garment/author/eval.py). Simulations of the outfit's "
              "hanging part with held-out intrinsic parameters (fabric, gravity, damping, friction) on held-out "
-             "clips, by NCS's teacher (recon/garment/author_data.py); errors are mean per-vertex distances of the "
+             "clips, by NCS's teacher (recon/garment/author/data.py); errors are mean per-vertex distances of the "
              "hanging part to the simulation with the true parameters, over the frames after the lead.", ""]
     for r in results:
         p = r["propagation"]

@@ -33,14 +33,15 @@ from recon.body import default_body
 from recon.errors import MissingFile, ReconError
 from recon.garment import reference, store
 from recon.garment.collide import CollisionResolver
-from recon.garment.data import Conditions, pose_set, posed_bodies, sample_conditions, trained_outfit
+from recon.garment.data import pose_set, posed_bodies, trained_outfit
 from recon.garment.mesh import unique_edges
 from recon.garment.metrics import SELF_INTERSECTION_BINS, physical_metrics, rest_metrics
-from recon.garment.pbns import PBNS, remove_yaw
+from recon.garment.pbns.data import Conditions, sample_conditions
+from recon.garment.pbns.model import PBNS, remove_yaw
 from recon.garment.resize import TIGHTNESS_PHENOTYPES, TIGHTNESS_RANGE, OutfitResizer
 from recon.garment.self_intersection import SkinSelfIntersection
 from recon.garment.templates import PRESETS, make_outfit
-from recon.timing import median_ms
+from recon.timing import frames_per_second
 
 # held-out poses differ by >= this (rad) in some joint, whatever spacing a model was trained with
 # (thesis 5.4.3's 0.5; the test subjects then offer 290 poses)
@@ -53,11 +54,6 @@ VALID_MAX_SELF = 1.0
 MODELS = ("skinning only (dT = 0)", "PBNS", "PBNS + collision resolution")
 CHECK_POSES, CHECK_CONDITIONS = 8, 16  # the slices tests/test_results.py recomputes
 THESIS = "Thesis PBNS (Table 5.1/5.2): collision 0.45 %, edge 0.66 mm, CPU 213 FPS (b=1) / 1,235 (batched)."
-
-
-def frames_per_second(fn, batch: int) -> float:
-    """Frames a second of ``fn`` processing ``batch`` frames a call (its median time)."""
-    return 1000.0 * batch / median_ms(fn)
 
 
 @torch.no_grad()
@@ -181,7 +177,7 @@ def evaluate_and_report(body, outfits: list[str], n_poses: int = 500, out_dir: P
     stem = Path(out_dir) / ("garment-pbns" if presets else "garment-pbns-" + "-".join(names))
     data = {"outfits": results}
     if presets:
-        data["check"] = {"function": "recon.garment.pbns_eval:pbns_check",
+        data["check"] = {"function": "recon.garment.pbns.eval:pbns_check",
                          "kwargs": {"outfits": names, "n_poses": CHECK_POSES},
                          "values": pbns_check(names, CHECK_POSES)}
     return report.write(stem, data, render_pbns(data))
@@ -257,7 +253,7 @@ def evaluate_resizer(body, outfit: str, n: int = 200, seed: int = 1234, out_dir:
     meta = json.loads(paths.load_checkpoint(store.resizer_path(name), "recon garment resize")["meta_json"])
     res = {"outfit": name, "conditions": n, "seed": seed, "rows": rows, "ms_per_outfit_batched": ms,
            "train_seconds": meta["train_seconds"], "threads": meta.get("threads", 2),
-           "check": {"function": "recon.garment.pbns_eval:resize_check",
+           "check": {"function": "recon.garment.pbns.eval:resize_check",
                      "kwargs": {"outfit": name, "n": CHECK_CONDITIONS}, "values": resize_check(name, CHECK_CONDITIONS)}}
     return report.write(Path(out_dir) / f"garment-resize-{name}", res, render_resize(res))
 
@@ -436,7 +432,7 @@ def _write_reference(result: dict, out_dir: Path) -> Path:
     mean = {n: {k: float(np.mean([p["rows"][n][k] for p in per_pose if k in p["rows"][n]]))
                 for k in keys + ["seconds"] if any(k in p["rows"][n] for p in per_pose)} for n in names}
     first = per_pose[0]
-    check = {"function": "recon.garment.pbns_eval:reference_check",
+    check = {"function": "recon.garment.pbns.eval:reference_check",
              "kwargs": {"outfit": outfit, "pose": first["pose"], "pool_size": result.get("pool_size", 500)},
              "values": {n: {k: v for k, v in first["rows"][n].items() if k not in ("error_mm", "seconds")}
                         for n in MODELS}}

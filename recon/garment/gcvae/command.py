@@ -1,5 +1,5 @@
 """``recon garment sample --type dress -n 8 --out DIR``: garments drawn from the GCVAE's latent space
-(recon.garment.gcvae_sample) written as ``sample_NN.obj`` (rest pose, body frame: what ``--outfit``
+(recon.garment.gcvae.sample) written as ``sample_NN.obj`` (rest pose, body frame: what ``--outfit``
 takes) and shown in ``samples.jpg``, each on the rest body and animated by DeePSD (thesis ch. 4) at
 a pose of the test performers, with no training."""
 from __future__ import annotations
@@ -16,8 +16,8 @@ from recon import paths
 from recon.body import default_body
 from recon.garment import store
 from recon.garment.data import pose_set, posed_bodies
-from recon.garment.deepsd import DeePSD, OutfitGraph
-from recon.garment.gcvae_sample import load_model, sample
+from recon.garment.deepsd.model import DeePSD, OutfitGraph
+from recon.garment.gcvae.sample import load_model, sample
 from recon.garment.templates import Garment, Outfit, RestBody
 from recon.viz import render_meshes
 

@@ -1,4 +1,4 @@
-"""NCS's training losses (stages 2-4 of ``recon.garment.ncs_train``), each a module-like callable
+"""NCS's training losses (stages 2-4 of ``recon.garment.ncs.train``), each a module-like callable
 returning (loss, terms to log): the principal fields of the solved cloth and the coefficients on
 them (``principal_fields``, ``project``, ``gram``), the fitting of the networks to the teacher
 (``Fit``, with ``Contact``), and the physics steps' terms (``Physics``: the thesis' loss against the
@@ -12,13 +12,13 @@ import torch
 
 from recon.garment import losses
 from recon.garment.data import posed_bodies
+from recon.garment.losses import candidates as pose_candidates
 from recon.garment.mesh import nearest, nearest_among
 from recon.garment.metrics import collision_pct, penetration
-from recon.garment.ncs import NCS, static_descriptors
-from recon.garment.ncs_config import NCSTrainConfig
-from recon.garment.ncs_teacher import Teacher
-from recon.garment.pbns import pose_features
-from recon.garment.pbns_train import candidates as pose_candidates
+from recon.garment.ncs.config import NCSTrainConfig
+from recon.garment.ncs.data import Teacher
+from recon.garment.ncs.model import NCS, static_descriptors
+from recon.garment.pbns.model import pose_features
 from recon.garment.templates import Outfit
 
 

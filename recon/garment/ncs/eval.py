@@ -10,7 +10,7 @@ Per outfit, a row each for the skinned template (dT = 0), PBNS and NCS:
   damped relative to it) on a few short held-out clips (``DYNAMIC_CLIPS``: a turn, a run that
   stops, a walk; each scored after a lead-in of the clip's earlier frames), for the outfits'
   pinned garments (a skirt), or the whole outfit held at its shoulders when nothing is pinned (a
-  dress; ``recon.garment.ncs.hanging_part``):
+  dress; ``recon.garment.ncs.model.hanging_part``):
   ``sim_error_mm``, the mean per-vertex distance per frame, and the hem's
   swing: the hem centroid's horizontal offset from where skinning puts it (``hem_peak_mm`` per
   model and for the simulation; ``hem_error_mm``: the mean distance between the model's offset
@@ -39,11 +39,11 @@ from recon.garment import reference, store
 from recon.garment.data import posed_bodies, trained_outfit
 from recon.garment.mesh import boundary_loops, faces_within
 from recon.garment.metrics import physical_metrics
-from recon.garment.ncs import NCS, hanging_part, motion_inputs
-from recon.garment.pbns import PBNS
-from recon.garment.pbns_eval import frames_per_second
+from recon.garment.ncs.model import NCS, hanging_part, motion_inputs
+from recon.garment.pbns.model import PBNS
 from recon.garment.self_intersection import SkinSelfIntersection
 from recon.poses.mocap import SPLIT_SUBJECTS, MocapPoses
+from recon.timing import frames_per_second
 
 MODELS = ("skinning only (dT = 0)", "PBNS", "NCS")
 STATIC_PART = "NCS at motion control 0 (its static part)"
@@ -319,7 +319,7 @@ def evaluate_and_report(body, outfits: list[str], out_dir: Path = report.RESULTS
         results = [mine.get(r["outfit"], r) for r in old] + [r for r in results if r["outfit"] not in had]
     names = [r["outfit"] for r in results]
     data = {"outfits": results, "clips": "val" if val else "test",
-            "check": {"function": "recon.garment.ncs_eval:ncs_check", "kwargs": {"outfits": names},
+            "check": {"function": "recon.garment.ncs.eval:ncs_check", "kwargs": {"outfits": names},
                       "values": ncs_check(names)}}
     return report.write(path, data, render(data))
 
@@ -328,7 +328,7 @@ def render(data: dict) -> str:
     val = data.get("clips") == "val"
     lines = ["# NCS (dynamic) vs PBNS (quasi-static) vs skinning on held-out clips"
              + (" (val: the clips the recipe is tuned on)" if val else ""), "",
-             "`recon garment eval --model ncs` (recon/garment/ncs_eval.py). Collision % / edge error: "
+             "`recon garment eval --model ncs` (recon/garment/ncs/eval.py). Collision % / edge error: "
              f"every {STRIDE}th frame of every {'val' if val else 'test'}-split clip (performers "
              f"{', '.join(sorted(SPLIT_SUBJECTS['val' if val else 'test'], key=int))}), the models run on "
              "every frame at 30 fps. Against the simulation: newton VBD with velocities (recon.garment.reference."

@@ -10,7 +10,7 @@ any bias (2 per-joint FC layers, 2 FC layers, one GRU), so that no motion gives 
 code and the GRU state fades when motion stops; the codes are added and decoded in PBNS's
 blend-shape form (z . D, so the .glb export stays morph targets), then skinned. D holds PBNS's
 rows and ``NCSConfig.dynamic`` rows after them, the principal fields of the cloth's motion found
-in training (recon.garment.ncs_train). The static code on PBNS's rows is PBNS's own (its MLP on
+in training (recon.garment.ncs.train). The static code on PBNS's rows is PBNS's own (its MLP on
 ``pbns.pose_features``, fixed), so garments that do not hang stay PBNS's exactly (a distilled
 copy drifted: the model card's NCS history); the static encoder gives the code on the new rows.
 Training (6.3.4): the PBNS energies plus the inertia term (eq. 6.9, ``losses.InertiaLoss``).
@@ -28,7 +28,7 @@ from torch import nn
 
 from recon import paths
 from recon.body import skeleton
-from recon.garment.pbns import BlendShapeGarment, pose_features, pose_mlp, remove_yaw
+from recon.garment.pbns.model import BlendShapeGarment, pose_features, pose_mlp, remove_yaw
 from recon.poses.mocap import resample
 
 DROPPED = ("left_foot", "right_foot", "left_hand", "right_hand")

@@ -1,5 +1,5 @@
 """Training the authoring model (``recon garment train --model author``): the simulations of
-``author_data`` as frames (offsets, motion signatures, parameter sets), then the shape descriptor
+``author.data`` as frames (offsets, motion signatures, parameter sets), then the shape descriptor
 (L2 + Laplacian reconstruction, section 3.3) and the motion encoder with the motion-invariant
 autoencoder (Var(z) + lambda |S - S*| over batches of parameter sets, section 3.4), Adam on the CPU.
 Variants for the paper's ablations: "concat" (motion concatenated, a standard autoencoder) and
@@ -19,17 +19,17 @@ import torch
 
 from recon.body import default_body
 from recon.garment import store
-from recon.garment.author import (
+from recon.garment.author.data import AuthorDataConfig, Sim, generate, load_plan, sim_folder, teacher_config
+from recon.garment.author.model import (
     AuthorConfig,
     AuthorModel,
     IntrinsicAutoencoder,
     ShapeDescriptor,
     heading,
 )
-from recon.garment.author_data import AuthorDataConfig, Sim, generate, load_plan, sim_folder, teacher_config
 from recon.garment.data import trained_outfit
 from recon.garment.mesh import neighbour_mean
-from recon.garment.ncs_teacher import Motions, moving_part, part_outfit
+from recon.garment.ncs.data import Motions, moving_part, part_outfit
 
 
 @dataclass

@@ -42,9 +42,9 @@ from recon.garment import store
 from recon.garment.data import posed_bodies, trained_outfit
 from recon.garment.drape import DrapeSolver, DrapeSolverConfig
 from recon.garment.integrate import unpose
-from recon.garment.pbns import PBNS, remove_yaw
+from recon.garment.pbns.model import PBNS, remove_yaw
 from recon.garment.resize import Transfer
-from recon.garment.taylor import (
+from recon.garment.taylor.model import (
     BlendConfig,
     TaylorGarment,
     fit_shape_model,

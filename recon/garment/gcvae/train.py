@@ -6,7 +6,7 @@ trousers, types the model knows).
 
 ``recon garment train --model gcvae`` -> ``<cache>/garments/gcvae.pt``;
 ``recon garment eval --model gcvae`` -> eval/results/garment-gcvae.{json,md};
-``recon garment sample --type dress -n 8`` (``recon.garment.gcvae_sample``).
+``recon garment sample --type dress -n 8`` (``recon.garment.gcvae.sample``).
 """
 from __future__ import annotations
 
@@ -26,7 +26,7 @@ from tqdm import tqdm
 from recon import paths, report
 from recon.body import default_body
 from recon.garment import mesh, store
-from recon.garment.gcvae import GCVAE, BodyGraph, GCVAEConfig, garment_mesh, one_hot, register
+from recon.garment.gcvae.model import GCVAE, BodyGraph, GCVAEConfig, garment_mesh, one_hot, register
 from recon.garment.outfits import OutfitSampler
 from recon.garment.templates import RestBody, make_outfit
 

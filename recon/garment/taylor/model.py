@@ -42,7 +42,7 @@ from scipy.spatial import cKDTree
 from recon import paths
 from recon.body import skeleton
 from recon.garment.mesh import vertex_normals
-from recon.garment.pbns import PBNS, pose_features, remove_yaw
+from recon.garment.pbns.model import PBNS, pose_features, remove_yaw
 from recon.garment.resize import Transfer
 
 # bone groups of the clothing regions (the paper's N_g = 7)

@@ -2,15 +2,15 @@
 in four stages (``NCSTraining``), on motion cut from the retargeted mocap's train split at 30 fps.
 No simulator and no cloth data: only the body's motion and the energies.
 
-1. ``solve``: the teacher (``recon.garment.ncs_teacher``) integrates the cloth through chunks of
+1. ``solve``: the teacher (``recon.garment.ncs.data``) integrates the cloth through chunks of
    motion; chunks whose cloth went wrong are dropped, the rest unposed into rest-pose
    displacements from PBNS, with their left-right mirror images;
 2. ``init_fields``: the principal components of those displacements (mass-weighted) become D's
    rows after PBNS's (``NCSConfig.dynamic`` of them), zero where the cloth is held;
 3. ``fit``: the static encoder and the bias-free dynamic branch learn the chunks' coefficients on
-   the new rows (``ncs_losses.Fit``), the val performers' chunks selecting the checkpoint; the
+   the new rows (``ncs.losses.Fit``), the val performers' chunks selecting the checkpoint; the
    static code on PBNS's rows stays PBNS's MLP;
-4. ``physics``: the thesis' loss on the predictions (``ncs_losses.Physics``, ``StaticPoses``,
+4. ``physics``: the thesis' loss on the predictions (``ncs.losses.Physics``, ``StaticPoses``,
    ``FreeMotion``) joins the fitting, and trains D's new rows with ``field_lr``.
 
 The thesis trains the network on the loss directly, the previous states being its own earlier
@@ -29,20 +29,9 @@ import numpy as np
 import torch
 
 from recon.garment import store
-from recon.garment.data import pose_set, trained_outfit
-from recon.garment.ncs import NCS, vertex_masses
-from recon.garment.ncs_config import FABRIC, NCSTrainConfig
-from recon.garment.ncs_losses import (
-    Contact,
-    Fit,
-    FreeMotion,
-    Physics,
-    StaticPoses,
-    gram,
-    principal_fields,
-    project,
-)
-from recon.garment.ncs_teacher import (
+from recon.garment.data import MIN_POSE_DISTANCE, pose_set, trained_outfit
+from recon.garment.ncs.config import NCSTrainConfig
+from recon.garment.ncs.data import (
     Chunk,
     Motions,
     Teacher,
@@ -53,9 +42,19 @@ from recon.garment.ncs_teacher import (
     mirror_map,
     sound_chunks,
 )
-from recon.garment.pbns import PBNS
-from recon.garment.pbns_train import run_dir_for
-from recon.training import Trainer
+from recon.garment.ncs.losses import (
+    Contact,
+    Fit,
+    FreeMotion,
+    Physics,
+    StaticPoses,
+    gram,
+    principal_fields,
+    project,
+)
+from recon.garment.ncs.model import NCS, vertex_masses
+from recon.garment.pbns.model import PBNS
+from recon.training import Trainer, run_dir_for
 
 __all__ = ["NCSTrainConfig", "NCSTraining", "train"]
 
@@ -89,7 +88,7 @@ class NCSTraining:
         self.pbns, _ = PBNS.load(self.pbns_path)
         self.model = NCS.from_pbns(self.pbns, cfg.model)
         self.teacher = Teacher(body, self.name, cfg)
-        self.idx = self.teacher.idx  # the moving part (``ncs_teacher.moving_part``)
+        self.idx = self.teacher.idx  # the moving part (``ncs.data.moving_part``)
         self.masses = torch.from_numpy(vertex_masses(self.outfit.vertices, self.outfit.faces))
         self.motions = Motions(body, self.shape, cfg.smooth_motion)
         self.e = self.pbns.D.shape[0]  # D's rows before the new ones
@@ -214,10 +213,10 @@ class NCSTraining:
         val_t = torch.linspace(lo, cfg.chunk - 1, cfg.physics_frames).long().expand(len(self.val_i), -1)
         still = val_still = free = None
         if cfg.static_poses:
-            rot_s = pose_set("train", cfg.static_poses, FABRIC.min_pose_distance, cfg.seed)
+            rot_s = pose_set("train", cfg.static_poses, MIN_POSE_DISTANCE, cfg.seed)
             still = StaticPoses(model, self.outfit, cfg, body, shape, rot_s, physics.unit)
             val_still = StaticPoses(model, self.outfit, cfg, body, shape,
-                                    pose_set("val", max(16, cfg.static_poses // 8), FABRIC.min_pose_distance,
+                                    pose_set("val", max(16, cfg.static_poses // 8), MIN_POSE_DISTANCE,
                                              cfg.seed), physics.unit)
         if cfg.free_windows:
             windows = chunks_of("train", cfg.chunk, cfg.chunks + cfg.free_windows, cfg.seed, cfg.stops,

@@ -24,12 +24,12 @@ from recon.garment.collide import CollisionResolver
 from recon.garment.data import pose_set, posed_bodies, trained_outfit
 from recon.garment.drape import DrapeSolver
 from recon.garment.metrics import physical_metrics
-from recon.garment.pbns import PBNS, remove_yaw
-from recon.garment.pbns_eval import frames_per_second
+from recon.garment.pbns.model import PBNS, remove_yaw
 from recon.garment.resize import OutfitResizer, Transfer
-from recon.garment.taylor import TaylorGarment
-from recon.garment.taylor_build import SHAPE_BOX, TaylorBuildConfig, cluster_anchors, drape_poses
+from recon.garment.taylor.model import TaylorGarment
+from recon.garment.taylor.train import SHAPE_BOX, TaylorBuildConfig, cluster_anchors, drape_poses
 from recon.poses.sampler import ShapeSampler
+from recon.timing import frames_per_second
 
 PHENOTYPES = ("weight", "height")  # "far" bodies: top or bottom quintile of either in anny's prior
 

@@ -29,10 +29,10 @@ from tqdm import tqdm
 from recon import paths
 from recon.body import default_body
 from recon.garment.data import pose_set, posed_bodies
-from recon.garment.deepsd import lbs_weights
+from recon.garment.deepsd.model import lbs_weights
 from recon.garment.drape import DrapeSolver, DrapeSolverConfig
 from recon.garment.outfits import OutfitSampler
-from recon.garment.pbns import BlendShapeGarment, blend_transforms
+from recon.garment.pbns.model import BlendShapeGarment, blend_transforms
 from recon.garment.templates import PRESETS, Garment, Outfit, RestBody, make_outfit
 from recon.timing import add_seconds
 
