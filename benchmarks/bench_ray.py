@@ -32,7 +32,8 @@ from recon import report  # noqa: E402
 from recon.backbone.crops import OnlineCrops, RayCrops  # noqa: E402
 from recon.backbone.hourglass import SIZES  # noqa: E402
 from recon.demo import example_photos  # noqa: E402
-from recon.executor import ExecutorConfig, WorkerSpec, connect, map_tasks, ray  # noqa: E402
+from recon.executor import ExecutorConfig, WorkerSpec, map_tasks  # noqa: E402
+from recon.executor.cluster import connect, ray  # noqa: E402
 from recon.run import Outcome, RunOptions, RunSummary, run  # noqa: E402
 from recon.run.batch import record  # noqa: E402
 from recon.synth.dataset import generate  # noqa: E402

@@ -27,14 +27,15 @@ from recon.video.many import videos
 pytestmark = [pytest.mark.slow,
               pytest.mark.skipif(not ex.ray_available(), reason="Ray is the optional extra recon[cluster]")]
 RAY2 = ex.ExecutorConfig("ray", workers=2)
+cluster = pytest.importorskip("recon.executor.cluster")  # the slow tier's Ray tests need recon[cluster]
 RECON = [sys.executable, "-m", "recon.cli"]
 
 
 @pytest.fixture(scope="module", autouse=True)
 def local_ray():
-    ex.connect()  # one local Ray for the module (map_tasks leaves a Ray it did not start running)
+    cluster.connect()  # one local Ray for the module (map_tasks leaves a Ray it did not start running)
     yield
-    ex.ray.shutdown()
+    cluster.ray.shutdown()
 
 
 def files(folder: Path) -> dict[str, bytes]:
@@ -101,7 +102,7 @@ def test_a_killed_ray_worker_loses_nothing_and_a_stopped_run_resumes(tmp_path):
     out = tmp_path / "out"
     cmd = [*RECON, "run", str(photos), "--out", str(out), "--executor", "ray", "--workers", "2", "--batch-size", "1",
            "--no-overlay"]
-    ex.ray.shutdown()  # the command starts its own local Ray
+    cluster.ray.shutdown()  # the command starts its own local Ray
     p = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     _wait_for(lambda: any((out / k / "result.json").exists() for k in keys))
     victims = _ray_worker_pids()
@@ -132,7 +133,7 @@ def test_a_killed_ray_worker_loses_nothing_and_a_stopped_run_resumes(tmp_path):
     again = _summary(out2)
     assert sorted(again["unchanged"]) == before and sorted(again["done"] + again["unchanged"]) == keys
     assert files(out2) == files(out)  # the same files as the uninterrupted run
-    ex.connect()
+    cluster.connect()
 
 
 def test_synth_generate_on_ray_is_bit_identical(tmp_path):

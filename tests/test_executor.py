@@ -39,7 +39,8 @@ class Doubler:
 
 
 if ex.ray_available():  # the workers unpickle this test module's classes by value
-    ex.ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])
+    from recon.executor import cluster
+    cluster.ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])
 
 
 def _run(tmp_path, config, n=12, **kw):
@@ -91,11 +92,9 @@ def test_a_worker_error_stops_the_job_as_in_this_process(tmp_path):
 
 
 def test_without_ray_the_error_says_how_to_install_it(monkeypatch):
-    monkeypatch.setattr(ex, "ray", None)
+    monkeypatch.setattr(ex, "ray_available", lambda: False)
     with pytest.raises(ReconError, match=r"recon\[cluster\]"):
         ex.ExecutorConfig("ray")
-    with pytest.raises(ReconError, match=r"recon\[cluster\]"):
-        ex.connect()
 
 
 def test_command_line_flags(capsys):
@@ -111,8 +110,8 @@ def test_command_line_flags(capsys):
 @pytest.fixture
 def local_ray():
     """A local Ray for the test (map_tasks then leaves it running)."""
-    ex.connect()
-    yield ex.ray
+    cluster.connect()
+    yield cluster.ray
 
 
 @pytest.mark.slow
@@ -161,8 +160,8 @@ def test_a_lost_node_of_a_two_node_cluster_loses_no_task(tmp_path, caplog):
     ray_cli = str(Path(sys.executable).with_name("ray"))
     port = _free_port()
     common = ["--num-cpus", "1", "--node-ip-address", "127.0.0.1", "--disable-usage-stats"]
-    if ex.ray.is_initialized():
-        ex.ray.shutdown()
+    if cluster.ray.is_initialized():
+        cluster.ray.shutdown()
     try:
         subprocess.run([ray_cli, "start", "--head", "--port", str(port), "--include-dashboard", "false", *common],
                        check=True, capture_output=True, timeout=120)
@@ -170,8 +169,8 @@ def test_a_lost_node_of_a_two_node_cluster_loses_no_task(tmp_path, caplog):
         subprocess.run([ray_cli, "start", "--address", f"127.0.0.1:{port}", *common], check=True,
                        capture_output=True, timeout=120)
         [raylet] = _raylets() - before  # the second node's
-        ex.connect(f"127.0.0.1:{port}")
-        nodes = ex.ray.nodes()
+        cluster.connect(f"127.0.0.1:{port}")
+        nodes = cluster.ray.nodes()
         assert len(nodes) == 2
         second = next(n for n in nodes if "node:__internal_head__" not in n["Resources"])
         spec = ex.WorkerSpec(Doubler, (str(tmp_path / "m"),), {"pause": 0.3})
@@ -185,9 +184,64 @@ def test_a_lost_node_of_a_two_node_cluster_loses_no_task(tmp_path, caplog):
         assert sorted(got) == list(range(24)) and all(got[i][0] == 2 * i for i in got)
         assert "a Ray worker died" in caplog.text  # its tasks in flight were lost and ran again
         deadline = time.monotonic() + 120
-        while [n["Alive"] for n in ex.ray.nodes() if n["NodeID"] == second["NodeID"]] != [False]:
+        while [n["Alive"] for n in cluster.ray.nodes() if n["NodeID"] == second["NodeID"]] != [False]:
             assert time.monotonic() < deadline, "the killed node is still alive for Ray"
             time.sleep(1)
     finally:
-        ex.ray.shutdown()
+        cluster.ray.shutdown()
         subprocess.run([ray_cli, "stop", "--force"], capture_output=True, timeout=120)
+
+
+def test_ray_is_imported_only_for_a_ray_job():
+    """Ray takes about a second to import: the commands and the executor load it only when a job runs on it."""
+    code = ("import sys\nimport recon.run, recon.video.many, recon.synth.dataset, recon.bench.runner, "
+            "recon.backbone.train\nassert 'ray' not in sys.modules, 'ray imported'")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr[-2000:]
+
+
+CTRL_C_DRIVER = '''
+import sys, time
+from pathlib import Path
+from recon import executor as ex
+
+class Sleeper:
+    def __init__(self, marker):
+        self.marker = Path(marker)
+
+    def __call__(self, task):
+        self.marker.write_text("running")
+        time.sleep(120)
+
+try:
+    for _ in ex.map_tasks(ex.WorkerSpec(Sleeper, (sys.argv[1],)), [0, 1], ex.ExecutorConfig("ray", workers=1)):
+        pass
+except KeyboardInterrupt:  # map_tasks has killed its actors and stopped the Ray it started
+    Path(sys.argv[2]).write_text(repr(time.time()))
+    sys.exit(130)
+'''
+
+
+@pytest.mark.slow
+@needs_ray
+def test_ctrl_c_stops_a_ray_driver_within_two_seconds(tmp_path):
+    """A driver waiting on its actors (a local Ray it started) is back in the caller's hands, its
+    actors killed and its Ray stopped, within 2 s of SIGINT."""
+    script, running, stopped = tmp_path / "driver.py", tmp_path / "running", tmp_path / "stopped"
+    script.write_text(CTRL_C_DRIVER)
+    if ex.ray_available() and cluster.ray.is_initialized():
+        cluster.ray.shutdown()
+    p = subprocess.Popen([sys.executable, str(script), str(running), str(stopped)])
+    try:
+        deadline = time.monotonic() + 180
+        while not running.exists():
+            assert p.poll() is None and time.monotonic() < deadline, "the Ray worker never started"
+            time.sleep(0.1)
+        time.sleep(1.0)  # the driver is blocked on its actors
+        sent = time.time()
+        p.send_signal(signal.SIGINT)
+        assert p.wait(30) == 130
+        assert float(stopped.read_text()) - sent < 2.0
+    finally:
+        if p.poll() is None:
+            p.kill()

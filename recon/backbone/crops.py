@@ -13,7 +13,7 @@ from torch.utils.data import Dataset, IterableDataset, default_collate, get_work
 
 from recon.backbone.crop import Crop
 from recon.body import create
-from recon.executor import ACTOR_LOST, WorkerSpec, connect, ray, start_actor
+from recon.executor import WorkerSpec, stream_results
 from recon.synth.dataset import SynthDataset
 from recon.synth.scene import SceneSampler
 
@@ -128,33 +128,8 @@ class RayCrops:
         self.input_size, self.batch, self.actors, self.seed = input_size, batch, actors, seed
         self.start, self.repeats, self.address, self.in_flight = start, repeats, address, in_flight
 
-    def _actor(self, stream: int):
-        return start_actor(WorkerSpec(CropBatches, (self.input_size, self.batch, self.seed, stream, self.start,
-                                                    self.repeats)))
+    def _spec(self, stream: int) -> WorkerSpec:
+        return WorkerSpec(CropBatches, (self.input_size, self.batch, self.seed, stream, self.start, self.repeats))
 
     def __iter__(self):
-        started = connect(self.address)
-        streams = {self._actor(w): w for w in range(self.actors)}
-        running = {a.run.remote(None): a for a in streams for _ in range(self.in_flight)}
-        try:
-            while True:
-                [ref], _ = ray.wait(list(running), num_returns=1)
-                actor = running.pop(ref)
-                try:
-                    batch = ray.get(ref)
-                except ACTOR_LOST:
-                    if actor in streams:  # its other queued calls fail too: replaced once
-                        w = streams.pop(actor) + self.actors
-                        actor = self._actor(w)
-                        streams[actor] = w
-                        running.update({actor.run.remote(None): actor for _ in range(self.in_flight)})
-                    continue
-                running[actor.run.remote(None)] = actor
-                yield batch
-        finally:
-            for actor in streams:
-                ray.kill(actor, no_restart=True)
-            if started:
-                ray.shutdown()
-
-
+        return stream_results(self._spec, self.actors, self.address, self.in_flight)

@@ -1,6 +1,7 @@
-"""``recon`` command line: one subcommand per action, each with only its own flags; defaults come
-from the library's config dataclasses. Each command's module (and torch) loads only when that
-command runs, so ``recon --help`` is quick.
+"""``recon`` command line: one subcommand per action, each with only its own flags. A command's
+flags live in ``recon.cli.<command>`` (no torch: every ``--help`` takes a tenth of a second; the
+defaults are the library's, from the table recon/cli/values.py that tests/test_cli.py checks) and
+what it does in ``recon.cli.actions.<command>``, imported when it runs.
 
     recon run photos/ --out out/run        reconstruct the people in photos (recon.run)
     recon demo --out out/demo              the bundled photos, bodies and an outfit (recon.demo)
@@ -29,6 +30,7 @@ import os
 import sys
 
 from recon import kernels
+from recon.cli import parsing
 from recon.cli.parsing import COUNT, Parser, formatter
 from recon.errors import ReconError
 
@@ -68,6 +70,17 @@ def build_parser(argv: list[str] | None = None) -> Parser:
         if name in wanted:
             importlib.import_module(module).ADD[name](p)
     return ap
+
+
+def recorded_values() -> dict:
+    """Every library value the flags show (``parsing.known``), read from the library itself:
+    what recon/cli/values.py must hold (scripts/cli_values.py writes it)."""
+    parsing.RECORDING = {}
+    try:
+        build_parser()
+        return parsing.RECORDING
+    finally:
+        parsing.RECORDING = None
 
 
 def _command(argv: list[str]) -> str | None:

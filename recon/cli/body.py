@@ -1,83 +1,31 @@
 """``recon body`` and ``recon poses``: the body model and the retargeted pose set."""
 from __future__ import annotations
 
-import json
-import sys
 from pathlib import Path
 
-import torch
-import trimesh
-
-from recon import paths
-from recon.body import anny_model, create
 from recon.cli.parsing import COUNT, Parser, actions
-from recon.poses import mocap
-
-
-def body_build_cache(args) -> None:
-    print(anny_model.build_cache(force=args.force))
-
-
-def body_info(args) -> None:
-    body = create(args.model)
-    out = body()
-    print(json.dumps({
-        "model": args.model, "vertices": body.num_vertices, "faces": int(body.faces.shape[0]),
-        "joints": list(body.joint_names), "landmarks": list(body.landmark_names),
-        "landmark_vertex_ids": body.landmark_indices.tolist(), "shape_params": list(body.shape_names),
-        "height_m": float(out.vertices[0, :, 1].max() - out.vertices[0, :, 1].min())}, indent=1))
-
-
-def body_export(args) -> None:
-    """The rest body (mean shape) that garments are modelled on: body frame, metres, +Y up."""
-    body = create(args.model)
-    with torch.no_grad():
-        v = body.rest_geometry(body.mean_shape[None])[0][0].numpy()
-    mesh = trimesh.Trimesh(v, body.faces.numpy(), process=False)
-    out = Path(args.out)
-    paths.atomic_write(out, lambda t: mesh.export(t, file_type=out.suffix[1:].lower()))
-    print(out)
-
-
-def poses_build(args) -> None:
-    out = Path(args.out) if args.out else mocap.built_path()
-    if out.exists() and not args.force:
-        print(f"{out} exists (use --force to rebuild)")
-        return
-    print(mocap.build(mocap_root=args.mocap, out=out, limit=args.limit))
-    print(f"use it with RECON_POSES={out} (the shipped set is {mocap.SHIPPED})", file=sys.stderr)
-
-
-def poses_stats(args) -> None:
-    m = mocap.MocapPoses.load()
-    stats = {s: {"frames": len(m.split(s)), "minutes": round(len(m.split(s)) / mocap.FPS / 60, 2),
-                 "clips": sum(c["split"] == s for c in m.clips),
-                 "subjects": sorted({c["subject"] for c in m.clips if c["split"] == s})}
-             for s in ("train", "val", "test")}
-    stats["max_primary_bone_error_deg"] = max(c["max_primary_bone_error_deg"] for c in m.clips)
-    stats["file"] = str(mocap.poses_path())
-    print(json.dumps(stats, indent=1))
 
 
 def add_body(p: Parser) -> None:
     action = actions(p)
-    a = action("build-cache", body_build_cache, "build the anny float32 export once (~1-3 min)")
+    a = action("build-cache", "body:body_build_cache", "build the anny float32 export once (~1-3 min)")
     a.add_argument("--force", action="store_true", help="rebuild even if it exists")
-    a = action("info", body_info, "print the body model's facts as JSON")
+    a = action("info", "body:body_info", "print the body model's facts as JSON")
     a.add_argument("--model", default="anny", help="'anny' or an SMPL-family .npz/.pkl")
-    a = action("export", body_export, "write the rest body (mean shape) to model your own garments on")
+    a = action("export", "body:body_export", "write the rest body (mean shape) to model your own garments on")
     a.add_argument("--out", required=True, help="mesh file (.obj, .ply, .glb)")
     a.add_argument("--model", default="anny", help="'anny' or an SMPL-family .npz/.pkl")
 
 
 def add_poses(p: Parser) -> None:
     action = actions(p)
-    a = action("build", poses_build, "retarget the raw clips ($RECON_SHARED_DIR/data/mocap) into a pose set")
+    a = action("build", "body:poses_build", "retarget the raw clips ($RECON_SHARED_DIR/data/mocap) into a pose set")
     a.add_argument("--mocap", type=Path, default=None, help="folder of the raw clips (with metadata/clips.csv)")
     a.add_argument("--out", default=None, help="default: the recon cache")
     a.add_argument("--force", action="store_true", help="rebuild even if the output exists")
     a.add_argument("--limit", type=COUNT, default=None, help="only the first N clips (quick checks)")
-    action("stats", poses_stats, "split statistics of the pose set in use")
+    action("stats", "body:poses_stats", "split statistics of the pose set in use")
 
 
 ADD = {"body": add_body, "poses": add_poses}
+

@@ -1,173 +1,10 @@
 """``recon garment``: PBNS and NCS outfits, their resizers, tables and physics references."""
 from __future__ import annotations
 
-import json
-from dataclasses import replace
-from pathlib import Path
-
-from recon import report
-from recon.body import default_body
-from recon.cli.parsing import COUNT, NON_NEGATIVE, POSITIVE, SEED, STEPS, Parser, actions, default
-from recon.errors import ReconError
-from recon.garment import store
-from recon.garment.author import eval as author_eval
-from recon.garment.author import train as author_train
-from recon.garment.author.command import author
-from recon.garment.author.data import AuthorDataConfig
-from recon.garment.deepsd import eval as deepsd_eval
-from recon.garment.deepsd import train as deepsd_train
-from recon.garment.deepsd.data import DeePSDDataConfig
-from recon.garment.gcvae import train as gcvae_train
-from recon.garment.gcvae.command import sample_command
-from recon.garment.gcvae.model import TYPES
-from recon.garment.ncs import eval as ncs_eval
-from recon.garment.ncs import train as ncs_train
-from recon.garment.pbns import eval as pbns_eval
-from recon.garment.pbns import train as pbns_train
-from recon.garment.resize import ResizeConfig
-from recon.garment.taylor import eval as taylor_eval
-from recon.garment.taylor import train as taylor_build
-from recon.garment.templates import PRESETS
-
-
-def outfits(names: list[str]) -> list[str]:
-    """'all' -> every preset; unknown names refused with the presets listed."""
-    if names == ["all"]:
-        return list(PRESETS)
-    for n in names:
-        store.check_outfit(n)
-    return names
-
-
-def train_deepsd(args) -> None:
-    """DeePSD is one model for every outfit: drapes of generated outfits, then the network (and its
-    ablation variants with ``--variant``)."""
-    data = DeePSDDataConfig(**{k: getattr(args, k) for k in ("train_outfits", "workers") if getattr(args, k)})
-    names = list(deepsd_train.VARIANTS) if args.variant == "all" else [args.variant]
-    for name in names:
-        cfg = deepsd_train.variant_config(name, deepsd_train.DeePSDTrainConfig(data=data))
-        more = {k: getattr(args, k) for k in ("steps", "physics_steps") if getattr(args, k) is not None}
-        if not cfg.physics_steps:  # the variants without a physics branch keep none
-            more.pop("physics_steps", None)
-        if cfg.init_from:  # a physics variant on the shipped supervised part
-            more.pop("steps", None)
-        cfg = replace(cfg, **more)
-        meta = deepsd_train.train(cfg)
-        print(json.dumps({"variant": name, "weights": str(store.deepsd_path(cfg.name)),
-                          **{k: meta[k] for k in ("train_outfits", "train_drapes", "train_seconds", "final_rms_mm")}}))
-
-
-def check_variant(args, variants: dict) -> None:
-    if args.variant not in (*variants, "all"):
-        raise ReconError(f"--model {args.model} has no variant {args.variant!r}: {', '.join(variants)} or all")
-
-
-def train(args) -> None:
-    if args.model in ("deepsd", "gcvae"):
-        check_variant(args, deepsd_train.VARIANTS if args.model == "deepsd" else gcvae_train.VARIANTS)
-    if args.model == "deepsd":
-        return train_deepsd(args)
-    if args.model == "gcvae":
-        names = list(gcvae_train.VARIANTS) if args.variant == "all" else [args.variant]
-        for name in names:
-            cfg = gcvae_train.variant_config(name)
-            if args.epochs:
-                cfg = replace(cfg, epochs=args.epochs)
-            meta = gcvae_train.train(cfg)
-            print(json.dumps({"variant": name, "train_garments": meta["train_garments"],
-                              "train_seconds": meta["train_seconds"], "last": meta["curve"][-1]}))
-        return
-    for o in outfits(args.outfit):
-        if args.model == "author":
-            data = AuthorDataConfig(outfit=o, **({"workers": args.workers} if args.workers else {}))
-            path, meta = author_train.train(author_train.AuthorTrainConfig(data=data))
-            print(json.dumps({"outfit": o, "weights": str(path), "frames": meta["frames"], "sets": meta["sets"],
-                              "seconds": meta["seconds"]}))
-            continue
-        if args.model == "taylor":
-            more = {k: getattr(args, k) for k in ("anchors", "shapes", "workers") if getattr(args, k) is not None}
-            path = taylor_build.build(taylor_build.TaylorBuildConfig(outfit=o, **more))
-            meta = json.loads(taylor_build.read_meta(path))
-            keys = ("anchors", "drape_seconds", "fit_seconds", "explained_variance", "ridge")
-            print(json.dumps({"outfit": o, "weights": str(path), **{k: meta[k] for k in keys}}))
-            continue
-        if args.model == "ncs":
-            if args.epochs:
-                raise ReconError("--epochs is PBNS's: NCS takes --chunks and --steps")
-            more = {k: getattr(args, k) for k in NCS_FLAGS if getattr(args, k) is not None}
-            meta = ncs_train.train(default_body(), ncs_train.NCSTrainConfig(outfit=o, **more))
-            weights = store.ncs_path(o)
-        else:
-            epochs = {"epochs": args.epochs} if args.epochs else {}
-            meta = pbns_train.train(default_body(), pbns_train.GarmentTrainConfig(outfit=o, poses=args.poses,
-                                                                                         **epochs))
-            weights = store.pbns_path(o)
-        last = meta["curve"][-1]
-        print(json.dumps({"outfit": meta["outfit"], "weights": str(weights), "train_seconds": meta["train_seconds"],
-                          **{k: v for k, v in last.items() if k.startswith("val_")}}))
-
-
-def resize(args) -> None:
-    for o in outfits(args.outfit):
-        meta = pbns_train.train_resizer(default_body(), store.pbns_path(o), cfg=ResizeConfig(epochs=args.epochs))
-        print(json.dumps({"outfit": meta["outfit"], "weights": str(store.resizer_path(o)),
-                          "train_seconds": meta["train_seconds"], "transfer_only": meta["val_transfer_only"],
-                          "resized": meta["curve"][-1]}))
-
-
-def evaluate(args) -> None:
-    body, names = default_body(), outfits(args.outfit)
-    if args.model == "ncs":
-        weights = [Path(w) for w in args.ncs_weights] if args.ncs_weights else None
-        if weights and len(weights) != len(names):
-            raise ReconError("--ncs-weights takes one file per outfit")
-        print(Path(ncs_eval.evaluate_and_report(body, names, Path(args.out), dynamic=not args.no_simulation,
-                                                         ncs_weights=weights, log=print, val=args.val,
-                                                         update=args.update)).read_text())
-        return
-    if args.model == "deepsd":
-        print(Path(deepsd_eval.evaluate_and_report(Path(args.out))).read_text())
-        return
-    if args.model == "gcvae":
-        print(Path(gcvae_train.evaluate_and_report(Path(args.out))).read_text())
-        return
-    if args.model == "author":
-        print(Path(author_eval.evaluate_and_report(names, "val" if args.val else "test", Path(args.out))).read_text())
-        return
-    if args.model == "taylor":
-        print(Path(taylor_eval.evaluate_and_report(names, args.n or default(taylor_eval.evaluate_and_report, "poses"),
-                                                   out_dir=Path(args.out),
-                                                   speed_outfits=list(PRESETS), newton=not args.no_simulation)
-                   ).read_text())
-        return
-    n = args.n or default(pbns_eval.evaluate_and_report, "n_poses")
-    print(Path(pbns_eval.evaluate_and_report(body, names, n, Path(args.out))).read_text())
-    for o in names:  # the resizing table, for outfits with a trained resizer
-        if store.resizer_path(o).exists():
-            print(Path(pbns_eval.evaluate_resizer(body, o, out_dir=Path(args.out))).read_text())
-
-
-def sample(args) -> None:
-    print(json.dumps(sample_command(args.type, args.n, args.out, args.seed, sheet=not args.no_sheet)))
-
-
-def author_clip(args) -> None:
-    store.check_outfit(args.outfit)
-    author(args.outfit, args.motion, args.out, keys=args.key or [], export=args.export or [], loop=args.loop,
-           render=args.render, max_seconds=args.max_seconds)
-
-
-def reference(args) -> None:
-    names = outfits(args.outfit)
-    if not set(names) <= set(PRESETS):
-        raise ReconError("reference drapes are for the preset outfits: " + ", ".join(PRESETS))
-    for o in names:
-        md = (pbns_eval.rescore_reference(o, Path(args.out)) if args.rescore
-              else pbns_eval.reference_and_report(o, args.n, Path(args.out), args.frames, args.workers))
-        print(Path(md).read_text())
-
+from recon.cli.parsing import COUNT, NON_NEGATIVE, POSITIVE, SEED, STEPS, Parser, actions, known
 
 MODELS = ("pbns", "ncs", "taylor", "author", "deepsd", "gcvae")
+
 
 # NCS training flags: name -> (type, help); their defaults are NCSTrainConfig's
 NCS_FLAGS = {
@@ -183,6 +20,9 @@ NCS_FLAGS = {
 
 
 def add_garment(p: Parser) -> None:
+    taylor = "recon.garment.taylor.train:TaylorBuildConfig"
+    pbns = "recon.garment.pbns.train:GarmentTrainConfig"
+    reference = "recon.garment.pbns.eval:reference_and_report"
     action = actions(p)
     help_outfit = ("preset names, 'all', or your own garment meshes (.obj, .ply, .glb, ...: body frame, metres, "
                    "+Y up; trained into ~/.cache/recon/garments)")
@@ -191,28 +31,30 @@ def add_garment(p: Parser) -> None:
                   "authoring (simulations with random fabrics, then the intrinsic-space networks; ~1.5 h); "
                   "deepsd: one model for any outfit (drapes of generated outfits, then the network; --outfit "
                   "unused); gcvae: the generative garment space (registered generated garments; --outfit unused)")
-    a = action("train", train, "train outfits (unsupervised, physics energies): PBNS, then NCS")
+    a = action("train", "garment:train", "train outfits (unsupervised, physics energies): PBNS, then NCS")
     a.add_argument("--outfit", nargs="+", default=["tshirt-trousers"], help=help_outfit)
     a.add_argument("--model", choices=MODELS, default="pbns", help=help_model)
-    a.add_argument("--variant", choices=sorted({*deepsd_train.VARIANTS, *gcvae_train.VARIANTS, "all"}), default="ours",
+    variants = {*known("recon.garment.deepsd.train:VARIANTS"), *known("recon.garment.gcvae.train:VARIANTS"), "all"}
+    a.add_argument("--variant", choices=sorted(variants), default="ours",
                    help="deepsd / gcvae: the model (ours) or an ablation variant")
     a.add_argument("--train-outfits", type=COUNT, default=None,
-                   help=f"deepsd: generated train outfits (default {default(DeePSDDataConfig, 'train_outfits')})")
+                   help="deepsd: generated train outfits "
+                        f"(default {known('recon.garment.deepsd.data:DeePSDDataConfig', 'train_outfits')})")
     a.add_argument("--anchors", type=COUNT, default=None,
-                   help=f"taylor: anchor poses (default {default(taylor_build.TaylorBuildConfig, 'anchors')})")
+                   help=f"taylor: anchor poses (default {known(taylor, 'anchors')})")
     a.add_argument("--shapes", type=COUNT, default=None,
                    help=f"taylor: bodies draped at each anchor besides PBNS's "
-                        f"(default {default(taylor_build.TaylorBuildConfig, 'shapes')})")
+                        f"(default {known(taylor, 'shapes')})")
     a.add_argument("--epochs", type=COUNT, default=None,
-                   help=f"PBNS: default {default(pbns_train.GarmentTrainConfig, 'epochs')}")
-    a.add_argument("--poses", type=COUNT, default=default(pbns_train.GarmentTrainConfig, "poses"))
+                   help=f"PBNS: default {known(pbns, 'epochs')}")
+    a.add_argument("--poses", type=COUNT, default=known(pbns, "poses"))
     for name, (kind, help) in NCS_FLAGS.items():
         a.add_argument("--" + name.replace("_", "-"), type=kind, default=None,
-                       help=f"NCS: {help} (default {default(ncs_train.NCSTrainConfig, name)})")
-    a = action("resize", resize, "train the body-shape + tightness resizer of trained outfits")
+                       help=f"NCS: {help} (default {known('recon.garment.ncs.config:NCSTrainConfig.' + name)})")
+    a = action("resize", "garment:resize", "train the body-shape + tightness resizer of trained outfits")
     a.add_argument("--outfit", nargs="+", default=["tshirt-trousers"], help=help_outfit)
-    a.add_argument("--epochs", type=COUNT, default=default(ResizeConfig, "epochs"))
-    a = action("eval", evaluate, "PBNS (and resizer) tables on held-out poses (and shapes); "
+    a.add_argument("--epochs", type=COUNT, default=known("recon.garment.resize:ResizeConfig.epochs"))
+    a = action("eval", "garment:evaluate", "PBNS (and resizer) tables on held-out poses (and shapes); "
                "--model ncs: skinning, PBNS and NCS on held-out clips and against dynamic simulations")
     a.add_argument("--outfit", nargs="+", default=["tshirt-trousers"], help=help_outfit)
     a.add_argument("--model", choices=MODELS, default="pbns",
@@ -229,10 +71,11 @@ def add_garment(p: Parser) -> None:
     a.add_argument("--val", action="store_true",
                    help="--model ncs / author: against the val performers' simulations (what recipes are tuned on)")
     a.add_argument("--n", type=COUNT, default=None,
-                   help=f"held-out test poses (default {default(pbns_eval.evaluate_and_report, 'n_poses')}; "
-                        f"taylor {default(taylor_eval.evaluate_and_report, 'poses')})")
-    a.add_argument("--out", default=str(report.RESULTS))
-    a = action("author", author_clip, "a clip's garment animation from edited keyframes (the intrinsic garment space)")
+                   help=f"held-out test poses (default {known('recon.garment.pbns.eval:evaluate_and_report.n_poses')}; "
+                        f"taylor {known('recon.garment.taylor.eval:evaluate_and_report.poses')})")
+    a.add_argument("--out", default=str(known("recon.report:RESULTS")))
+    a = action("author", "garment:author_clip",
+               "a clip's garment animation from edited keyframes (the intrinsic garment space)")
     a.add_argument("--outfit", default="tshirt-skirt", help="an outfit with an authoring model "
                    "(`recon garment train --model author`)")
     a.add_argument("--motion", required=True, help="a .bvh, an .amc or a shipped clip's name or category "
@@ -246,23 +89,24 @@ def add_garment(p: Parser) -> None:
     a.add_argument("--render", choices=("mp4", "gif", "none"), default="mp4")
     a.add_argument("--max-seconds", type=POSITIVE, default=None, help="only the clip's first seconds")
     a.add_argument("--out", required=True, help="output folder: authored.glb, authored.mp4, authoring.json")
-    a = action("sample", sample, "garments drawn from the GCVAE's latent space, dressed by DeePSD")
-    a.add_argument("--type", choices=TYPES, required=True)
+    a = action("sample", "garment:sample", "garments drawn from the GCVAE's latent space, dressed by DeePSD")
+    a.add_argument("--type", choices=known("recon.garment.gcvae.model:TYPES"), required=True)
     a.add_argument("-n", type=COUNT, default=8, help="how many")
     a.add_argument("--seed", type=SEED, default=0)
     a.add_argument("--no-sheet", action="store_true", help="only the .obj files, no samples.jpg")
     a.add_argument("--out", required=True, help="output folder: sample_NN.obj, samples.jpg, samples.json")
-    a = action("reference", reference, "PBNS against a newton cloth drape (needs newton; minutes a pose)")
+    a = action("reference", "garment:reference", "PBNS against a newton cloth drape (needs newton; minutes a pose)")
     a.add_argument("--outfit", nargs="+", default=["tshirt-trousers"], help="preset names or 'all'")
-    a.add_argument("--n", type=COUNT, default=default(pbns_eval.reference_and_report, "poses"),
+    a.add_argument("--n", type=COUNT, default=known(reference, "poses"),
                    help="held-out test poses to drape")
-    a.add_argument("--frames", type=COUNT, default=default(pbns_eval.reference_and_report, "frames"),
+    a.add_argument("--frames", type=COUNT, default=known(reference, "frames"),
                    help="frame cap of each drape")
-    a.add_argument("--workers", type=COUNT, default=default(pbns_eval.reference_and_report, "workers"),
+    a.add_argument("--workers", type=COUNT, default=known(reference, "workers"),
                    help="drapes run in parallel processes")
     a.add_argument("--rescore", action="store_true", help="score the current weights against the cached drapes "
                    "instead of simulating (after a retrain that barely moved the skinned start)")
-    a.add_argument("--out", default=str(report.RESULTS))
+    a.add_argument("--out", default=str(known("recon.report:RESULTS")))
 
 
 ADD = {"garment": add_garment}
+

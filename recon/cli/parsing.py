@@ -1,6 +1,8 @@
 """Argument parsing shared by the commands: a parser whose errors are one line, the help
-formatter, ``default`` (a flag's default read from the code it configures) and ``number`` (every
-numeric flag's type, with its range checked at parse time)."""
+formatter, ``known`` (a flag's default or choices: the library's value, from the committed table
+recon/cli/values.py, so that no flag module imports torch), ``run_by`` (a command's function,
+imported when it runs) and ``number`` (every numeric flag's type, with its range checked at parse
+time)."""
 from __future__ import annotations
 
 import argparse
@@ -9,6 +11,14 @@ import importlib
 import inspect
 import math
 import sys
+from pathlib import Path
+
+from recon.cli.values import VALUES
+
+ROOT = Path(__file__).resolve().parents[2]  # the folder holding recon/ (and eval/ in a clone)
+# None, or a dict: ``known`` then reads every value from the library itself and records it here
+# (scripts/cli_values.py writes the table; tests/test_cli.py checks it)
+RECORDING: dict | None = None
 
 
 class Parser(argparse.ArgumentParser):
@@ -38,11 +48,58 @@ def actions(p: Parser):
     sub = p.add_subparsers(dest="action", required=True, metavar="ACTION", parser_class=Parser)
 
     def action(name: str, func, help: str) -> Parser:
+        """``func``: the function, or ``"module:function"`` of recon.cli.actions (``run_by``)."""
         a = sub.add_parser(name, help=help, description=help, formatter_class=formatter)
-        a.set_defaults(func=func)
+        a.set_defaults(func=run_by(func) if isinstance(func, str) else func)
         return a
 
     return action
+
+
+def known(name: str, field: str | None = None):
+    """A library value a flag shows: ``"module:NAME"`` (a constant) or ``"module:Owner", "field"``
+    (a dataclass field's or a function parameter's default, also written ``"module:Owner.field"``).
+    Read from the committed table (the library imports torch, which would make every ``--help``
+    take seconds); a path inside the project is stored relative to it."""
+    name = name if field is None else f"{name}.{field}"
+    if RECORDING is not None:
+        RECORDING[name] = literal(live(name))
+    value = VALUES[name] if RECORDING is None else RECORDING[name]
+    return str(ROOT / value["path"]) if isinstance(value, dict) and set(value) == {"path"} else value
+
+
+def live(name: str):
+    """The library's own value of a ``known`` name (imports its module)."""
+    module, attr = name.split(":")
+    owner, _, field = attr.partition(".")
+    obj = getattr(importlib.import_module(module), owner)
+    return default(obj, field) if field else obj
+
+
+def literal(value):
+    """A value as the table keeps it: a mapping's keys as a tuple, a path in the project relative
+    to it; anything else must be a plain literal."""
+    if isinstance(value, dict):
+        return tuple(value)
+    if isinstance(value, Path) or (isinstance(value, str) and value.startswith(str(ROOT) + "/")):
+        path = Path(value).resolve()
+        return {"path": str(path.relative_to(ROOT))} if path.is_relative_to(ROOT) else str(value)
+    if isinstance(value, (list, tuple)):
+        return type(value)(literal(v) for v in value)
+    assert value is None or isinstance(value, (str, int, float, bool)), f"{value!r} is no literal"
+    return value
+
+
+def run_by(spec: str):
+    """The function a command runs, ``"module:function"`` of recon.cli.actions, imported when the
+    command runs (its imports take seconds; ``--help`` needs none of them)."""
+    module, name = spec.split(":")
+
+    def run(args):
+        return getattr(importlib.import_module(f"recon.cli.actions.{module}"), name)(args)
+
+    run.spec = spec
+    return run
 
 
 def default(owner, name: str):

@@ -3,9 +3,7 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
-from recon.animate import animate, list_motions
 from recon.cli.parsing import (
     COUNT,
     NON_NEGATIVE,
@@ -14,23 +12,11 @@ from recon.cli.parsing import (
     STEPS,
     Parser,
     add_executor,
-    default,
     device,
-    executor_args,
+    known,
     number,
+    run_by,
 )
-from recon.demo import body_demo, dressed_gif, example_photos, photo_demo
-from recon.errors import ReconError
-from recon.executor import ExecutorConfig
-from recon.fit import FitConfig
-from recon.garment import store
-from recon.garment.dress import GARMENT_MODELS
-from recon.garment.resize import TIGHTNESS_RANGE
-from recon.garment.templates import PRESETS
-from recon.keypoints import SOURCES
-from recon.keypoints.mediapipe import MODELS
-from recon.pipeline import GENDERS, LIFTS, ReconstructorConfig
-from recon.run import RunOptions, run
 
 FOCAL = number(float, 0.05, 20.0)  # in units of the longer image side: a fisheye to a long telephoto
 TIGHTNESS = number(float, -1.0, 1.0)
@@ -41,114 +27,76 @@ GARMENT_MODEL_HELP = ("with an outfit: pbns (PBNS, NCS for motions), taylor (exa
                       "deepsd (any outfit mesh, no training; what a mesh without PBNS weights gets)")
 
 
-def run_images(args) -> int:
-    config = ReconstructorConfig(source=args.source, device=args.device, flip=args.flip, lift=args.lift,
-                                 retry=args.retry, guard=args.guard, keypoint_model=args.keypoint_model,
-                                 fallback=args.fallback, backbone_weight=args.backbone_weight,
-                                 shape_head=args.shape_head, search=args.search, gender=args.gender,
-                                 height_cm=args.height_cm,
-                                 fit=FitConfig(steps=args.refine_steps, silhouette=args.silhouette),
-                                 **({} if args.focal is None else {"focal_factor": args.focal}))
-    options = RunOptions(outfit=args.outfit, tightness=args.tightness, max_people=args.max_people,
-                         overlay=not args.no_overlay, exif_focal=args.focal is None, batch_size=args.batch_size,
-                         force=args.force, garment_model=args.garment_model)
-    s = run(args.inputs or example_photos(), Path(args.out), options, config,
-            executor=ExecutorConfig(**executor_args(args)))
-    if s.interrupted:
-        return 130
-    return 1 if s.failed or not (s.done or s.unchanged or s.no_person) else 0
-
-
-def animate_person(args) -> int:
-    if args.list_motions:
-        print(list_motions())
-        return 0
-    if not args.source or not args.motion or not args.out:
-        raise ReconError("recon animate needs a photo or result folder, --motion and --out (or --list-motions)")
-    written = animate(args.source, args.motion, args.out, outfit=args.outfit, tightness=args.tightness, asf=args.asf,
-                      max_seconds=args.seconds, render=args.render, dynamics=args.dynamics,
-                      garment_model=args.garment_model)
-    for path in written.values():
-        print(path)
-    return 0
-
-
-def demo(args) -> None:
-    out = Path(args.out)
-    outfit = args.outfit if store.pbns_path(args.outfit).exists() else None
-    written = photo_demo(out, outfit) + body_demo(out, seed=args.seed)
-    if outfit:
-        written.append(dressed_gif(out, outfit))
-    for p in written:
-        print(p)
-
-
 def add_run(p: Parser) -> None:
-    p.set_defaults(func=run_images)
-    cfg = ReconstructorConfig
+    models = tuple(known("recon.keypoints.mediapipe:MODELS"))
+    opts = "recon.run:RunOptions"
+    cfg = "recon.pipeline:ReconstructorConfig"
+    p.set_defaults(func=run_by("run:run_images"))
     p.add_argument("inputs", nargs="*", help="image files or folders (none: the bundled example photos)")
     p.add_argument("--out", required=True, help="output folder (one subfolder per image; an interrupted run resumes)")
     p.add_argument("--force", action="store_true",
                    help="make every image again (default: images already done from the same file and options are "
                         "left as they are)")
-    p.add_argument("--batch-size", type=COUNT, default=default(RunOptions, "batch_size"),
+    p.add_argument("--batch-size", type=COUNT, default=known(opts, "batch_size"),
                    help="images per SMPLR/fit batch (a task of --executor)")
     add_executor(p, 1, "processes reconstructing batches of images, each loading the models once")
-    p.add_argument("--device", type=device, default=default(cfg, "device"), help="torch device of the networks")
+    p.add_argument("--device", type=device, default=known(cfg, "device"), help="torch device of the networks")
     p.add_argument("--focal", type=FOCAL, default=None,
                    help="focal length in units of the longer image side (default: the photo's EXIF 35 mm "
-                        f"equivalent, else {default(cfg, 'focal_factor')})")
+                        f"equivalent, else {known(cfg, 'focal_factor')})")
     p.add_argument("--no-overlay", action="store_true", help="skip overlay.png / side.png rendering")
-    p.add_argument("--max-people", type=number(int, 1, 50), default=default(RunOptions, "max_people"),
+    p.add_argument("--max-people", type=number(int, 1, 50), default=known(opts, "max_people"),
                    help="people per image, the largest first (MediaPipe: found one after the other); above 1 every "
                         "image folder holds person_0/, person_1/, ... and one overlay")
-    p.add_argument("--source", choices=SOURCES, default=default(cfg, "source"),
+    p.add_argument("--source", choices=known("recon.keypoints:SOURCES"), default=known(cfg, "source"),
                    help="keypoints: MediaPipe + adapter, or our volumetric hourglass alone")
-    p.add_argument("--keypoint-model", choices=tuple(MODELS), default=default(cfg, "keypoint_model"),
+    p.add_argument("--keypoint-model", choices=models, default=known(cfg, "keypoint_model"),
                    help="MediaPipe's landmark model (full: ~half the time, less accurate; without heavy's file: full)")
-    p.add_argument("--retry", action=argparse.BooleanOptionalAction, default=default(cfg, "retry"),
+    p.add_argument("--retry", action=argparse.BooleanOptionalAction, default=known(cfg, "retry"),
                    help="MediaPipe: when it finds nobody, ask again on padded/mirrored views and at a lower "
                         "threshold (more people found, and more phantoms on person-free images)")
-    p.add_argument("--guard", action=argparse.BooleanOptionalAction, default=default(cfg, "guard"),
+    p.add_argument("--guard", action=argparse.BooleanOptionalAction, default=known(cfg, "guard"),
                    help="MediaPipe: refuse answers scored as phantoms (bodies found where there is no person)")
-    p.add_argument("--fallback", action=argparse.BooleanOptionalAction, default=default(cfg, "fallback"),
+    p.add_argument("--fallback", action=argparse.BooleanOptionalAction, default=known(cfg, "fallback"),
                    help="where MediaPipe finds nobody, our backbone answers when confident (people behind occluders "
                         "in synthetic-like images; on photos it rarely is)")
-    p.add_argument("--backbone-weight", type=number(float, 0.0, 1.0), default=default(cfg, "backbone_weight"),
+    p.add_argument("--backbone-weight", type=number(float, 0.0, 1.0), default=known(cfg, "backbone_weight"),
                    help="share of our backbone's keypoints (on MediaPipe's person) where it is confident; 0: "
                         "MediaPipe's alone")
-    p.add_argument("--shape-head", action=argparse.BooleanOptionalAction, default=default(cfg, "shape_head"),
+    p.add_argument("--shape-head", action=argparse.BooleanOptionalAction, default=known(cfg, "shape_head"),
                    help="gender and build read from the person's mask (recon.shape) rather than guessed from the "
                         "keypoints by SMPLR")
-    p.add_argument("--search", action=argparse.BooleanOptionalAction, default=default(cfg, "search"),
+    p.add_argument("--search", action=argparse.BooleanOptionalAction, default=known(cfg, "search"),
                    help="MediaPipe: where its face-anchored detector finds nobody, look for a person without a face "
                         "(back views, people cut by a border, small people)")
-    p.add_argument("--gender", choices=("auto", *GENDERS), default=default(cfg, "gender"),
+    p.add_argument("--gender", choices=("auto", *known("recon.pipeline:GENDERS")), default=known(cfg, "gender"),
                    help="the body's gender when you know it (auto: read from the person's outline; result.json's "
                         "shape_confidence says how sure)")
     p.add_argument("--height-cm", type=number(float, 50.0, 250.0), default=None,
                    help="the person's standing height when you know it: sets the body's height, and with the focal "
                         "length its distance (a single photo cannot tell scale: docs/pipeline.md)")
-    p.add_argument("--lift", choices=LIFTS, default=default(cfg, "lift"),
+    p.add_argument("--lift", choices=known("recon.pipeline:LIFTS"), default=known(cfg, "lift"),
                    help="SMPLR's 3D J+: the camera-aware lifter on the 2D keypoints, or the source's own 3D")
     p.add_argument("--flip", action=argparse.BooleanOptionalAction, default=None,
                    help="test-time mirror averaging of the keypoints (unset: on for MediaPipe, off for the backbone)")
-    p.add_argument("--refine-steps", type=STEPS, default=FitConfig.steps,
+    p.add_argument("--refine-steps", type=STEPS, default=known("recon.fit:FitConfig.steps"),
                    help="steps fitting the body to the keypoints after SMPLR (0: off)")
-    p.add_argument("--silhouette", type=NON_NEGATIVE, default=FitConfig.silhouette,
+    p.add_argument("--silhouette", type=NON_NEGATIVE, default=known("recon.fit:FitConfig.silhouette"),
                    help="weight of the person mask in that fit, which then also fits the body shape "
                         "(0: keypoints only)")
     p.add_argument("--outfit", default=None, help="dress the bodies: a trained outfit (presets: "
-                   f"{', '.join(PRESETS)}; or your own, `recon garment train`) or any garment mesh (.obj, .ply, "
+                   f"{', '.join(known('recon.garment.templates:PRESETS'))}; or your own, `recon garment train`) or "
+                   "any garment mesh (.obj, .ply, "
                    ".glb; body frame, metres), animated by DeePSD without training")
     p.add_argument("--tightness", type=TIGHTNESS, nargs=2, default=None, metavar=("WEIGHT", "HEIGHT"),
                    help="with --outfit: looser (> 0) or tighter (< 0), offsets of the body's weight and height "
-                        f"phenotypes (trained range {TIGHTNESS_RANGE}; needs a resizer)")
-    p.add_argument("--garment-model", choices=GARMENT_MODELS, default="pbns", help=GARMENT_MODEL_HELP)
+                        f"phenotypes (trained range {known('recon.garment.resize:TIGHTNESS_RANGE')}; needs a resizer)")
+    p.add_argument("--garment-model", choices=known("recon.garment.dress:GARMENT_MODELS"), default="pbns",
+                   help=GARMENT_MODEL_HELP)
 
 
 def add_animate(p: Parser) -> None:
-    p.set_defaults(func=animate_person)
+    p.set_defaults(func=run_by("run:animate_person"))
     p.add_argument("source", nargs="?", help="a photo (reconstructed first), a `recon run` result folder or a "
                                              "`recon video` track folder")
     p.add_argument("--motion", help="a .bvh (CMU, Daz, Mixamo or recon's own skeleton), an .amc, or a shipped "
@@ -158,7 +106,7 @@ def add_animate(p: Parser) -> None:
     p.add_argument("--outfit", default=None, help="dress the body (default: the outfit `recon run` used, if any)")
     p.add_argument("--tightness", type=TIGHTNESS, nargs=2, default=None, metavar=("WEIGHT", "HEIGHT"),
                    help="with an outfit that has a resizer: looser (> 0) or tighter (< 0)")
-    p.add_argument("--garment-model", choices=GARMENT_MODELS, default=None,
+    p.add_argument("--garment-model", choices=known("recon.garment.dress:GARMENT_MODELS"), default=None,
                    help=GARMENT_MODEL_HELP + "; default: the one `recon run` used")
     p.add_argument("--seconds", type=POSITIVE, default=None, help="only the clip's first seconds")
     p.add_argument("--dynamics", action=argparse.BooleanOptionalAction, default=None,
@@ -170,10 +118,11 @@ def add_animate(p: Parser) -> None:
 
 
 def add_demo(p: Parser) -> None:
-    p.set_defaults(func=demo)
+    p.set_defaults(func=run_by("run:demo"))
     p.add_argument("--out", default="out/demo")
     p.add_argument("--seed", type=SEED, default=0)
     p.add_argument("--outfit", default="tshirt-trousers", help="outfit of the dressed renders (if trained)")
 
 
 ADD = {"run": add_run, "animate": add_animate, "demo": add_demo}
+

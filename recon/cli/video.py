@@ -1,43 +1,15 @@
 """``recon video``: a video (or a folder of frames) -> one motion per person (recon.video)."""
 from __future__ import annotations
 
-from dataclasses import replace
-from pathlib import Path
-
-from recon.cli.parsing import COUNT, NON_NEGATIVE, POSITIVE, STEPS, Parser, add_executor, default, executor_args, number
+from recon.cli.parsing import COUNT, NON_NEGATIVE, POSITIVE, STEPS, Parser, add_executor, known, number, run_by
 from recon.cli.run import FOCAL, TIGHTNESS
-from recon.executor import ExecutorConfig
-from recon.garment.templates import PRESETS
-from recon.keypoints.mediapipe import MODELS
-from recon.pipeline import ReconstructorConfig
-from recon.video import FrameRange, SmoothConfig, VideoOptions, video
-from recon.video.many import videos
-
-
-def run_video(args) -> int:
-    config = ReconstructorConfig(keypoint_model=args.keypoint_model, backbone_weight=args.backbone_weight,
-                                 **({} if args.focal is None else {"focal_factor": args.focal}))
-    frames = FrameRange(start=args.start, end=args.end, every=args.every, fps=args.fps)
-    options = VideoOptions(frames=frames, max_people=args.max_people,
-                           smooth=replace(SmoothConfig(), steps=args.smooth_steps), outfit=args.outfit,
-                           tightness=args.tightness, overlay=not args.no_overlay, batch=args.batch, force=args.force)
-    executor = ExecutorConfig(**executor_args(args))
-    if len(args.inputs) > 1:
-        s = videos(args.inputs, Path(args.out), options, config, executor)
-        return 130 if s.interrupted else (1 if s.failed else 0)
-    if not executor.in_process:
-        print("one video runs in this process (its frames follow each other); --executor spreads several videos")
-    try:
-        video(args.inputs[0], Path(args.out), options, config)
-    except KeyboardInterrupt:
-        print(f"interrupted: run the same command again to continue from the last finished batch ({args.out})")
-        return 130
-    return 0
 
 
 def add_video(p: Parser) -> None:
-    p.set_defaults(func=run_video)
-    opts, cfg = VideoOptions, ReconstructorConfig
+    models = tuple(known("recon.keypoints.mediapipe:MODELS"))
+    opts = "recon.video:VideoOptions"
+    cfg = "recon.pipeline:ReconstructorConfig"
+    p.set_defaults(func=run_by("video:run_video"))
     p.add_argument("inputs", nargs="+", metavar="input",
                    help="a video file OpenCV reads (mp4, avi, mov, webm, mkv) or a folder of frames; several: each "
                         "into <out>/<name>/, one video a task of --executor, videos.json beside them")
@@ -48,26 +20,27 @@ def add_video(p: Parser) -> None:
     p.add_argument("--end", type=POSITIVE, default=None, help="last second (exclusive; default: the end)")
     p.add_argument("--every", type=COUNT, default=1, help="take one frame in every N")
     p.add_argument("--fps", type=POSITIVE, default=None, help="at most this many frames a second")
-    p.add_argument("--max-people", type=number(int, 1, 20), default=default(opts, "max_people"),
+    p.add_argument("--max-people", type=number(int, 1, 20), default=known(opts, "max_people"),
                    help="people followed; 1 uses MediaPipe's video mode (faster, steadier); more follows each on "
                         "a crop where they were, and searches the frame for newcomers")
     p.add_argument("--focal", type=FOCAL, default=None,
-                   help=f"focal length in units of the longer frame side (default {default(cfg, 'focal_factor')})")
-    p.add_argument("--keypoint-model", choices=tuple(MODELS), default=default(cfg, "keypoint_model"),
+                   help=f"focal length in units of the longer frame side (default {known(cfg, 'focal_factor')})")
+    p.add_argument("--keypoint-model", choices=models, default=known(cfg, "keypoint_model"),
                    help="MediaPipe's landmark model (full: about twice as fast, less accurate)")
-    p.add_argument("--backbone-weight", type=number(float, 0.0, 1.0), default=default(cfg, "backbone_weight"),
+    p.add_argument("--backbone-weight", type=number(float, 0.0, 1.0), default=known(cfg, "backbone_weight"),
                    help="share of our backbone's keypoints where it is confident (synthetic-like footage; it stops "
                         "asking where it is not); 0: MediaPipe's alone")
-    p.add_argument("--smooth-steps", type=STEPS, default=SmoothConfig.steps,
+    p.add_argument("--smooth-steps", type=STEPS, default=known("recon.video:SmoothConfig.steps"),
                    help="iterations of the track optimisation (0: the per-frame estimates, gaps interpolated)")
     p.add_argument("--outfit", default=None, help="dress the animated bodies: a trained outfit (presets: "
-                   f"{', '.join(PRESETS)}); NCS dynamics where it has them")
+                   f"{', '.join(known('recon.garment.templates:PRESETS'))}); NCS dynamics where it has them")
     p.add_argument("--tightness", type=TIGHTNESS, nargs=2, default=None, metavar=("WEIGHT", "HEIGHT"),
                    help="with --outfit: looser (> 0) or tighter (< 0) (needs a resizer)")
     p.add_argument("--no-overlay", action="store_true", help="skip overlay.mp4")
-    p.add_argument("--batch", type=COUNT, default=default(opts, "batch"), help="frames per stored batch")
+    p.add_argument("--batch", type=COUNT, default=known(opts, "batch"), help="frames per stored batch")
     p.add_argument("--force", action="store_true",
                    help="start again (default: a finished folder is left as it is, an unfinished one continues)")
 
 
 ADD = {"video": add_video}
+

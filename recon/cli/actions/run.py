@@ -1,0 +1,60 @@
+"""The actions of ``recon run`` (photos -> bodies), ``recon demo`` (the bundled photos) and ``recon animate``
+(a reconstructed person moved by a mocap clip)."""
+from __future__ import annotations
+
+from pathlib import Path
+
+from recon.animate import animate, list_motions
+from recon.cli.parsing import (
+    executor_args,
+)
+from recon.demo import body_demo, dressed_gif, example_photos, photo_demo
+from recon.errors import ReconError
+from recon.executor import ExecutorConfig
+from recon.fit import FitConfig
+from recon.garment import store
+from recon.pipeline import ReconstructorConfig
+from recon.run import RunOptions, run
+
+
+def run_images(args) -> int:
+    config = ReconstructorConfig(source=args.source, device=args.device, flip=args.flip, lift=args.lift,
+                                 retry=args.retry, guard=args.guard, keypoint_model=args.keypoint_model,
+                                 fallback=args.fallback, backbone_weight=args.backbone_weight,
+                                 shape_head=args.shape_head, search=args.search, gender=args.gender,
+                                 height_cm=args.height_cm,
+                                 fit=FitConfig(steps=args.refine_steps, silhouette=args.silhouette),
+                                 **({} if args.focal is None else {"focal_factor": args.focal}))
+    options = RunOptions(outfit=args.outfit, tightness=args.tightness, max_people=args.max_people,
+                         overlay=not args.no_overlay, exif_focal=args.focal is None, batch_size=args.batch_size,
+                         force=args.force, garment_model=args.garment_model)
+    s = run(args.inputs or example_photos(), Path(args.out), options, config,
+            executor=ExecutorConfig(**executor_args(args)))
+    if s.interrupted:
+        return 130
+    return 1 if s.failed or not (s.done or s.unchanged or s.no_person) else 0
+
+
+def animate_person(args) -> int:
+    if args.list_motions:
+        print(list_motions())
+        return 0
+    if not args.source or not args.motion or not args.out:
+        raise ReconError("recon animate needs a photo or result folder, --motion and --out (or --list-motions)")
+    written = animate(args.source, args.motion, args.out, outfit=args.outfit, tightness=args.tightness, asf=args.asf,
+                      max_seconds=args.seconds, render=args.render, dynamics=args.dynamics,
+                      garment_model=args.garment_model)
+    for path in written.values():
+        print(path)
+    return 0
+
+
+def demo(args) -> None:
+    out = Path(args.out)
+    outfit = args.outfit if store.pbns_path(args.outfit).exists() else None
+    written = photo_demo(out, outfit) + body_demo(out, seed=args.seed)
+    if outfit:
+        written.append(dressed_gif(out, outfit))
+    for p in written:
+        print(p)
+
