@@ -11,6 +11,7 @@ from gltf_check import assert_valid, pose_meshes
 
 from recon.body import lbs, skeleton
 from recon.body.lbs import forward_kinematics
+from recon.errors import ReconError
 from recon.garment import losses, store
 from recon.garment.data import pose_set, posed_bodies, trained_outfit
 from recon.garment.dress import Dresser
@@ -478,6 +479,49 @@ def test_animated_glb_holds_the_dynamic_model(body, tmp_path):
     posed = pose_meshes(glb, 4)["outfit"]
     assert np.abs(posed - moving[4]).max() < 1e-4
     assert np.abs(moving[4] - still[4]).max() > 1e-3  # NCS is not PBNS here
+
+
+def _skirt_pbns(body, folder):
+    torch.manual_seed(0)
+    o = make_outfit(body, [GarmentSpec("skirt", "skirt")])
+    pbns = PBNS(torch.from_numpy(o.vertices), torch.from_numpy(o.faces),
+                torch.from_numpy(initial_weights(RestBody(body), o)))
+    with torch.no_grad():
+        pbns.D.normal_(0, 1e-3)
+    extra = {"meta_json": json.dumps({"garments": ["skirt"]}), "layer": torch.zeros(len(o.vertices)),
+             "garment_id": torch.zeros(len(o.vertices), dtype=torch.long), "shape": body.mean_shape}
+    pbns.save(folder / "pbns_skirt.pt", extra)
+    return PBNS.load(folder / "pbns_skirt.pt")[0], extra
+
+
+def test_an_ncs_file_keeps_only_what_it_adds_to_its_pbns_and_loads_back_the_same(body, tmp_path):
+    """Beside its PBNS file, an NCS file stores its encoders and D's new rows where they are not
+    zero; loading completes it from the PBNS file: the same state, bit for bit. A PBNS retrained
+    since is refused; an NCS saved elsewhere, or trained apart from its PBNS, is stored whole."""
+    pbns, extra = _skirt_pbns(body, tmp_path)
+    model = ncs.NCS.from_pbns(pbns, ncs.NCSConfig(dynamic=4))
+    with torch.no_grad():
+        model.D[128:, :300].normal_(0, 1e-3)  # the new rows move a part only
+    model.save(tmp_path / "ncs_skirt.pt", extra, pbns_path=tmp_path / "pbns_skirt.pt")
+    raw = torch.load(tmp_path / "ncs_skirt.pt", weights_only=True)
+    assert "D" not in raw["state"] and raw["state"]["D_new_rows"].shape == (4, 300)
+    assert "rest" not in raw["state"] and "layer" not in raw
+    loaded, ck = ncs.NCS.load(tmp_path / "ncs_skirt.pt")
+    want = {k: v.half() if k == "D" else v for k, v in model.state_dict().items()}
+    got = loaded.state_dict()
+    assert want.keys() == got.keys() and all(torch.equal(want[k].to(got[k].dtype), got[k]) for k in want)
+    assert torch.equal(ck["garment_id"], extra["garment_id"]) and ck["meta_json"] == extra["meta_json"]
+    whole = tmp_path / "elsewhere"
+    whole.mkdir()
+    model.save(whole / "ncs_skirt.pt", extra, pbns_path=tmp_path / "pbns_skirt.pt")
+    assert "D" in torch.load(whole / "ncs_skirt.pt", weights_only=True)["state"]
+    with torch.no_grad():
+        pbns.D.add_(1e-3)  # PBNS retrained after NCS
+    pbns.save(tmp_path / "pbns_skirt.pt", extra)
+    with pytest.raises(ReconError, match="trained on another pbns_skirt.pt"):
+        ncs.NCS.load(tmp_path / "ncs_skirt.pt")
+    model.save(tmp_path / "ncs_skirt.pt", extra, pbns_path=tmp_path / "pbns_skirt.pt")  # D's rows differ now
+    assert "D" in torch.load(tmp_path / "ncs_skirt.pt", weights_only=True)["state"]
 
 
 def test_a_network_trained_at_15_fps_dresses_a_30_fps_motion(body, tmp_path):

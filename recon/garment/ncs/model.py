@@ -19,7 +19,8 @@ was trained at (``NCSConfig.fps``).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+import hashlib
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -28,6 +29,7 @@ from torch import nn
 
 from recon import paths
 from recon.body import skeleton
+from recon.errors import ReconError
 from recon.garment.pbns.model import BlendShapeGarment, pose_features, pose_mlp, remove_yaw
 from recon.poses.mocap import resample
 
@@ -228,13 +230,76 @@ class NCS(BlendShapeGarment):
             zs, zd = ((1 - w) * z[i0] + w * z[i1] for z in (zs, zd))
         return zs, zd
 
+    def save(self, path: Path, extra: dict, pbns_path: Path | None = None) -> None:
+        """The weights file. Given the PBNS file it was built from (in the same folder), it keeps
+        only what NCS adds (its encoders and D's new rows where they are non-zero) and names that
+        file with a digest of the parts it shares; else everything, as ``BlendShapeGarment.save``."""
+        if pbns_path is None or Path(pbns_path).resolve().parent != Path(path).resolve().parent:
+            return super().save(path, extra)
+        pck = paths.load_checkpoint(pbns_path, "recon garment train")
+        mine = {k: v for k, v in self.state_dict().items()}
+        mine["D"] = mine["D"].half()
+        shared = _shared_parts(mine, self.cfg.embedding)
+        if any(not torch.equal(v, pck["state"][k]) for k, v in shared.items()):
+            return super().save(path, extra)  # trained apart from that PBNS: keep it whole
+        cols, rows = self._new_rows()
+        own = {k: v for k, v in mine.items() if k != "D" and k not in _shared_keys(mine)}
+        own |= {"D_new_cols": cols.int(), "D_new_rows": rows.half()}
+        extra = {k: v for k, v in extra.items() if k not in PBNS_EXTRAS or not torch.equal(v, pck[k])}
+        state = {"cfg": asdict(self.cfg), "state": own,
+                 "pbns": {"file": Path(pbns_path).name, "digest": _digest(pck["state"])}} | extra
+        paths.atomic_write(Path(path), lambda t: torch.save(state, t))
+
     @classmethod
     def load(cls, path: Path) -> tuple[NCS, dict]:
         ck = paths.load_checkpoint(path, "recon garment train --model ncs")
+        if "pbns" in ck:
+            ck = _with_pbns_parts(Path(path), ck)
         sd = ck["state"]
         m = cls(sd["rest"], sd["faces"], torch.softmax(sd["weight_logits"], -1), NCSConfig(**ck["cfg"]))
         m.load_state_dict(sd)
         return m.eval(), ck
+
+
+# an NCS file shares these with its PBNS: template, blend weights, D's first rows, the pose MLP
+PBNS_EXTRAS = ("layer", "garment_id", "shape")
+
+
+def _shared_keys(sd: dict) -> list[str]:
+    return ["rest", "faces", "weight_logits"] + [k for k in sd if k.startswith("pbns_mlp.")]
+
+
+def _shared_parts(sd: dict, embedding: int) -> dict[str, torch.Tensor]:
+    """NCS's state entries that are its PBNS's, under the PBNS's names."""
+    parts = {k.removeprefix("pbns_"): sd[k] for k in _shared_keys(sd)}
+    return parts | {"D": sd["D"][:embedding]}
+
+
+def _digest(pbns_state: dict) -> str:
+    """sha256 of a PBNS state's tensors (names, dtypes, shapes, bytes) in name order."""
+    h = hashlib.sha256()
+    for k in sorted(pbns_state):
+        v = pbns_state[k].contiguous()
+        h.update(f"{k}:{v.dtype}:{tuple(v.shape)}".encode())
+        h.update(v.view(torch.uint8).numpy().tobytes() if v.numel() else b"")
+    return h.hexdigest()
+
+
+def _with_pbns_parts(path: Path, ck: dict) -> dict:
+    """A compact NCS checkpoint completed from the PBNS file it names (same folder)."""
+    pbns_path = path.parent / ck["pbns"]["file"]
+    pck = paths.load_checkpoint(pbns_path, "recon garment train")
+    if _digest(pck["state"]) != ck["pbns"]["digest"]:
+        raise ReconError(f"{path} was trained on another {pbns_path.name}: retrain it "
+                         "(`recon garment train --model ncs`)")
+    ps, own = pck["state"], dict(ck["state"])
+    cols, rows = own.pop("D_new_cols").long(), own.pop("D_new_rows")
+    d = torch.zeros(len(ps["D"]) + len(rows), ps["D"].shape[1], dtype=rows.dtype)
+    d[:len(ps["D"])] = ps["D"]
+    d[len(ps["D"]):, cols] = rows
+    state = own | {"D": d} | {k: ps[k] for k in ("rest", "faces", "weight_logits")}
+    state |= {f"pbns_{k}": v for k, v in ps.items() if k.startswith("mlp.")}
+    return {k: pck[k] for k in PBNS_EXTRAS} | ck | {"state": state}
 
 
 def motion_inputs(body, rotmats: torch.Tensor, shape: torch.Tensor, transl: torch.Tensor | None = None,

@@ -296,7 +296,8 @@ class NCSTraining:
                 "garments": [gg.name for gg in self.outfit.garments], "curve": curve["history"],
                 "physics_curve": physics_curve["history"]}
         model.save(self.out, {"meta_json": json.dumps(meta), "layer": torch.from_numpy(self.outfit.layer),
-                              "garment_id": torch.from_numpy(self.outfit.garment_id), "shape": self.shape})
+                              "garment_id": torch.from_numpy(self.outfit.garment_id), "shape": self.shape},
+                   pbns_path=self.pbns_path)
         shutil.rmtree(self.run_dir, ignore_errors=True)
         return meta
 
