@@ -88,7 +88,7 @@ def collect(source: str, n: int, data: str = "synth-val") -> Path:
     if source == "mediapipe":
         # its first answer (full landmark model, as committed); the rescues below are the retries' study
         src = MediaPipeSource(retry=False, guard=False, model="full")
-        mp = {c: MediaPipePose(segmentation=False, min_confidence=c) for c in (0.5, 0.3, 0.2)}
+        mp = {c: MediaPipePose("full", segmentation=False, min_confidence=c) for c in (0.5, 0.3, 0.2)}
     elif source in ("backbone", "backbone-gtcrop"):
         src = BackboneSource(body)
     else:

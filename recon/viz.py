@@ -1,5 +1,5 @@
 """Offscreen rendering of body meshes: pyrender for demo pictures; the synthetic renderer
-(``draw_overlay``, ``draw_meshes``, lit per vertex, ~20x faster) for `recon run`'s outputs.
+(``draw_overlay``, ``draw_meshes``, lit per vertex, much faster) for `recon run`'s outputs.
 
 Needs the ``render`` extra and EGL or OSMesa (scripts/setup.sh installs both). The
 platform is taken from $PYOPENGL_PLATFORM, default "egl", falling back to "osmesa".

@@ -31,7 +31,7 @@ WEIGHTS = Path(__file__).parent / "weights" / "hourglass_base.pt"
 def inference_copy(net: StackedHourglass) -> StackedHourglass:
     """Eval-mode copy for CPU inference: every BatchNorm that follows a convolution is folded
     into it, and weights are channels-last (oneDNN's fast layout). Same outputs to float
-    rounding; ~1.2x faster at batch 1 on one thread, mostly from the layout."""
+    rounding; faster at batch 1 on one thread, mostly from the layout (benchmarks/bench_backbone_stem.py)."""
     net = copy.deepcopy(net).eval()
     for seq in [m for m in net.modules() if isinstance(m, nn.Sequential)]:
         for i in range(len(seq) - 1):
@@ -52,7 +52,7 @@ def first_stack(net: StackedHourglass) -> StackedHourglass:
 
 def traced(net: nn.Module, size: int) -> nn.Module:
     """TorchScript trace + freeze of an inference copy (constant-folded weights, fused
-    conv+ReLU/add): ~25% faster again than eager at batch 1 on one CPU thread, ~1 s to build.
+    conv+ReLU/add): faster again than eager at batch 1 on one CPU thread, and quick to build.
     torch.jit is deprecated in favour of torch.compile, which takes ~35 s to compile this net on
     the 2-core CPU for the same speed, so we keep the trace while it works and fall back to eager
     when it does not."""

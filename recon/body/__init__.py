@@ -27,7 +27,7 @@ def create(model: str | Path = "anny", **kwargs) -> BodyModel:
 
 
 def default_body() -> BodyModel:
-    """A process-wide shared anny instance (loading costs ~0.5 s)."""
+    """A process-wide shared anny instance (loading it takes a while)."""
     if "anny" not in _CACHE:
         _CACHE["anny"] = create("anny")
     return _CACHE["anny"]

@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import torch
+from tqdm import tqdm
 
 from recon.errors import ReconError
 from recon.kernels import PINNED
@@ -123,6 +124,27 @@ def stream_results(spec_of: Callable[[int], WorkerSpec], actors: int, address: s
 def ray_available() -> bool:
     """Whether the optional extra recon[cluster] (Ray) is installed, without importing it."""
     return importlib.util.find_spec("ray") is not None
+
+
+def run_job(spec: WorkerSpec, tasks: Sequence, on_result: Callable[[int, Any], int],
+            lost: Callable[[int, WorkerLost], Any], config: ExecutorConfig | None = None,
+            prepare: Callable[[Any], Any] | None = None, desc: str = "", unit: str = "task",
+            total: int | None = None, progress: bool = True) -> bool:
+    """``map_tasks`` as the commands run it: each result handed to ``on_result(index, result)``
+    (which returns how many of the ``total`` steps of the progress bar it completed), a task
+    whose worker died on every try as ``lost(index, WorkerLost)``. Returns False when Ctrl-C
+    stopped the job (its workers stopped; the caller still writes its summary)."""
+    bar = tqdm(total=len(tasks) if total is None else total, desc=desc, unit=unit, disable=not progress)
+    results = map_tasks(spec, tasks, config, prepare)
+    try:
+        for i, r in results:
+            bar.update(on_result(i, lost(i, r) if isinstance(r, WorkerLost) else r))
+        return True
+    except KeyboardInterrupt:
+        return False
+    finally:
+        results.close()
+        bar.close()
 
 
 class Retries:

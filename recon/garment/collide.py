@@ -60,7 +60,7 @@ class CollisionResolver:
     @staticmethod
     def incidence(faces: np.ndarray, n: int):
         """(n, F) sparse vertex-face incidence: vertex normals = incidence @ face normals (an
-        index_add over faces costs 2-4x more on one thread: benchmarks/bench_garment.py)."""
+        index_add over faces costs more on one thread: benchmarks/bench_garment.py)."""
         f = np.asarray(faces)
         rows, cols = f.ravel(), np.repeat(np.arange(len(f)), 3)
         return sp.csr_matrix((np.ones(f.size, np.float32), (rows, cols)), shape=(n, len(f)))
@@ -80,7 +80,7 @@ class CollisionResolver:
             self._body_faces, self._body_inc = bf.copy(), self.incidence(bf, bv.shape[1])
         for b in range(len(out)):
             bn = self.normals(bv[b], bf, self._body_inc)
-            tree = cKDTree(bv[b], balanced_tree=False, compact_nodes=False)  # builds 1.7x faster, queries alike
+            tree = cKDTree(bv[b], balanced_tree=False, compact_nodes=False)  # builds faster, queries alike
             # only moved vertices can change side, so later passes query those alone; a spread
             # move can push a neighbour into another body part (between the thighs)
             query = np.arange(self.n)

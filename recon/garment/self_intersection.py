@@ -6,7 +6,7 @@ parts cannot be outside both, so a cloth collision metric or loss is ill-defined
 5.4.3 trains and tests PBNS on poses "that do not produce self-collisions").
 ``SkinSelfIntersection`` finds the surface vertices that lie inside the body: each vertex, moved
 ``offset`` along its normal, is tested with the generalised winding number of the closed surface
-(warp's BVH mesh query, CPU; ~30 ms per pose on one thread). Contacts the rest pose already has
+(warp's BVH mesh query, on the CPU). Contacts the rest pose already has
 (between the fingers, ears) are not counted, and only the vertices of the garment region (the
 skin of the torso, hips, upper legs and arms: the vertices whose dominant bone is not the head,
 neck, hands or feet) are tested. Unlike the pose sampler's sphere test (recon.poses.collision:

@@ -23,7 +23,7 @@ from torch import nn
 
 from recon import camera, paths
 from recon.body import skeleton
-from recon.keypoints.mediapipe import NUM_MP, MPPose
+from recon.keypoints.mediapipe import DEFAULT_MODEL, NUM_MP, MPPose
 from recon.smplr.networks import NormResidualBlock
 
 WEIGHTS = Path(__file__).resolve().parent / "weights" / "mp_adapter.pt"  # trained on the full model's answers
@@ -86,7 +86,7 @@ class KeypointAdapter(nn.Module):
         return y[..., :3], y[..., 3:]
 
     @classmethod
-    def load(cls, path: str | Path | None = None, model: str = "full") -> KeypointAdapter:
+    def load(cls, path: str | Path | None = None, model: str = DEFAULT_MODEL) -> KeypointAdapter:
         """A trained file, else the shipped weights for MediaPipe's landmark ``model`` (float16
         files are read as float32)."""
         ck = paths.load_checkpoint(path or weights_for(model), "recon keypoints train")

@@ -100,7 +100,7 @@ class MediaPipePose:
     the frames of one video in order: it follows the person from the last frame's landmarks and
     runs its detector only when it has lost them (faster; its landmarks are filtered over time)."""
 
-    def __init__(self, model: str = "full", segmentation: bool = True, min_confidence: float = 0.5,
+    def __init__(self, model: str = DEFAULT_MODEL, segmentation: bool = True, min_confidence: float = 0.5,
                  video: bool = False):
         if not available():
             raise ReconError("mediapipe is not installed: scripts/setup.sh installs mediapipe==0.10.21 "
@@ -164,7 +164,7 @@ class MediaPipeLandmarks:
     own presence score says nobody is there (MediaPipe's threshold, 0.5). What finds people the
     detector misses: back views, bodies cut by a border (``recon.keypoints.sources``)."""
 
-    def __init__(self, model: str = "full", segmentation: bool = True):
+    def __init__(self, model: str = DEFAULT_MODEL, segmentation: bool = True):
         if not available():
             raise ReconError("mediapipe is not installed: scripts/setup.sh installs mediapipe==0.10.21")
         from mediapipe.framework.formats import rect_pb2  # noqa: PLC0415 - optional extra

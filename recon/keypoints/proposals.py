@@ -19,7 +19,7 @@ import numpy as np
 from recon.errors import ReconError
 from recon.keypoints import guard as person_guard
 from recon.keypoints.adapter import MP_MIRROR
-from recon.keypoints.mediapipe import MediaPipeLandmarks, MPPose, available, quiet_native_logs
+from recon.keypoints.mediapipe import DEFAULT_MODEL, MediaPipeLandmarks, MPPose, available, quiet_native_logs
 
 ROI_SCALES = (1.0, 0.7, 0.45)  # grid squares' sides, as a share of the frame's shorter side
 MIN_BLOB = 0.002  # a mask blob smaller than this share of the frame is no proposal
@@ -108,7 +108,7 @@ class PersonSearch:
     missed (see the module docstring); ``model``: the fine landmark model. ``last_tried``: regions
     looked at in the last call."""
 
-    def __init__(self, model: str = "heavy", max_regions: int = MAX_REGIONS, settle=SETTLE,
+    def __init__(self, model: str = DEFAULT_MODEL, max_regions: int = MAX_REGIONS, settle=SETTLE,
                  min_score: float = MIN_SCORE, mirror_agree: float = MIRROR_AGREE):
         self.mask = PersonMask()
         self.coarse = MediaPipeLandmarks("full")

@@ -8,6 +8,7 @@ crop (``recon.backbone.search``); trained on synthetic renders only.
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import replace
 
 import cv2
@@ -307,6 +308,22 @@ class MediaPipeSource:
                 if np.median(d) < 0.25 * size:  # the same person (another one would be far off)
                     p3, uv = 0.5 * (p3 + p3m), 0.5 * (uv + uvm)
         return Keypoints(p3, uv, float(np.mean(r.visibility)), box, r.mask, score, self.name)
+
+    def person_in(self, rgb: np.ndarray, k: np.ndarray, crop: tuple[int, int, int, int], strict: bool = False,
+                  painted: np.ndarray | None = None, found: Sequence[Keypoints] = ()) -> Keypoints | None:
+        """The person MediaPipe finds on ``crop`` (x0, y0, x1, y1) of ``painted`` (default ``rgb``:
+        the frame with the people found so far painted over) who is none of ``found``, in ``rgb``'s
+        pixels, blended with the backbone's on ``rgb`` (``backbone_weight``). No retries and no
+        faceless search; ``strict``: the answer needs a retry view's evidence (upscaled views)."""
+        x0, y0, x1, y1 = crop
+        image = rgb if painted is None else painted
+        kc = np.array(k, float)
+        kc[:2, 2] -= (x0, y0)
+        kp = self._find(np.ascontiguousarray(image[y0:y1, x0:x1]), kc, retry=False, strict=strict)
+        if kp is None:
+            return None
+        kp = shifted(kp, x0, y0, image.shape)
+        return None if any(same_person(kp, f) for f in found) else self._with_backbone(rgb, k, kp)
 
     def people(self, rgb: np.ndarray, k: np.ndarray, max_people: int) -> list[Keypoints]:
         """Up to ``max_people`` people: MediaPipe Pose finds one person per call, so each person it

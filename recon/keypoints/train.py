@@ -20,7 +20,7 @@ from recon import camera, paths
 from recon.body import skeleton
 from recon.errors import MissingFile
 from recon.keypoints.adapter import MP_MIRROR, WEIGHTS, AdapterConfig, KeypointAdapter, assemble_features, normalise_2d
-from recon.keypoints.mediapipe import NUM_MP, MediaPipePose, model_file
+from recon.keypoints.mediapipe import DEFAULT_MODEL, NUM_MP, MediaPipePose, model_file
 from recon.synth.dataset import SynthDataset
 from recon.training import Schedule, Trainer, epoch_batches
 
@@ -28,7 +28,7 @@ STORE_DTYPE = torch.float32  # float16 would move published numbers: eval/result
 
 
 def collect(root: Path, out: Path, shards: list[int] | None = None, truncate: float = 0.0,
-            model: str = "full") -> list[Path]:
+            model: str = DEFAULT_MODEL) -> list[Path]:
     """Run MediaPipe over ``recon synth`` shards of ``root``; one npz per shard in ``out``
     (written atomically, skipped when present: resumable and splittable over processes).
 
@@ -140,7 +140,7 @@ ONE_CYCLE = Schedule(warmup=0.3, start=1 / 25, floor=1 / 25 / 1e4)  # OneCycleLR
 
 def train(train_dirs: list[Path], val_dir: Path, out: Path = WEIGHTS, cfg: AdapterTrainConfig | None = None,
           model_cfg: AdapterConfig | None = None, run_dir: Path | None = None, progress: bool = True,
-          keypoint_model: str = "full") -> dict:
+          keypoint_model: str = DEFAULT_MODEL) -> dict:
     """Train on collected train folders, select on val (best validation MPJPE), write the weights
     (with the training record inside). Resumes from ``run_dir`` (default in the cache) if an
     earlier run was interrupted; the folder is removed once the weights are written.

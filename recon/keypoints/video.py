@@ -34,7 +34,6 @@ from recon.keypoints.sources import (
     blend_backbone,
     box_iou,
     same_person,
-    shifted,
     windows,
 )
 
@@ -118,8 +117,10 @@ class PeopleVideoSource:
         found = self.people(rgb, k, 1)
         return found[0] if found else None
 
-    def _on_crop(self, rgb: np.ndarray, k: np.ndarray, box) -> Keypoints | None:
-        """The person MediaPipe finds on a square crop around ``box`` (grown by ``margin``)."""
+    def _on_crop(self, full: np.ndarray, rgb: np.ndarray, k: np.ndarray, box, found: list[Keypoints]
+                 ) -> Keypoints | None:
+        """The person MediaPipe finds on a square crop of ``rgb`` (the frame ``full`` with the people
+        found so far painted over) around ``box`` (grown by ``margin``), none of ``found``."""
         h, w = rgb.shape[:2]
         cx, cy = 0.5 * (box[0] + box[2]), 0.5 * (box[1] + box[3])
         half = 0.5 * (1 + self.margin) * max(box[2] - box[0], box[3] - box[1], 16.0)
@@ -127,10 +128,7 @@ class PeopleVideoSource:
         x1, y1 = int(min(w, cx + half)), int(min(h, cy + half))
         if x1 - x0 < 16 or y1 - y0 < 16:
             return None
-        kc = np.array(k, float)
-        kc[:2, 2] -= (x0, y0)
-        kp = self.source._find(np.ascontiguousarray(rgb[y0:y1, x0:x1]), kc, retry=False, strict=False)
-        return None if kp is None else shifted(kp, x0, y0, rgb.shape)
+        return self.source.person_in(full, k, (x0, y0, x1, y1), painted=rgb, found=found)
 
     def people(self, rgb: np.ndarray, k: np.ndarray, max_people: int) -> list[Keypoints]:
         self._frame += 1
@@ -139,9 +137,9 @@ class PeopleVideoSource:
         followed = []
         for box, velocity, missed in self.followed[:max_people]:
             # where they should be now: a person hidden a while (walking behind another) moves on
-            kp = self._on_crop(work, k, box + velocity * (missed + 1))
-            if kp is not None and not any(same_person(kp, f) for f in found):
-                found.append(self.source._with_backbone(rgb, k, kp))
+            kp = self._on_crop(rgb, work, k, box + velocity * (missed + 1), found)
+            if kp is not None:
+                found.append(kp)
                 work = blank_person(work, kp)
                 new_box = np.asarray(kp.box, float)
                 followed.append([new_box, 0.5 * velocity + 0.5 * (new_box - box) / (missed + 1), 0])
@@ -175,13 +173,8 @@ class PeopleVideoSource:
         for x0, y0, x1, y1 in windows(*work.shape[:2]):
             if len(new) >= n:
                 break
-            kw = np.array(k, float)
-            kw[:2, 2] -= (x0, y0)
-            kp = self.source._find(np.ascontiguousarray(work[y0:y1, x0:x1]), kw, retry=False, strict=True)
-            if kp is None:
-                continue
-            kp = shifted(kp, x0, y0, work.shape)
-            if not any(same_person(kp, f) for f in found + new):
-                new.append(self.source._with_backbone(rgb, k, kp))
+            kp = self.source.person_in(rgb, k, (x0, y0, x1, y1), strict=True, painted=work, found=found + new)
+            if kp is not None:
+                new.append(kp)
                 work = blank_person(work, kp)
         return new

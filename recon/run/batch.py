@@ -27,11 +27,9 @@ import uuid
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from tqdm import tqdm
-
 from recon import paths
 from recon.errors import ReconError
-from recon.executor import ExecutorConfig, WorkerLost, WorkerSpec, map_tasks
+from recon.executor import ExecutorConfig, WorkerLost, WorkerSpec, run_job
 from recon.io import file_digest, scan_inputs
 from recon.pipeline import Reconstructor, ReconstructorConfig
 from recon.run.worker import Job, Outcome, RunOptions, RunWorker, dresser_for
@@ -129,20 +127,20 @@ def run(inputs: list[str | Path], out: str | Path, options: RunOptions | None = 
     batches = [todo[b:b + options.batch_size] for b in range(0, len(todo), options.batch_size)]
     spec = WorkerSpec(RunWorker, (options, config),
                       {"reconstructor": reconstructor, "dresser": dresser} if executor.in_process else {})
-    bar = tqdm(total=len(todo), desc="recon run", unit="img", disable=not progress)
-    results = map_tasks(spec, batches, executor, _with_bytes if executor.remote else None)
+
+    def finished(b: int, outcomes: list[Outcome]) -> int:
+        for o in outcomes:
+            record(summary, out, staging, o, log)
+        return len(outcomes)
+
+    def lost(b: int, why: WorkerLost) -> list[Outcome]:
+        return [Outcome(j.path, j.key, "failed", f"worker lost: {why}") for j in batches[b]]
+
     try:
-        for b, outcomes in results:
-            if isinstance(outcomes, WorkerLost):
-                outcomes = [Outcome(j.path, j.key, "failed", f"worker lost: {outcomes}") for j in batches[b]]
-            for o in outcomes:
-                record(summary, out, staging, o, log)
-                bar.update(1)
-    except KeyboardInterrupt:
-        summary.interrupted = True
+        summary.interrupted = not run_job(spec, batches, finished, lost, executor,
+                                          _with_bytes if executor.remote else None, "recon run", "img", len(todo),
+                                          progress)
     finally:
-        results.close()
-        bar.close()
         order = {j.key: n for n, j in enumerate(todo)}
         summary.done.sort(key=order.__getitem__)  # input order, whichever worker finished first
         summary.seconds = time.time() - t0

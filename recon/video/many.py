@@ -15,11 +15,9 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from tqdm import tqdm
-
 from recon import paths
 from recon.errors import ReconError
-from recon.executor import ExecutorConfig, WorkerLost, WorkerSpec, map_tasks
+from recon.executor import ExecutorConfig, WorkerLost, WorkerSpec, run_job
 from recon.pipeline import Reconstructor, ReconstructorConfig
 from recon.run import check_writable
 from recon.version import __version__
@@ -97,26 +95,25 @@ def videos(inputs: list[str | Path], out: str | Path, options: VideoOptions | No
     keys = list(todo)
     tasks = [(str(p.resolve()), str((out / key).resolve())) for key, p in todo.items()]  # any worker's cwd
     summary, t0 = VideosSummary(), time.time()
-    bar = tqdm(total=len(tasks), desc="recon video", unit="video", disable=not progress)
-    results = map_tasks(WorkerSpec(VideoWorker, (options, config or ReconstructorConfig())), tasks, executor)
+
+    def finished(i: int, r: dict) -> int:
+        key, src = keys[i], str(todo[keys[i]])
+        for line in r["log"]:
+            log(f"{key}: {line}")
+        if r["status"] == "failed":
+            summary.failed[src] = r["message"]
+            log(f"failed: {src}: {r['message']}")
+        else:
+            getattr(summary, r["status"])[key] = src
+        return 1
+
+    def lost(i: int, why: WorkerLost) -> dict:
+        return {"status": "failed", "message": f"worker lost: {why}", "log": []}
+
     try:
-        for i, r in results:
-            key, src = keys[i], str(todo[keys[i]])
-            if isinstance(r, WorkerLost):
-                r = {"status": "failed", "message": f"worker lost: {r}", "log": []}
-            for line in r["log"]:
-                log(f"{key}: {line}")
-            if r["status"] == "failed":
-                summary.failed[src] = r["message"]
-                log(f"failed: {src}: {r['message']}")
-            else:
-                getattr(summary, r["status"])[key] = src
-            bar.update(1)
-    except KeyboardInterrupt:
-        summary.interrupted = True
+        summary.interrupted = not run_job(WorkerSpec(VideoWorker, (options, config or ReconstructorConfig())), tasks,
+                                          finished, lost, executor, None, "recon video", "video", progress=progress)
     finally:
-        results.close()
-        bar.close()
         summary.seconds = time.time() - t0
         summary.done = dict(sorted(summary.done.items(), key=lambda kv: keys.index(kv[0])))
         paths.write_text(out / "videos.json", json.dumps(summary.to_json(), indent=1))

@@ -240,7 +240,7 @@ def _save_npy(path, array: np.ndarray) -> None:
 
 def mirror_map(vertices: np.ndarray) -> np.ndarray:
     """For each vertex, the vertex nearest its mirror image in x (the templates are cut from a
-    symmetric body: 0.1-1 mm apart on average)."""
+    symmetric body: their mirror images lie close to vertices)."""
     return cKDTree(vertices).query(vertices * np.array([-1.0, 1.0, 1.0]))[1]
 
 

@@ -86,7 +86,7 @@ def descriptors(rotmats: torch.Tensor, global_rotmats: torch.Tensor, joints: tor
     static (B, T, K, 9) and dynamic (B, T, K, 12) descriptors. The derivatives are taken of
     trajectories smoothed over ``smooth`` seconds (Gaussian sigma): differentiated twice, mocap's
     frame-to-frame noise outweighs the motion (30 fps val clips: the second difference of the
-    joint accelerations is 2.7x their mean) and a dynamic code read from it only jitters."""
+    joint accelerations is larger than their mean) and a dynamic code read from it only jitters."""
     static = static_descriptors(rotmats, global_rotmats)
     sigma = smooth * fps
     accel = _derivative(smooth_time(joints, sigma), fps, 2)

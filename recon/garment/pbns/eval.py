@@ -75,7 +75,7 @@ _self_cache: dict = {}
 
 def body_self_intersection(body, shape: torch.Tensor, rot: torch.Tensor, bv: torch.Tensor) -> torch.Tensor:
     """(P,) % of the covered skin inside the posed body ``bv``. Outfits share a shape and the test
-    poses, so ``recon garment eval --outfit all`` computes it once (~9 s) instead of per outfit."""
+    poses, so ``recon garment eval --outfit all`` computes it once instead of per outfit."""
     key = (id(body), shape.numpy().tobytes(), hashlib.sha1(rot.numpy().tobytes()).hexdigest())
     if key not in _self_cache:
         if len(_self_cache) >= 4:  # a few entries: the balanced and the valid test poses of one shape

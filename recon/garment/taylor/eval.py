@@ -322,7 +322,7 @@ def render(data: dict) -> str:
 def evaluate_and_report(outfits: list[str], poses: int = 20, workers: int = 2, out_dir: Path = report.RESULTS,
                         speed_outfits: list[str] | None = None, newton: bool = True, log=print) -> Path:
     """The table of ``outfits`` (their databases must be built), the speed of ``speed_outfits`` and,
-    with ``newton`` (the ``sim`` extra; ~6 min a pose), the drape solver against newton's."""
+    with ``newton`` (the ``sim`` extra; minutes a pose), the drape solver against newton's."""
     body = default_body()
     data = {"outfits": {o: evaluate(o, poses, workers, log=log) for o in outfits}, "speed": {}}
     if newton and reference.available():
