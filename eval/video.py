@@ -19,6 +19,11 @@ jitter (mean jerk, mm/frame^3; the truth's own is listed); foot skating (cm a fr
 moves, camera frame, where the truth has it planted: within 5 cm of its lowest height and moving
 under 2 cm a frame); identity switches (a true person matched to another track than the frame
 before); found (matched / visible person-frames); frames/s (the row's own time, no overlay).
+World-grounded (recon.metrics, as WHAM and GVHMR report them; the camera is static, so its frame
+is a world frame): WA-MPJPE and W-MPJPE on chunks of 100 frames of a run matched to one track
+(aligned as a whole, or on its first two frames), RTE (the root path rigidly aligned, in % of the
+distance the person walked; runs of at least 1 m), the jitter of each row against the truth's on
+the same frames, and per true person their foot skating and jitter ratio (the worst one counts).
 Writes eval/results/<bench>.{json,md} (``--out``); rows of methods not run (``--methods``) are kept
 from the file when it was made on the same clips.
 """
@@ -121,7 +126,10 @@ def planted(truth: ClipTruth) -> np.ndarray:
     return low & (speed < PLANTED_SPEED)
 
 
-def score(truth: ClipTruth, pred: list[list[tuple]], sums: dict) -> None:
+RTE_MIN_PATH = 1.0  # m: RTE is a share of the distance walked, undefined for people standing still
+
+
+def score(truth: ClipTruth, pred: list[list[tuple]], sums: dict, clip: str = "") -> None:
     """Add one clip's errors to ``sums`` (lists of per-item values)."""
     m = match(truth, pred)
     plant = planted(truth)
@@ -152,25 +160,44 @@ def score(truth: ClipTruth, pred: list[list[tuple]], sums: dict) -> None:
             if n == len(idx) or idx[n] != idx[n - 1] + 1 or ids[idx[n]] != ids[idx[n - 1]]:
                 runs.append(idx[start:n])
                 start = n
+        person = {"clip": clip, "person": p, "skate": [], "skate_truth": [], "jitter": [], "jitter_truth": []}
         for run in runs:
             a, b = idx.index(run[0]), idx.index(run[-1]) + 1
+            sums["wa_mpjpe"] += (metrics.wa_mpjpe(pj[a:b], gj[a:b]) * 1000).tolist()
+            sums["w_mpjpe"] += (metrics.w_mpjpe(pj[a:b], gj[a:b]) * 1000).tolist()
+            if len(run) >= 2 and float((gj[a + 1:b, 0] - gj[a:b - 1, 0]).norm(dim=-1).sum()) >= RTE_MIN_PATH:
+                sums["rte"].append(float(metrics.root_trajectory_error(pj[a:b, 0], gj[a:b, 0])) * 100)
             if len(run) >= 3:
                 err = (metrics.acceleration(pj[a:b] - pj[a:b, :1]) - metrics.acceleration(gj[a:b] - gj[a:b, :1]))
                 sums["accel"] += (err.norm(dim=-1).mean(1) * 1000).tolist()
             if len(run) >= 4:
-                sums["jitter"].append(float(metrics.jitter(pj[a:b]) * 1000))
-                sums["jitter_truth"].append(float(metrics.jitter(gj[a:b]) * 1000))
+                for key, x in (("jitter", pj[a:b]), ("jitter_truth", gj[a:b])):
+                    sums[key].append(float(metrics.jitter(x) * 1000))
+                    person[key].append(sums[key][-1])
             if len(run) >= 2:
                 both = plant[p, run[1:]] & plant[p, run[:-1]]
                 step = (pj[a + 1:b][:, FEET] - pj[a:b - 1][:, FEET]).norm(dim=-1).numpy()
                 true_step = np.linalg.norm(np.diff(truth.joints[p, run][:, FEET], axis=0), axis=-1)
                 sums["skate"] += (step[both] * 100).tolist()
                 sums["skate_truth"] += (true_step[both] * 100).tolist()
+                person["skate"] += (step[both] * 100).tolist()
+                person["skate_truth"] += (true_step[both] * 100).tolist()
+        sums["people"].append({k: (float(np.mean(v)) if v else None) if isinstance(v, list) else v
+                               for k, v in person.items()})
 
 
 def summarise(sums: dict, seconds: float, frames: int) -> dict:
     mean = lambda k: float(np.mean(sums[k])) if sums[k] else None  # noqa: E731
-    return {"mpjpe": mean("mpjpe"), "pa_mpjpe": mean("pa_mpjpe"), "pve": mean("pve"), "accel": mean("accel"),
+    people = [q for q in sums["people"] if q["skate"] is not None or q["jitter"] is not None]
+    skates = [q["skate"] for q in people if q["skate"] is not None]
+    ratios = [q["jitter"] / q["jitter_truth"] for q in people if q["jitter"] is not None and q["jitter_truth"]]
+    world = {"wa_mpjpe": mean("wa_mpjpe"), "w_mpjpe": mean("w_mpjpe"), "rte_pct": mean("rte"),
+             "rte_runs": len(sums["rte"]),
+             "jitter_ratio": mean("jitter") / mean("jitter_truth") if sums["jitter"] else None,
+             "worst_person_skating_cm": max(skates) if skates else None,
+             "people_skating_over_2cm": sum(x >= 2.0 for x in skates),
+             "person_jitter_ratio_range": [min(ratios), max(ratios)] if ratios else None, "people": people}
+    return world | {"mpjpe": mean("mpjpe"), "pa_mpjpe": mean("pa_mpjpe"), "pve": mean("pve"), "accel": mean("accel"),
             "jitter": mean("jitter"), "jitter_truth": mean("jitter_truth"), "foot_skating_cm": mean("skate"),
             "foot_skating_truth_cm": mean("skate_truth"), "id_switches": sums["id_switches"],
             "found": sums["found"] / max(sums["visible"], 1), "person_frames": sums["visible"],
@@ -186,6 +213,13 @@ def markdown(bench: str, rows: dict, data: dict, machine: dict) -> str:
     any_row = rows.get("video") or next(iter(rows.values()))
     body.append(["ground truth (on the last row's frames)", None, None, None, None, any_row["jitter_truth"],
                  any_row["foot_skating_truth_cm"], None, None, None])
+    world_head = ["method", "WA-MPJPE", "W-MPJPE", "RTE %", "RTE runs", "jitter / truth's",
+                  "jitter ratio per person", "worst person's skating (cm)", "people skating >= 2 cm"]
+    spread = lambda r: "{:.2f}-{:.2f}".format(*r["person_jitter_ratio_range"]) if r.get(  # noqa: E731
+        "person_jitter_ratio_range") else None
+    world = [[LABELS[k], r.get("wa_mpjpe"), r.get("w_mpjpe"), r.get("rte_pct"), r.get("rte_runs"),
+              r.get("jitter_ratio"), spread(r), r.get("worst_person_skating_cm"), r.get("people_skating_over_2cm")]
+             for k, r in rows.items()]
     return "\n".join([
         f"# `recon video` on {bench}", "",
         f"{data['clips']} clips, {data['frames']} frames of 640 x 480 at 30 fps, {any_row['person_frames']} visible "
@@ -193,6 +227,9 @@ def markdown(bench: str, rows: dict, data: dict, machine: dict) -> str:
         "mm/frame^2, jitter in mm/frame^3; ID switches are not defined without tracks.", "",
         report.table(body, head, [".1f"] * 9 + [".1f"]), "",
         "Rows score the frames where they have the person: `recon video` also its bridged gaps.", "",
+        "World-grounded (static cameras: the camera frame is a world frame; chunks of 100 frames; RTE on runs "
+        f"of at least {RTE_MIN_PATH:g} m walked):", "",
+        report.table(world, world_head, ["", ".1f", ".1f", ".1f", "", ".2f", "", ".1f", ""]), "",
         f"Machine: {report.describe(machine)}.", ""])
 
 
@@ -210,7 +247,7 @@ def main() -> None:
     rows = {}
     for method in args.methods.split(","):
         sums = {k: [] for k in ("mpjpe", "pa_mpjpe", "pve", "accel", "jitter", "jitter_truth", "skate",
-                                "skate_truth")}
+                                "skate_truth", "wa_mpjpe", "w_mpjpe", "rte", "people")}
         sums.update(visible=0, found=0, id_switches=0)
         seconds, frames = 0.0, 0
         rec = None
@@ -225,7 +262,7 @@ def main() -> None:
                                      work / name, body)
             seconds += time.perf_counter() - t0
             frames += truth.visible.shape[1]
-            score(truth, pred, sums)
+            score(truth, pred, sums, name)
         rows[method] = summarise(sums, seconds, frames)
         print(method, {k: (round(v, 2) if isinstance(v, float) else v) for k, v in rows[method].items()})
     info = {"clips": len(data), "frames": int(sum(t.visible.shape[1] for _, _, t in data))}

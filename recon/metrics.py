@@ -94,3 +94,54 @@ def foot_skating(pred_feet: torch.Tensor, planted: torch.Tensor) -> torch.Tensor
     both = planted[1:] & planted[:-1]
     step = (pred_feet[1:] - pred_feet[:-1]).norm(dim=-1)
     return step[both].mean() if both.any() else torch.tensor(float("nan"))
+
+
+# World-grounded metrics of a person's global motion (T, N, 3) in one world (or static-camera)
+# frame, as WHAM and GVHMR report them: chunks of ``WORLD_CHUNK`` frames, similarity-aligned to the
+# truth on the whole chunk (WA-MPJPE) or on its first two frames only (W-MPJPE, which lets drift
+# show); the root trajectory rigidly aligned, its error in % of the distance the truth travelled.
+
+WORLD_CHUNK = 100  # frames per chunk (WHAM's and GVHMR's evaluation)
+
+
+def _chunks(t: int, size: int) -> list[slice]:
+    return [slice(a, min(a + size, t)) for a in range(0, t, size)]
+
+
+def _sequence_check(pred: torch.Tensor, gt: torch.Tensor) -> None:
+    if pred.shape != gt.shape or pred.ndim != 3 or pred.shape[-1] != 3:
+        raise ValueError(f"pred and gt must both be sequences (T, N, 3); got {tuple(pred.shape)} and {tuple(gt.shape)}")
+
+
+def _aligned(pred: torch.Tensor, gt: torch.Tensor, on: slice, scale: bool = True) -> torch.Tensor:
+    """``pred`` (T, N, 3) mapped by the similarity (rigid without ``scale``) that best maps its
+    frames ``on`` onto the truth's."""
+    found = roma.rigid_points_registration(pred[on].reshape(1, -1, 3), gt[on].reshape(1, -1, 3),
+                                           compute_scaling=scale)
+    r, t, s = found if scale else (*found, torch.ones(1, dtype=pred.dtype))
+    return s[0] * pred @ r[0].T + t[0]
+
+
+def wa_mpjpe(pred: torch.Tensor, gt: torch.Tensor, chunk: int = WORLD_CHUNK) -> torch.Tensor:
+    """(T,) per-frame mean joint error after aligning each chunk as a whole (similarity)."""
+    _sequence_check(pred, gt)
+    return torch.cat([(_aligned(pred[c], gt[c], slice(None)) - gt[c]).norm(dim=-1).mean(1)
+                      for c in _chunks(len(pred), chunk)])
+
+
+def w_mpjpe(pred: torch.Tensor, gt: torch.Tensor, chunk: int = WORLD_CHUNK) -> torch.Tensor:
+    """(T,) per-frame mean joint error after aligning each chunk on its first two frames
+    (similarity); chunks of fewer than two frames are aligned on what they have."""
+    _sequence_check(pred, gt)
+    return torch.cat([(_aligned(pred[c], gt[c], slice(0, 2)) - gt[c]).norm(dim=-1).mean(1)
+                      for c in _chunks(len(pred), chunk)])
+
+
+def root_trajectory_error(pred_root: torch.Tensor, gt_root: torch.Tensor) -> torch.Tensor:
+    """Mean distance (T, 3) between the rigidly aligned predicted root path and the true one, as
+    a fraction of the length of the true path (GVHMR's RTE, x 100 for %)."""
+    if pred_root.shape != gt_root.shape or pred_root.ndim != 2:
+        raise ValueError(f"expected two root paths (T, 3); got {tuple(pred_root.shape)} and {tuple(gt_root.shape)}")
+    aligned = _aligned(pred_root[:, None], gt_root[:, None], slice(None), scale=False)[:, 0]
+    length = (gt_root[1:] - gt_root[:-1]).norm(dim=-1).sum()
+    return (aligned - gt_root).norm(dim=-1).mean() / length

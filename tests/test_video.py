@@ -3,6 +3,7 @@
 Most tests replace the per-frame reconstruction by the clip's ground truth (``TruthReconstructor``)
 so that they check ``recon video``'s own work (batches, tracks, the track optimisation, outputs)
 in seconds; the ``slow`` one runs the real pipeline on the rendered frames."""
+import json
 from dataclasses import replace
 from pathlib import Path
 from types import SimpleNamespace
@@ -92,6 +93,8 @@ def test_video_writes_each_track_and_the_overlay(body, clip, tmp_path):
     assert sorted(p.name for p in out.iterdir()) == [".work", "overlay.mp4", "track_0", "video.json"]
     assert sorted(p.name for p in (out / "track_0").iterdir()) == ["animated.glb", "motion.bvh", "motion.json"]
     assert len(res.tracks) == 1 and len(res.tracks[0].rotmats) == FRAMES
+    summary = json.loads((out / "video.json").read_text())  # the synthetic camera stands still
+    assert summary["static_camera"] and summary["camera_turned_degrees"] < 0.5
     m = res.tracks[0]
     # the world motion back in the camera frame is the truth (it was fed the truth, with noise)
     with torch.no_grad():

@@ -211,3 +211,21 @@ def test_temporal_metrics():
     assert torch.isnan(metrics.foot_skating(feet, torch.zeros(5, 2, dtype=torch.bool)))
     with pytest.raises(ValueError):
         metrics.acceleration(x[:2])
+
+
+def test_depth_acceleration_weighs_the_line_of_sight_only(body, mocap):
+    """``depth_acceleration`` equal to ``acceleration`` is the one acceleration term; a far larger
+    one smooths the depth more than motion across the image."""
+    rot, tr, shape, pts, uv = _walk(body, mocap, frames=12)
+    rng = np.random.default_rng(3)
+    t = len(rot)
+    boxes = np.concatenate([uv.min(1), uv.max(1)], 1)
+    tr_noisy = tr + rng.normal(0, 0.05, tr.shape) * [0.2, 0.2, 1.0]  # depth is what the frames fix least
+    inp = TrackInput(np.ones(t, bool), uv + rng.normal(0, 1.0, uv.shape), pts - pts[:, :1], boxes, rot, tr_noisy,
+                     shape, K, (480, 640))
+    same = smooth_track(body, inp, SmoothConfig(steps=15, depth_acceleration=SmoothConfig.acceleration))
+    one = smooth_track(body, inp, SmoothConfig(steps=15))
+    assert np.abs(same.joints - one.joints).max() < 1e-4
+    stiff = smooth_track(body, inp, SmoothConfig(steps=15, depth_acceleration=1e4))
+    depth_jerk = lambda m: np.abs(np.diff(m.joints[:, :, 2] - m.joints[:, :1, 2], 2, axis=0)).mean()  # noqa: E731
+    assert depth_jerk(stiff) < depth_jerk(one)

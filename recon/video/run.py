@@ -37,6 +37,7 @@ from recon.keypoints.video import MediaPipeVideoSource, PeopleVideoSource
 from recon.pipeline import Reconstructor, ReconstructorConfig
 from recon.run import check_writable
 from recon.version import __version__
+from recon.video.camera_motion import MOVING_DEGREES, CameraRotations, turned_degrees
 from recon.video.frames import FrameRange, FrameSource
 from recon.video.outputs import OverlayFrames, WorldMotion, write_track
 from recon.video.perframe import Detections, FrameLog, PerFrame, same_work, stamp
@@ -147,6 +148,12 @@ def video(path: str | Path, out: str | Path, options: VideoOptions | None = None
     seconds["per_frame"] = time.perf_counter() - t0
     fps = _output_fps(src, options.frames)
     t0 = time.perf_counter()
+    turned = _camera_turn(src, dets, k)
+    seconds["camera"] = time.perf_counter() - t0
+    if turned > MOVING_DEGREES:
+        log(f"warning: the camera turned {turned:.1f} degrees in this clip; recon video assumes a static camera, "
+            "so the camera's turn ends up in the people's motion (docs/video.md)")
+    t0 = time.perf_counter()
     tracks = track(_detections(dets, len(frames.index)), replace(options.tracker, max_people=options.max_people))
     motions = [_world_motion(rec.body, t, dets, k, src.size, options.smooth) for t in tracks]
     seconds["tracks"] = time.perf_counter() - t0
@@ -174,7 +181,8 @@ def video(path: str | Path, out: str | Path, options: VideoOptions | None = None
                     "seen": int(m.seen.sum()), "files": track_files[m.id]} for m in motions],
         "seconds": {k_: round(v, 2) for k_, v in seconds.items()},
         "frames_per_second": round(len(frames.index) / max(sum(seconds.values()), 1e-9), 2),
-        "static_camera": True, "made_from": made_from,
+        "static_camera": turned <= MOVING_DEGREES, "camera_turned_degrees": round(turned, 2),
+        "made_from": made_from,
     }
     paths.write_text(out / "video.json", json.dumps(summary, indent=1))
     log(f"{len(frames.index)} frames, {len(motions)} track(s), {summary['frames_per_second']} frames/s -> {out}")
@@ -219,6 +227,13 @@ def _expected(src: FrameSource) -> int | None:
 def _output_fps(src: FrameSource, r: FrameRange) -> float:
     fps = src.fps / r.every
     return min(fps, r.fps) if r.fps is not None else fps
+
+
+def _camera_turn(src: FrameSource, dets: Detections, k: np.ndarray) -> float:
+    """How far (degrees) the camera turned over the frames, from their background (people's boxes
+    masked out); frames that could not be decoded are left out."""
+    views = ((frame.rgb, dets.box[dets.frame == f]) for f, frame in enumerate(src) if frame.rgb is not None)
+    return turned_degrees(CameraRotations(k)(views)[0])
 
 
 def _detections(dets: Detections, frames: int) -> list[list[Detection]]:

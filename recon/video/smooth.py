@@ -42,6 +42,9 @@ FOOT_POINTS = {  # per foot: ankle, foot joint, toe tip landmark (J+ indices)
 class SmoothConfig:
     steps: int = 120  # optimiser iterations over the whole track (0: the per-frame estimates, gaps interpolated)
     acceleration: float = 100.0  # of the root-relative J+
+    # of the root-relative J+ along the line of sight (None: ``acceleration``): the depth is what the
+    # frames fix least, while motion across the image is seen in 2D
+    depth_acceleration: float | None = None
     root_acceleration: float = 30.0  # of the pelvis' path (its depth is the noisiest)
     contact: float = 30.0
     depth_prior: float = 20.0  # as ``recon.fit.FitConfig``'s
@@ -182,8 +185,13 @@ def smooth_track(body, inp: TrackInput, cfg: SmoothConfig | None = None) -> Trac
         if t >= 3:
             acc = (pts[2:] - 2 * pts[1:-1] + pts[:-2]) / depth[1:-1]
             root = acc[:, :1]
-            loss = loss + cfg.acceleration * (acc - root).pow(2).sum(-1).mean() \
-                + cfg.root_acceleration * root.pow(2).sum(-1).mean()
+            rel = (acc - root).pow(2)
+            if cfg.depth_acceleration is None:
+                loss = loss + cfg.acceleration * rel.sum(-1).mean()
+            else:
+                loss = loss + cfg.acceleration * rel[..., :2].sum(-1).mean() \
+                    + cfg.depth_acceleration * rel[..., 2].mean()
+            loss = loss + cfg.root_acceleration * root.pow(2).sum(-1).mean()
         if t >= 2 and both.any():
             for s in range(2):
                 step = (pts[1:, ids[s]] - pts[:-1, ids[s]]) / depth[1:]

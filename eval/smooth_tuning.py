@@ -1,0 +1,98 @@
+"""Choose the track optimisation's weights (``recon.video.smooth.SmoothConfig``) on synth-video-val:
+each clip's per-frame detections are computed once (kept in the cache), then every candidate
+configuration smooths the tracks and is scored as eval/video.py scores ``recon video`` (MPJPE,
+acceleration error, jitter against the truth's, foot skating of the worst person).
+
+    OMP_NUM_THREADS=1 .venv/bin/python eval/smooth_tuning.py [--bench synth-video-val]
+
+-> eval/results/smooth-tuning-<bench>.{json,md}
+"""
+from __future__ import annotations
+
+import argparse
+import json
+from dataclasses import asdict, replace
+from pathlib import Path
+
+import numpy as np
+import torch
+import video as video_eval  # eval/video.py, beside this file
+
+from recon import paths, report
+from recon.body import default_body
+from recon.pipeline import ReconstructorConfig
+from recon.synth.video import SIZE
+from recon.video import smooth
+from recon.video.run import VideoOptions, video
+
+# candidates: name -> changes to SmoothConfig's defaults
+CANDIDATES = {
+    "default": {},
+    "acceleration 30": {"acceleration": 30.0},
+    "acceleration 10": {"acceleration": 10.0},
+    "acceleration 30, root 10": {"acceleration": 30.0, "root_acceleration": 10.0},
+    "acceleration 10, root 10": {"acceleration": 10.0, "root_acceleration": 10.0},
+    "acceleration 10, root 10, contact 100": {"acceleration": 10.0, "root_acceleration": 10.0, "contact": 100.0},
+    "across 30, depth 100": {"acceleration": 30.0, "depth_acceleration": 100.0},
+    "across 10, depth 100": {"acceleration": 10.0, "depth_acceleration": 100.0},
+    "across 10, depth 300": {"acceleration": 10.0, "depth_acceleration": 300.0},
+    "across 30, depth 300": {"acceleration": 30.0, "depth_acceleration": 300.0},
+}
+
+
+def predict(path: Path, truth, cfg: smooth.SmoothConfig, work: Path, body) -> list[list[tuple]]:
+    """``recon video``'s people per frame with the track optimisation ``cfg``; the per-frame
+    detections are read back from ``work`` after the first run."""
+    people = truth.joints.shape[0]
+    rc = ReconstructorConfig(focal_factor=float(truth.K[0, 0]) / max(SIZE))
+    opts = VideoOptions(max_people=people, smooth=cfg, overlay=False)
+    res = video(path, work, opts, rc, progress=False, log=lambda m: None)
+    out: list[list[tuple]] = [[] for _ in range(len(res.frames.index))]
+    for m in res.tracks:
+        with torch.no_grad():
+            o = body(torch.tensor(m.rotmats, dtype=torch.float32), torch.tensor(m.shape[None], dtype=torch.float32),
+                     transl=torch.tensor(m.translation, dtype=torch.float32))
+        j, v = o.joints.numpy().astype(np.float64), o.vertices.numpy().astype(np.float64)
+        for f in range(len(m.rotmats)):
+            out[m.first + f].append((m.id, m.to_camera(j[f]), m.to_camera(v[f])))
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--bench", default="synth-video-val")
+    ap.add_argument("--only", nargs="*", default=None, help="candidate names")
+    args = ap.parse_args()
+    torch.set_num_threads(1)
+    body, data = default_body(), video_eval.clips(args.bench)
+    rows = {}
+    for name, change in CANDIDATES.items():
+        if args.only and name not in args.only:
+            continue
+        cfg = replace(smooth.SmoothConfig(), **change)
+        sums = {k: [] for k in ("mpjpe", "pa_mpjpe", "pve", "accel", "jitter", "jitter_truth", "skate",
+                                "skate_truth", "wa_mpjpe", "w_mpjpe", "rte", "people")}
+        sums.update(visible=0, found=0, id_switches=0)
+        for clip, path, truth in data:
+            work = paths.cache_dir() / "eval-smooth-tuning" / args.bench / clip
+            (work / "video.json").unlink(missing_ok=True)  # tracks made again; the detections stay
+            video_eval.score(truth, predict(path, truth, cfg, work, body), sums, clip)
+        r = video_eval.summarise(sums, 1.0, 1)
+        rows[name] = {"config": asdict(cfg)} | {k: v for k, v in r.items() if k not in ("people", "frames_per_second")}
+        print(name, json.dumps({k: round(v, 3) if isinstance(v, float) else v for k, v in rows[name].items()
+                                if k != "config"}), flush=True)
+    head = ["candidate", "MPJPE", "PA-MPJPE", "accel error", "jitter / truth's", "jitter ratio per person",
+            "worst person's skating (cm)", "people skating >= 2 cm", "WA-MPJPE"]
+    body_rows = [[k, r["mpjpe"], r["pa_mpjpe"], r["accel"], r["jitter_ratio"],
+                  "{:.2f}-{:.2f}".format(*r["person_jitter_ratio_range"]) if r["person_jitter_ratio_range"] else None,
+                  r["worst_person_skating_cm"], r["people_skating_over_2cm"], r["wa_mpjpe"]] for k, r in rows.items()]
+    md = "\n".join([f"# The track optimisation's weights on {args.bench}", "",
+                    "`eval/smooth_tuning.py`: the same per-frame detections, each candidate's track optimisation "
+                    "(`SmoothConfig`), scored as eval/video.py scores `recon video` (mm; accel error mm/frame^2).", "",
+                    report.table(body_rows, head, ["", ".1f", ".1f", ".1f", ".2f", "", ".1f", "", ".1f"]), ""])
+    print(Path(report.write(report.RESULTS / f"smooth-tuning-{args.bench}", {"bench": args.bench, "rows": rows},
+                            md)).read_text())
+
+
+if __name__ == "__main__":
+    main()
