@@ -20,6 +20,7 @@ from recon.animate import load_motion, person_from
 from recon.poses.bvh import read_bvh
 from recon.synth.video import Actor, ClipRenderer, ClipSpec, write_clip
 from recon.video import FrameRange, VideoOptions, video
+from recon.video.outputs import OverlayFrames, WorldMotion, drawn_frames
 from recon.video.run import video_config
 
 FRAMES = 24
@@ -175,3 +176,20 @@ def test_recon_video_follows_the_person_of_a_rendered_clip(body, clip, tmp_path)
     mpjpe = np.linalg.norm((cam - cam[:, :1]) - (truth_j - truth_j[:, :1]), axis=-1).mean()
     assert mpjpe < 0.15, mpjpe
     assert_valid(tmp_path / "out" / "track_0" / "animated.glb")
+
+
+def test_the_overlay_draws_bridged_frames_fainter_and_leaves_out_long_gaps(body):
+    """A track seen in frames 0-9, 15-19 and 35-39 at 10 frames/s: the 5-frame gap is drawn, fainter
+    than a seen frame; the 15-frame gap (over ``MAX_DRAWN_GAP``) is not drawn at all."""
+    t = 40
+    seen = np.zeros(t, bool)
+    seen[:10] = seen[15:20] = seen[35:] = True
+    assert (drawn_frames(seen, 10) == (seen | (np.arange(t) >= 10) & (np.arange(t) < 15))).all()
+    rot = np.tile(np.eye(3), (t, 24, 1, 1))
+    m = WorldMotion(0, 0, rot, np.tile([0.0, 0.9, 0.0], (t, 1)), body.mean_shape.numpy(), seen,
+                    np.zeros((t, 2), bool), (np.diag([1.0, -1.0, -1.0]), np.array([0.0, 0.0, 3.0])))
+    k = np.array([[500.0, 0, 160], [0, 500.0, 120], [0, 0, 1]])
+    draw = OverlayFrames(body, [m], k, (240, 320), fps=10.0)
+    rgb = np.full((240, 320, 3), 40, np.uint8)
+    change = {f: np.abs(draw(rgb, f)[:, :320].astype(int) - rgb).sum() for f in (5, 12, 25)}
+    assert change[5] > change[12] > 0 and change[25] == 0

@@ -5,7 +5,9 @@ Per track (``write_track``): ``motion.bvh`` (the motion on the track's own skele
 dynamics where the outfit has them) and ``motion.json``, all in the track's world frame (+Y up
 from the estimated ground, feet on y = 0, Z towards the camera; ``recon.video.smooth.to_world``).
 ``OverlayFrames`` draws the frames of ``overlay.mp4``: every track's body over the frame, side
-by side with a 3D view of the bodies on the ground.
+by side with a 3D view of the bodies on the ground. A body the track bridges (its person not found
+in that frame) is drawn fainter, and not at all in a gap longer than ``MAX_DRAWN_GAP`` seconds:
+the files keep the whole track, the picture does not pretend to have seen it.
 """
 from __future__ import annotations
 
@@ -24,6 +26,8 @@ from recon.poses.bvh import write_bvh
 from recon.synth.raster import Rasterizer
 from recon.synth.video import look_at
 
+MAX_DRAWN_GAP = 1.0  # seconds: a longer bridged gap is left out of the overlay
+ALPHA_SEEN, ALPHA_BRIDGED = 0.75, 0.35  # the bodies' opacity over the frame
 COLOURS = ((0.45, 0.62, 0.92, 1.0), (0.92, 0.55, 0.45, 1.0), (0.5, 0.82, 0.5, 1.0), (0.85, 0.75, 0.4, 1.0),
            (0.7, 0.5, 0.85, 1.0))
 
@@ -98,8 +102,9 @@ class OverlayFrames:
     frame, beside a 3D view of them on the ground of the first track's world frame (a fixed camera
     above and in front). Drawn by the fast rasteriser of the synthetic benchmark (flat shading)."""
 
-    def __init__(self, body, tracks: list[WorldMotion], k: np.ndarray, size: tuple[int, int]):
+    def __init__(self, body, tracks: list[WorldMotion], k: np.ndarray, size: tuple[int, int], fps: float = 30.0):
         self.body, self.tracks, self.k = body, tracks, np.asarray(k, float)
+        self.drawn = [drawn_frames(t.seen, int(round(MAX_DRAWN_GAP * fps))) for t in tracks]
         self.faces = body.faces.cpu().numpy()
         self.raster = Rasterizer(size[1], size[0])
         self.world = tracks[0].to_world if tracks else (np.eye(3), np.zeros(3))
@@ -118,19 +123,21 @@ class OverlayFrames:
 
     def __call__(self, rgb: np.ndarray, position: int) -> np.ndarray:
         r, o = self.world
-        cam_v, world_v, colours = [], [], []
-        for t in self.tracks:
+        cam_v, world_v, colours, alpha = [], [], [], []
+        for t, drawn in zip(self.tracks, self.drawn, strict=True):
             f = position - t.first
-            if 0 <= f < len(t.rotmats):
+            if 0 <= f < len(t.rotmats) and drawn[f]:
                 v = t.camera_frame(self.body, f)
                 cam_v.append(v)
                 world_v.append((v - o) @ r.T)
                 colours.append(COLOURS[t.id % len(COLOURS)][:3])
+                alpha.append(ALPHA_SEEN if t.seen[f] else ALPHA_BRIDGED)
         left = rgb.copy()
         if cam_v:
             img, labels, _ = self._draw(cam_v, colours, self.k)
             hit = labels >= 0
-            left[hit] = (0.25 * rgb[hit] + 0.75 * img[hit] + 0.5).astype(np.uint8)
+            a = np.asarray(alpha, np.float32)[labels[hit]][:, None]
+            left[hit] = ((1 - a) * rgb[hit] + a * img[hit] + 0.5).astype(np.uint8)
         fv, ff = self.floor
         vr, vt = self.view
         img, labels, _ = self._draw([*world_v, fv], [*colours, (0.8, 0.8, 0.78)], self.view_k, vr, vt,
@@ -142,15 +149,27 @@ class OverlayFrames:
     def _draw(self, meshes: list[np.ndarray], colours, k, rot=None, tr=None, extra_faces=None):
         """Bodies (and last, with ``extra_faces``, the floor) through the rasteriser; (R, t): the
         world -> camera transform of the 3D view."""
-        verts, faces, cols, n = [], [], [], 0
+        verts, faces, cols, ids, n = [], [], [], [], 0
         for i, (v, c) in enumerate(zip(meshes, colours, strict=True)):
             f = extra_faces if (extra_faces is not None and i == len(meshes) - 1) else self.faces
             verts.append(v if rot is None else v @ rot.T + tr)
             faces.append(f + n)
             cols.append(np.tile(np.asarray(c, np.float32), (len(v), 1)))
+            ids.append(np.full(len(v), i, np.int32))  # the labels image says which mesh a pixel shows
             n += len(v)
         return self.raster.render(np.concatenate(verts), np.concatenate(faces), k, np.concatenate(cols),
-                                  light_dir=(0.3, -0.6, -1.0), ambient=0.45)  # towards the light: up, front
+                                  np.concatenate(ids), light_dir=(0.3, -0.6, -1.0),
+                                  ambient=0.45)  # towards the light: up, front
 
     def close(self) -> None:
         pass
+
+
+def drawn_frames(seen: np.ndarray, max_gap: int) -> np.ndarray:
+    """(T,) bool: the frames seen, and those of gaps of at most ``max_gap`` frames between them."""
+    drawn = seen.astype(bool).copy()
+    idx = np.flatnonzero(seen)
+    for a, b in zip(idx[:-1], idx[1:], strict=True):
+        if 1 < b - a <= max_gap + 1:
+            drawn[a + 1:b] = True
+    return drawn

@@ -274,7 +274,7 @@ def _world_motion(body, t: Track, dets: Detections, k: np.ndarray, size, cfg: Sm
 def _write_overlay(path: Path, src: FrameSource, body, motions: list[WorldMotion], k, fps: float,
                    progress: bool) -> None:
     h, w = src.size
-    draw = OverlayFrames(body, motions, k, (h, w))
+    draw = OverlayFrames(body, motions, k, (h, w), fps)
     bar = tqdm(total=_expected(src), desc="overlay.mp4", unit="frame", disable=not progress)
 
     def frames():
