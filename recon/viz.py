@@ -6,6 +6,7 @@ platform is taken from $PYOPENGL_PLATFORM, default "egl", falling back to "osmes
 """
 from __future__ import annotations
 
+import importlib
 import importlib.util
 import os
 
@@ -53,9 +54,24 @@ def _kept(pyrender, width: int, height: int):
     key = (width, height)
     if key not in _RENDERERS:
         if len(_RENDERERS) >= KEEP_RENDERERS:
-            _RENDERERS.pop(next(iter(_RENDERERS))).delete()
+            _delete(_RENDERERS.pop(next(iter(_RENDERERS))))
         _RENDERERS[key] = _offscreen(pyrender, width, height)
     return _RENDERERS[key]
+
+
+def _delete(renderer) -> None:
+    """pyrender's ``OffscreenRenderer.delete`` without its ``eglTerminate``: terminating the EGL
+    display ends every context on it, the rasteriser's too (its next picture fails)."""
+    platform = renderer._platform
+    display, context = getattr(platform, "_egl_display", None), getattr(platform, "_egl_context", None)
+    if display is None or context is None:  # OSMesa, or already deleted
+        renderer.delete()
+        return
+    platform.make_current()
+    renderer._renderer.delete()
+    importlib.import_module("OpenGL.EGL").eglDestroyContext(display, context)
+    platform._egl_context = platform._egl_display = None  # else its own clean-up terminates the display
+    renderer._renderer = renderer._platform = None
 
 
 def _offscreen(pyrender, width: int, height: int):
@@ -125,7 +141,7 @@ class SequenceRenderer:
         return np.ascontiguousarray(color[..., :3])
 
     def close(self) -> None:
-        self.renderer.delete()
+        _delete(self.renderer)
 
 
 def render_overlay(rgb: np.ndarray, meshes: list[tuple[np.ndarray, np.ndarray, tuple]], k: np.ndarray,

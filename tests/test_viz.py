@@ -31,3 +31,15 @@ def test_an_overlay_covers_the_person_and_leaves_the_rest_of_the_photo():
     out = viz.draw_overlay(photo, _meshes(z=3.0), k)
     assert out.shape == photo.shape and (out[0, 0] == 40).all()
     assert not (out[50, 40] == 40).all()  # the sphere in front of the camera's centre
+
+
+def test_deleting_a_pyrender_renderer_leaves_the_rasteriser_working():
+    """pyrender's own delete terminates the EGL display, which ended the rasteriser's context too
+    (its next picture failed: "cannot create buffer"); viz deletes its renderers without that."""
+    first = viz.draw_meshes(_meshes(), (120, 160))
+    for size in [(64 + 8 * i, 48) for i in range(viz.KEEP_RENDERERS + 2)]:  # more sizes than are kept
+        viz.render_meshes(_meshes(), size=size)
+    seq = viz.SequenceRenderer(size=(48, 64))
+    seq(_meshes(), np.zeros(3), -0.5)
+    seq.close()
+    assert np.array_equal(viz.draw_meshes(_meshes(), (120, 160)), first)
