@@ -1,13 +1,11 @@
-"""The actions of ``recon run`` (photos -> bodies), ``recon demo`` (the bundled photos) and ``recon animate``
-(a reconstructed person moved by a mocap clip)."""
+"""The actions of ``recon run`` (photos -> bodies), ``recon demo`` (the bundled photos) and
+``recon animate`` (a reconstructed person moved by a mocap clip)."""
 from __future__ import annotations
 
 from pathlib import Path
 
 from recon.animate import animate, list_motions
-from recon.cli.parsing import (
-    executor_args,
-)
+from recon.cli.parsing import executor_args
 from recon.demo import body_demo, dressed_gif, example_photos, photo_demo
 from recon.errors import ReconError
 from recon.executor import ExecutorConfig
