@@ -452,18 +452,26 @@ def test_fit_loss_is_zero_at_the_teacher_and_trains_both_branches(body):
     assert model.static[0].weight.grad.abs().sum() > 0 and model.gru.weight_hh_l0.grad.abs().sum() > 0
 
 
-def test_animated_glb_holds_the_dynamic_model(body, tmp_path):
-    """A dynamic Dresser: the .glb's morph targets are NCS's D and its weights NCS's codes, so the
-    file poses the outfit as ``Dresser.animate`` does (which differs from PBNS frame by frame)."""
+def _skirt_pbns(body, folder):
+    """A skirt's PBNS with small random blend shapes, saved as ``folder``/pbns_skirt.pt: (the model read
+    back, the file's extra entries)."""
     torch.manual_seed(0)
     o = make_outfit(body, [GarmentSpec("skirt", "skirt")])
     pbns = PBNS(torch.from_numpy(o.vertices), torch.from_numpy(o.faces),
                 torch.from_numpy(initial_weights(RestBody(body), o)))
     with torch.no_grad():
         pbns.D.normal_(0, 1e-3)
-    path = tmp_path / "m.pt"
-    pbns.save(path, {"meta_json": json.dumps({"garments": ["skirt"]}), "layer": torch.zeros(len(o.vertices)),
-                     "garment_id": torch.zeros(len(o.vertices), dtype=torch.long), "shape": body.mean_shape})
+    extra = {"meta_json": json.dumps({"garments": ["skirt"]}), "layer": torch.zeros(len(o.vertices)),
+             "garment_id": torch.zeros(len(o.vertices), dtype=torch.long), "shape": body.mean_shape}
+    pbns.save(folder / "pbns_skirt.pt", extra)
+    return PBNS.load(folder / "pbns_skirt.pt")[0], extra
+
+
+def test_animated_glb_holds_the_dynamic_model(body, tmp_path):
+    """A dynamic Dresser: the .glb's morph targets are NCS's D and its weights NCS's codes, so the
+    file poses the outfit as ``Dresser.animate`` does (which differs from PBNS frame by frame)."""
+    _skirt_pbns(body, tmp_path)
+    path = tmp_path / "pbns_skirt.pt"
     dresser = Dresser(path=path, resolve_collisions=False)
     assert not dresser.dynamic
     dresser.ncs = ncs.NCS.from_pbns(dresser.model)
@@ -479,19 +487,6 @@ def test_animated_glb_holds_the_dynamic_model(body, tmp_path):
     posed = pose_meshes(glb, 4)["outfit"]
     assert np.abs(posed - moving[4]).max() < 1e-4
     assert np.abs(moving[4] - still[4]).max() > 1e-3  # NCS is not PBNS here
-
-
-def _skirt_pbns(body, folder):
-    torch.manual_seed(0)
-    o = make_outfit(body, [GarmentSpec("skirt", "skirt")])
-    pbns = PBNS(torch.from_numpy(o.vertices), torch.from_numpy(o.faces),
-                torch.from_numpy(initial_weights(RestBody(body), o)))
-    with torch.no_grad():
-        pbns.D.normal_(0, 1e-3)
-    extra = {"meta_json": json.dumps({"garments": ["skirt"]}), "layer": torch.zeros(len(o.vertices)),
-             "garment_id": torch.zeros(len(o.vertices), dtype=torch.long), "shape": body.mean_shape}
-    pbns.save(folder / "pbns_skirt.pt", extra)
-    return PBNS.load(folder / "pbns_skirt.pt")[0], extra
 
 
 def test_an_ncs_file_keeps_only_what_it_adds_to_its_pbns_and_loads_back_the_same(body, tmp_path):
@@ -527,14 +522,8 @@ def test_an_ncs_file_keeps_only_what_it_adds_to_its_pbns_and_loads_back_the_same
 def test_a_network_trained_at_15_fps_dresses_a_30_fps_motion(body, tmp_path):
     """The Dresser resamples the motion to the network's rate and interpolates its codes back: at
     the shared frames (every second one) the codes are those of the network run at 15 fps."""
-    torch.manual_seed(0)
-    o = make_outfit(body, [GarmentSpec("skirt", "skirt")])
-    pbns = PBNS(torch.from_numpy(o.vertices), torch.from_numpy(o.faces),
-                torch.from_numpy(initial_weights(RestBody(body), o)))
-    path = tmp_path / "m.pt"
-    pbns.save(path, {"meta_json": json.dumps({"garments": ["skirt"]}), "layer": torch.zeros(len(o.vertices)),
-                     "garment_id": torch.zeros(len(o.vertices), dtype=torch.long), "shape": body.mean_shape})
-    dresser = Dresser(path=path, resolve_collisions=False)
+    pbns, _ = _skirt_pbns(body, tmp_path)
+    dresser = Dresser(path=tmp_path / "pbns_skirt.pt", resolve_collisions=False)
     dresser.ncs = ncs.NCS(pbns.rest, pbns.faces, pbns.weights.detach(), ncs.NCSConfig(fps=15.0))
     rot, _, joints = _sequence(body, t=9)
     transl = joints[0, :, 0] - joints[0, :1, 0]
