@@ -12,6 +12,7 @@ import tempfile
 from pathlib import Path
 
 import torch
+from weights_float16 import largest_changes  # eval/ sibling
 
 from recon.body import default_body
 from recon.garment import store
@@ -19,12 +20,6 @@ from recon.garment.pbns import eval as pbns_eval
 from recon.garment.templates import PRESETS
 
 ROOT = Path(__file__).resolve().parent.parent
-
-
-def changes(a, b, path=""):
-    if isinstance(a, dict):
-        return [c for k in a for c in changes(a[k], b[k], f"{path}/{k}")]
-    return [(abs(a - b), path)] if isinstance(a, float) else []
 
 
 def main() -> None:
@@ -43,7 +38,7 @@ def main() -> None:
             old_rows = pbns_eval.resize_rows(body, outfit, 200)[0]
         finally:
             store.resizer_path = shipped
-        largest, where = max(changes(old_rows, new_rows))
+        largest, where = max(largest_changes(old_rows, new_rows))
         print(f"{outfit}: largest change {largest:.2g} at {where}")
 
 

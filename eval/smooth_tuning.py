@@ -14,16 +14,12 @@ import json
 from dataclasses import asdict, replace
 from pathlib import Path
 
-import numpy as np
 import torch
 import video as video_eval  # eval/video.py, beside this file
 
 from recon import paths, report
 from recon.body import default_body
-from recon.pipeline import ReconstructorConfig
-from recon.synth.video import SIZE
 from recon.video import smooth
-from recon.video.run import VideoOptions, video
 
 # candidates: name -> changes to SmoothConfig's defaults
 CANDIDATES = {
@@ -40,24 +36,6 @@ CANDIDATES = {
 }
 
 
-def predict(path: Path, truth, cfg: smooth.SmoothConfig, work: Path, body) -> list[list[tuple]]:
-    """``recon video``'s people per frame with the track optimisation ``cfg``; the per-frame
-    detections are read back from ``work`` after the first run."""
-    people = truth.joints.shape[0]
-    rc = ReconstructorConfig(focal_factor=float(truth.K[0, 0]) / max(SIZE))
-    opts = VideoOptions(max_people=people, smooth=cfg, overlay=False)
-    res = video(path, work, opts, rc, progress=False, log=lambda m: None)
-    out: list[list[tuple]] = [[] for _ in range(len(res.frames.index))]
-    for m in res.tracks:
-        with torch.no_grad():
-            o = body(torch.tensor(m.rotmats, dtype=torch.float32), torch.tensor(m.shape[None], dtype=torch.float32),
-                     transl=torch.tensor(m.translation, dtype=torch.float32))
-        j, v = o.joints.numpy().astype(np.float64), o.vertices.numpy().astype(np.float64)
-        for f in range(len(m.rotmats)):
-            out[m.first + f].append((m.id, m.to_camera(j[f]), m.to_camera(v[f])))
-    return out
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--bench", default="synth-video-val")
@@ -70,13 +48,11 @@ def main() -> None:
         if args.only and name not in args.only:
             continue
         cfg = replace(smooth.SmoothConfig(), **change)
-        sums = {k: [] for k in ("mpjpe", "pa_mpjpe", "pve", "accel", "jitter", "jitter_truth", "skate",
-                                "skate_truth", "wa_mpjpe", "w_mpjpe", "rte", "people")}
-        sums.update(visible=0, found=0, id_switches=0)
+        sums = video_eval.new_sums()
         for clip, path, truth in data:
             work = paths.cache_dir() / "eval-smooth-tuning" / args.bench / clip
             (work / "video.json").unlink(missing_ok=True)  # tracks made again; the detections stay
-            video_eval.score(truth, predict(path, truth, cfg, work, body), sums, clip)
+            video_eval.score(truth, video_eval.predict_video(path, truth, cfg, work, body, force=False), sums, clip)
         r = video_eval.summarise(sums, 1.0, 1)
         rows[name] = {"config": asdict(cfg)} | {k: v for k, v in r.items() if k not in ("people", "frames_per_second")}
         print(name, json.dumps({k: round(v, 3) if isinstance(v, float) else v for k, v in rows[name].items()

@@ -77,10 +77,13 @@ def predict_per_frame(path: Path, truth: ClipTruth, rec: Reconstructor) -> list[
     return out
 
 
-def predict_video(path: Path, truth: ClipTruth, steps: int, work: Path, body) -> list[list[tuple]]:
+def predict_video(path: Path, truth: ClipTruth, smoothing: smooth.SmoothConfig, work: Path, body,
+                  force: bool = True) -> list[list[tuple]]:
+    """``recon video``'s people per frame, camera frame, with the track optimisation ``smoothing``;
+    without ``force`` the per-frame detections stored in ``work`` are read back."""
     people = truth.joints.shape[0]
     cfg = ReconstructorConfig(focal_factor=float(truth.K[0, 0]) / max(SIZE))
-    opts = VideoOptions(max_people=people, smooth=smooth.SmoothConfig(steps=steps), overlay=False, force=True)
+    opts = VideoOptions(max_people=people, smooth=smoothing, overlay=False, force=force)
     res = video(path, work, opts, cfg, progress=False, log=lambda m: None)
     out: list[list[tuple]] = [[] for _ in range(len(res.frames.index))]
     for m in res.tracks:
@@ -186,6 +189,13 @@ def score(truth: ClipTruth, pred: list[list[tuple]], sums: dict, clip: str = "")
                                for k, v in person.items()})
 
 
+def new_sums() -> dict:
+    """Empty per-item lists and counters for ``score``."""
+    sums = {k: [] for k in ("mpjpe", "pa_mpjpe", "pve", "accel", "jitter", "jitter_truth", "skate", "skate_truth",
+                            "wa_mpjpe", "w_mpjpe", "rte", "people")}
+    return sums | {"visible": 0, "found": 0, "id_switches": 0}
+
+
 def summarise(sums: dict, seconds: float, frames: int) -> dict:
     mean = lambda k: float(np.mean(sums[k])) if sums[k] else None  # noqa: E731
     people = [q for q in sums["people"] if q["skate"] is not None or q["jitter"] is not None]
@@ -246,9 +256,7 @@ def main() -> None:
     work = paths.cache_dir() / "eval-video-work"
     rows = {}
     for method in args.methods.split(","):
-        sums = {k: [] for k in ("mpjpe", "pa_mpjpe", "pve", "accel", "jitter", "jitter_truth", "skate",
-                                "skate_truth", "wa_mpjpe", "w_mpjpe", "rte", "people")}
-        sums.update(visible=0, found=0, id_switches=0)
+        sums = new_sums()
         seconds, frames = 0.0, 0
         rec = None
         for name, path, truth in tqdm(data, desc=method):
@@ -258,8 +266,8 @@ def main() -> None:
                 rec = rec or Reconstructor(cfg, body=body)
                 pred = predict_per_frame(path, truth, rec)
             else:
-                pred = predict_video(path, truth, 0 if method == "video-raw" else smooth.SmoothConfig.steps,
-                                     work / name, body)
+                steps = 0 if method == "video-raw" else smooth.SmoothConfig.steps
+                pred = predict_video(path, truth, smooth.SmoothConfig(steps=steps), work / name, body)
             seconds += time.perf_counter() - t0
             frames += truth.visible.shape[1]
             score(truth, pred, sums, name)
