@@ -7,7 +7,8 @@ the rotations, is the turn; a camera that also moves gives the rotation of its d
 
 ``CameraRotations(k)(frames)`` ((image, people's boxes) pairs) -> (T, 3, 3) rotations of each
 frame's camera relative to the first one's (OpenCV camera axes: ``x_t = R_t x_0`` for a direction),
-and how many points each step rested on. ``recon video`` uses it to say when its static-camera assumption does not hold.
+and how many points each step rested on; or frame by frame, ``add(image, boxes)`` then
+``result()``. ``recon video`` uses it to say when its static-camera assumption does not hold.
 """
 from __future__ import annotations
 
@@ -31,31 +32,43 @@ class CameraRotations:
     ransac_px: float = 1.0
     max_side: int = 320  # frames are looked at this small (the turn is a few parameters: cheap and enough)
 
+    def __post_init__(self):
+        self._rotations, self._used, self._prev = [], [], None
+
     def __call__(self, frames: Iterable[tuple[np.ndarray, np.ndarray | None]]) -> tuple[np.ndarray, np.ndarray]:
         """``frames``: (RGB (H, W, 3) uint8, the people's (n, 4) x0, y0, x1, y1 boxes or None),
         streamed. Returns (T, 3, 3) rotations relative to the first frame and (T,) the background
         points each step used (0 for the first frame and for steps taken as still)."""
-        rotations, used = [], []
-        prev, prev_mask = None, None
+        self.__post_init__()
         for rgb, boxes in frames:
-            f = min(1.0, self.max_side / max(rgb.shape[:2]))
-            if not rotations:
-                k = np.diag([f, f, 1.0]) @ np.asarray(self.k, float)
-                k_inv = np.linalg.inv(k)
-            gray = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
-            if f < 1.0:
-                size = (round(rgb.shape[1] * f), round(rgb.shape[0] * f))
-                gray = cv2.resize(gray, size, interpolation=cv2.INTER_AREA)
-            mask = background_mask(gray.shape, None if boxes is None else np.asarray(boxes, float) * f)
-            if prev is None:
-                rotations.append(np.eye(3))
-                used.append(0)
-            else:
-                step, n = self._step(prev, gray, prev_mask & mask, k, k_inv)
-                rotations.append(step @ rotations[-1])
-                used.append(n)
-            prev, prev_mask = gray, mask
-        return (np.stack(rotations), np.array(used)) if rotations else (np.eye(3)[None], np.zeros(1, int))
+            self.add(rgb, boxes)
+        return self.result()
+
+    def add(self, rgb: np.ndarray, boxes: np.ndarray | None) -> None:
+        """The next frame, as it comes (``recon video`` feeds the frames of its per-frame pass)."""
+        f = min(1.0, self.max_side / max(rgb.shape[:2]))
+        if self._prev is None:
+            self._k = np.diag([f, f, 1.0]) @ np.asarray(self.k, float)
+            self._k_inv = np.linalg.inv(self._k)
+        gray = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
+        if f < 1.0:
+            size = (round(rgb.shape[1] * f), round(rgb.shape[0] * f))
+            gray = cv2.resize(gray, size, interpolation=cv2.INTER_AREA)
+        mask = background_mask(gray.shape, None if boxes is None else np.asarray(boxes, float) * f)
+        if self._prev is None:
+            self._rotations.append(np.eye(3))
+            self._used.append(0)
+        else:
+            step, n = self._step(self._prev[0], gray, self._prev[1] & mask, self._k, self._k_inv)
+            self._rotations.append(step @ self._rotations[-1])
+            self._used.append(n)
+        self._prev = (gray, mask)
+
+    def result(self) -> tuple[np.ndarray, np.ndarray]:
+        """The frames added so far: (T, 3, 3) rotations and (T,) points used (``__call__``)."""
+        if not self._rotations:
+            return np.eye(3)[None], np.zeros(1, int)
+        return np.stack(self._rotations), np.array(self._used)
 
     def _step(self, a: np.ndarray, b: np.ndarray, mask: np.ndarray, k: np.ndarray, k_inv: np.ndarray
               ) -> tuple[np.ndarray, int]:

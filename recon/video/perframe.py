@@ -83,7 +83,8 @@ class PerFrame:
         self.work.mkdir(parents=True, exist_ok=True)
 
     def run(self, frames: Iterable[Frame], on_batch=None) -> tuple[Detections, FrameLog]:
-        """Every frame's people; ``on_batch(frames, resumed)`` after each batch (progress)."""
+        """Every frame's people; ``on_batch(frames, resumed, boxes)`` after each batch (progress;
+        ``boxes``: per frame of the batch, its people's (n, 4) boxes)."""
         found, log, position = [], FrameLog([], [], []), 0
         for batch in _batches(frames, self.batch):
             path = self.work / f"batch-{batch[0].index:08d}.npz"
@@ -94,6 +95,7 @@ class PerFrame:
                 arrays = {f.name: getattr(dets, f.name) for f in fields(Detections)}
                 arrays["indices"] = np.array([f.index for f in batch])
                 paths.atomic_write(path, lambda tmp, a=arrays: np.savez(open(tmp, "wb"), **a))
+            boxes = [dets.box[dets.frame == n] for n in range(len(batch))]
             dets.frame = dets.frame + position
             found.append(dets)
             for f in batch:
@@ -102,7 +104,7 @@ class PerFrame:
                 log.error.append(f.error)
             position += len(batch)
             if on_batch is not None:
-                on_batch(batch, resumed)
+                on_batch(batch, resumed, boxes)
         return (Detections.concat(found) if found else Detections.empty(self.rec.body.num_shape_params)), log
 
     def _load(self, path: Path, batch: list[Frame]) -> Detections | None:

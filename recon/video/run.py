@@ -131,14 +131,17 @@ def video(path: str | Path, out: str | Path, options: VideoOptions | None = None
     rec = reconstructor or video_reconstructor(config, options.max_people)
     bar = tqdm(total=_expected(src), desc="recon video", unit="frame", disable=not progress)
     resumed = []
+    turn = CameraRotations(k)  # how the camera turned, from the frames as the per-frame pass reads them
 
-    def on_batch(batch, was_stored):
+    def on_batch(batch, was_stored, boxes):
         bar.update(len(batch))
         if was_stored:
             resumed.append(len(batch))
-        for f in batch:
+        for f, people in zip(batch, boxes, strict=True):
             if f.error:
                 log(f"skipped frame {f.index}: {f.error}")
+            if f.rgb is not None:
+                turn.add(f.rgb, people)
     try:
         dets, frames = PerFrame(rec, k, work, options.max_people, options.batch).run(src, on_batch)
     finally:
@@ -147,9 +150,7 @@ def video(path: str | Path, out: str | Path, options: VideoOptions | None = None
         log(f"resumed: {sum(resumed)} frames read back from {work}")
     seconds["per_frame"] = time.perf_counter() - t0
     fps = _output_fps(src, options.frames)
-    t0 = time.perf_counter()
-    turned = _camera_turn(src, dets, k)
-    seconds["camera"] = time.perf_counter() - t0
+    turned = turned_degrees(turn.result()[0])
     if turned > MOVING_DEGREES:
         log(f"warning: the camera turned {turned:.1f} degrees in this clip; recon video assumes a static camera, "
             "so the camera's turn ends up in the people's motion (docs/video.md)")
@@ -227,13 +228,6 @@ def _expected(src: FrameSource) -> int | None:
 def _output_fps(src: FrameSource, r: FrameRange) -> float:
     fps = src.fps / r.every
     return min(fps, r.fps) if r.fps is not None else fps
-
-
-def _camera_turn(src: FrameSource, dets: Detections, k: np.ndarray) -> float:
-    """How far (degrees) the camera turned over the frames, from their background (people's boxes
-    masked out); frames that could not be decoded are left out."""
-    views = ((frame.rgb, dets.box[dets.frame == f]) for f, frame in enumerate(src) if frame.rgb is not None)
-    return turned_degrees(CameraRotations(k)(views)[0])
 
 
 def _detections(dets: Detections, frames: int) -> list[list[Detection]]:
