@@ -138,15 +138,18 @@ def test_garment_is_a_core_and_one_district_per_family_with_the_same_rooms():
 
 def test_inference_never_imports_training_or_evaluation():
     where = garment_modules()
-    runtime = {m for m, w in where.items()
-               if w.split(".")[1] in ("model", "sample") or w in {f"core.{n}" for n in GARMENT_CORE_RUNTIME}}
+    core = {f"core.{n}" for n in GARMENT_CORE_RUNTIME}
+
+    def inference(w: str) -> bool:
+        return w.split(".")[1] in ("model", "sample") or w in core
+
+    runtime = {m for m, w in where.items() if inference(w)}
     assert "recon.garment.dress" in runtime and "recon.garment.pbns.model" in runtime
     for module in sorted(runtime):
         for imported, line, _ in imports(MODULES[module]):
             w = where.get(imported, "")
-            if w:
-                assert w.split(".")[1] in ("model", "sample") or w in {f"core.{n}" for n in GARMENT_CORE_RUNTIME}, \
-                    f"{module}:{line} imports {imported} ({ROOMS.get(w.split('.')[1], 'core training')})"
+            assert not w or inference(w), \
+                f"{module}:{line} imports {imported} ({ROOMS.get(w.split('.')[1], 'core training')})"
 
 
 def test_a_family_uses_another_family_only_through_its_inference_rooms():
