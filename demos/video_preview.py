@@ -4,9 +4,13 @@ person's path; the renderer's sensor noise smoothed a little, which GIF compress
 
     .venv/bin/python demos/video_preview.py [--clip walk-03_03] [--outfit tshirt-skirt]
     -> demos/previews/video-<clip>.gif
+    .venv/bin/python demos/video_preview.py --real [--start 0 --end 6 --max-people 4]
+    -> demos/previews/video-vtest.gif
 
-The clip is one of synth-video-test's (eval/video.py renders it); no real clip ships with recon
-(docs/video.md, Limits).
+The synthetic clip is one of synth-video-test's (eval/video.py renders it). ``--real`` takes real
+footage instead: OpenCV's ``vtest.avi`` (Debian's opencv-doc, which scripts/setup.sh extracts; a
+static camera over a square with pedestrians), and shows ``recon video``'s overlay as it is: the
+bodies over the frame beside the 3D view of them on the ground.
 """
 from __future__ import annotations
 
@@ -28,10 +32,36 @@ from recon.animate import Motion, render_motion  # noqa: E402
 from recon.body import default_body  # noqa: E402
 from recon.garment.dress import Dresser  # noqa: E402
 from recon.pipeline import ReconstructorConfig  # noqa: E402
+from recon.synth.photos import photo_path  # noqa: E402
 from recon.synth.video import SIZE  # noqa: E402
-from recon.video import FrameSource, VideoOptions, video  # noqa: E402
+from recon.video import FrameRange, FrameSource, VideoOptions, video  # noqa: E402
 
 OUT = Path(__file__).resolve().parent / "previews"
+VTEST = ("opencv-doc", "usr/share/doc/opencv-doc/examples/data", "vtest.avi")
+
+
+def save_gif(frames: list[np.ndarray], out: Path, seconds_per_frame: float, colours: int = 64) -> None:
+    """One palette for all frames, no dithering: a tenth of the file of per-frame dithered palettes."""
+    palette = Image.fromarray(np.concatenate(frames[::4], 0)).quantize(colours, dither=Image.Dither.NONE)
+    images = [Image.fromarray(f).quantize(palette=palette, dither=Image.Dither.NONE) for f in frames]
+    images[0].save(out, save_all=True, append_images=images[1:], duration=round(1000 * seconds_per_frame), loop=0,
+                   optimize=True)
+    print(out)
+
+
+def real(a) -> None:
+    """``recon video`` on vtest.avi: its overlay (bodies over the frame, the 3D view) as a GIF."""
+    path = photo_path(*VTEST)
+    if not path.is_file():
+        raise SystemExit(f"{path} not found: scripts/setup.sh extracts Debian's opencv-doc there")
+    with tempfile.TemporaryDirectory() as tmp:
+        res = video(path, Path(tmp) / "out", VideoOptions(frames=FrameRange(start=a.start, end=a.end),
+                                                          max_people=a.max_people))
+        overlay = [f.rgb for f in FrameSource(Path(tmp) / "out" / "overlay.mp4")]
+    h, w = overlay[0].shape[:2]
+    size = (round(a.height * w / h), a.height)
+    frames = [cv2.resize(f, size, interpolation=cv2.INTER_AREA) for f in overlay[::a.every]]
+    save_gif(frames, OUT / "video-vtest.gif", a.every / res.fps, colours=128)  # the bodies over real colours
 
 
 def main() -> None:
@@ -40,8 +70,14 @@ def main() -> None:
     ap.add_argument("--outfit", default="tshirt-skirt")
     ap.add_argument("--height", type=int, default=200, help="GIF height in pixels (three square panels)")
     ap.add_argument("--every", type=int, default=3, help="every n-th frame")
+    ap.add_argument("--real", action="store_true", help="OpenCV's vtest.avi instead of a synthetic clip")
+    ap.add_argument("--start", type=float, default=0.0, help="with --real: first second")
+    ap.add_argument("--end", type=float, default=6.0, help="with --real: last second")
+    ap.add_argument("--max-people", type=int, default=4, help="with --real: people followed")
     a = ap.parse_args()
     torch.set_num_threads(1)
+    if a.real:
+        return real(a)
     name, path, truth = next(c for c in clips("synth-video-test") if c[0] == a.clip)
     body = default_body()
     with tempfile.TemporaryDirectory() as tmp:
@@ -69,13 +105,7 @@ def main() -> None:
         panels = [crop(clip[f]), crop(overlay[f]), dressed[min(max(k, 0), len(dressed) - 1)]]
         frames.append(np.concatenate([cv2.resize(p, (a.height, a.height), interpolation=cv2.INTER_AREA)
                                       for p in panels], 1))
-    # one palette for all frames, no dithering: a tenth of the file of per-frame dithered palettes
-    palette = Image.fromarray(np.concatenate(frames[::8], 0)).quantize(64, dither=Image.Dither.NONE)
-    images = [Image.fromarray(f).quantize(palette=palette, dither=Image.Dither.NONE) for f in frames]
-    out = OUT / f"video-{name}.gif"
-    images[0].save(out, save_all=True, append_images=images[1:], duration=round(1000 * a.every / res.fps), loop=0,
-                   optimize=True)
-    print(out)
+    save_gif(frames, OUT / f"video-{name}.gif", a.every / res.fps)
 
 
 if __name__ == "__main__":

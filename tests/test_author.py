@@ -94,7 +94,8 @@ def test_signature_is_in_the_character_space_of_each_frame():
     # every stride-th past frame and the current one, the joints kept
     strided = signature(joints, heading(rot), 5, stride=2, keep=(0, 4)).view(t, 3, 2, 3)
     full = signature(joints, heading(rot), 5).view(t, 6, 24, 3)
-    assert torch.equal(strided, full[:, [1, 3, 5]][:, :, [0, 4]])
+    # (einsum on other shapes may take other float kernels: equal to the last bits, not bit for bit)
+    torch.testing.assert_close(strided, full[:, [1, 3, 5]][:, :, [0, 4]], rtol=0, atol=1e-6)
 
 
 def test_latents_interpolate_between_keyframes_and_hold_beyond():

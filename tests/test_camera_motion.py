@@ -68,3 +68,14 @@ def test_helpers():
     assert not mask[30, 60] and mask[10, 10] and mask.sum() == 100 * 200 - 21 * 41
     r = Rotation.from_rotvec([0.1, -0.2, 0.3]).as_matrix()
     assert np.allclose(nearest_rotation(3.0 * r), r)
+
+
+def test_a_frame_that_could_not_be_read_holds_the_last_turn():
+    truth = _turns(6)
+    frames, _ = _clip(truth)
+    cam = CameraRotations(K)
+    for n, f in enumerate(frames):
+        cam.hold() if n == 3 else cam.add(f, None)
+    found, used = cam.result()
+    assert found.shape == (6, 3, 3) and used[3] == 0
+    assert np.allclose(found[3], found[2]) and _angle(found[4], truth[4]) < 0.2  # frame 4 against frame 2

@@ -15,7 +15,7 @@ import roma
 import torch
 from gltf_check import assert_valid
 
-from recon import camera
+from recon import camera, metrics
 from recon.animate import load_motion, person_from
 from recon.poses.bvh import read_bvh
 from recon.synth.video import Actor, ClipRenderer, ClipSpec, write_clip
@@ -33,6 +33,13 @@ def clip(body, tmp_path_factory):
     frames, truth = ClipRenderer(body).render(spec)
     path = write_clip(frames, tmp_path_factory.mktemp("clip") / "walk.mp4")
     return path, frames, truth
+
+
+@pytest.fixture(scope="module")
+def pan_clip(body):
+    """The walk of ``clip`` filmed by a camera turning to follow the walker: (frames, truth)."""
+    spec = ClipSpec("test-pan", (Actor("12_01", 20),), FRAMES, seed=6, distance=3.5, camera="pan")
+    return ClipRenderer(body).render(spec)
 
 
 class TruthReconstructor:
@@ -58,7 +65,7 @@ class TruthReconstructor:
             pts = t.points[0, f]
             uv = camera.project(pts, t.K) + rng.normal(0, self.noise, (42, 2))
             rot = rot_world[f].copy()
-            rot[0] = t.R @ rot[0]
+            rot[0] = t.R[f] @ rot[0]
             kp = SimpleNamespace(points2d=uv, points3d=pts - pts[:1], confidence=0.9, mask=None,
                                  box=(*uv.min(0), *uv.max(0)))
             out.append([SimpleNamespace(keypoints=kp, rotmats=rot, shape=t.shape[0].astype(np.float64),
@@ -119,6 +126,43 @@ def test_video_writes_each_track_and_the_overlay(body, clip, tmp_path):
     # ... and takes the track's body to move it with another clip
     person = person_from(out / "track_0", tmp_path / "anim")
     assert list(person["shape"].values()) == pytest.approx(m.shape, abs=1e-4)
+
+
+def test_a_turning_camera_is_taken_out_of_the_people_s_motion(body, pan_clip, tmp_path):
+    frames, truth = pan_clip
+    src = _folder(frames, tmp_path / "frames")
+    turn = np.degrees(np.arccos(np.clip((np.trace(truth.R[-1] @ truth.R[0].T) - 1) / 2, -1, 1)))
+    assert turn > 5.0  # the clip's camera turns
+    runs = {}
+    for static in (False, True):
+        rec = TruthReconstructor(body, truth)
+        rec.config = replace(rec.config, focal_factor=float(truth.K[0, 0]) / 640)
+        out = tmp_path / f"out-{static}"
+        res = video(src, out, VideoOptions(batch=10, overlay=static, static_camera=static), reconstructor=rec,
+                    progress=False, log=lambda m: None)
+        summary = json.loads((out / "video.json").read_text())
+        assert summary["camera_turned_degrees"] == pytest.approx(turn, abs=1.0)
+        assert summary["static_camera"] is static
+        m = res.tracks[0]
+        with torch.no_grad():
+            j = body(torch.tensor(m.rotmats, dtype=torch.float32), torch.tensor(m.shape[None], dtype=torch.float32),
+                     transl=torch.tensor(m.translation, dtype=torch.float32)).joints.numpy().astype(np.float64)
+        runs[static] = (m, j, json.loads((out / "track_0" / "motion.json").read_text()))
+    m, j, info = runs[False]
+    # each frame's camera sees the truth; the motion.json cameras say the same
+    cam = np.stack([m.to_camera(j[f], f) for f in range(FRAMES)])
+    assert np.linalg.norm(cam - truth.joints[0], axis=-1).mean() < 0.05
+    per_frame = info["camera"]["world_to_camera_per_frame"]
+    r, t = np.array(per_frame["R"]), np.array(per_frame["t"])
+    assert np.abs(np.einsum("fij,fnj->fni", r, j) + t[:, None] - cam).max() < 1e-3
+    with pytest.raises(ValueError):
+        m.to_camera(j[0])
+    # in the world frame the pelvis walks the true path (up to a rigid move); with the camera
+    # taken as still its turn is in the path
+    true_path = torch.tensor(truth.joints_world[0, :, 0])
+    err = {s: float(metrics.root_trajectory_error(torch.tensor(runs[s][1][:, 0]), true_path)) for s in runs}
+    assert err[False] < 0.1 and err[True] > 2 * err[False], err
+    assert "world_to_camera_per_frame" not in runs[True][2]["camera"]
 
 
 def test_a_killed_run_continues_from_its_last_finished_batch(body, clip, tmp_path):
@@ -193,3 +237,22 @@ def test_the_overlay_draws_bridged_frames_fainter_and_leaves_out_long_gaps(body)
     rgb = np.full((240, 320, 3), 40, np.uint8)
     change = {f: np.abs(draw(rgb, f)[:, :320].astype(int) - rgb).sum() for f in (5, 12, 25)}
     assert change[5] > change[12] > 0 and change[25] == 0
+
+
+def test_the_3d_view_stands_each_track_on_its_own_ground(body):
+    """Two tracks whose grounds were estimated 0.5 m apart: in the 3D view each stands on the floor
+    (drawn where a track with the first one's ground would be)."""
+    t = 3
+    rot = np.tile(np.eye(3), (t, 24, 1, 1))
+    ground = (np.diag([1.0, -1.0, -1.0]), np.array([0.0, 0.0, 3.0]))
+    lower = (ground[0], ground[1] + [0.0, 0.5, 0.0])  # camera +y is down
+    make = lambda g: WorldMotion(0, 0, rot, np.tile([0.0, 0.9, 0.0], (t, 1)), body.mean_shape.numpy(),  # noqa: E731
+                                 np.ones(t, bool), np.zeros((t, 2), bool), g)
+    k = np.array([[500.0, 0, 160], [0, 500.0, 120], [0, 0, 1]])
+    rgb = np.full((240, 320, 3), 40, np.uint8)
+    same = OverlayFrames(body, [make(ground), make(ground)], k, (240, 320))(rgb, 1)
+    apart = OverlayFrames(body, [make(ground), make(lower)], k, (240, 320))
+    assert apart.lift == pytest.approx([0.0, -0.5])
+    right = apart(rgb, 1)[:, 320:]
+    assert np.abs(right.astype(int) - same[:, 320:]).max() <= 1
+    assert np.abs(apart(rgb, 1)[:, :320].astype(int) - same[:, :320]).sum() > 0  # over the frame: where seen

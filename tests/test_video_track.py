@@ -229,3 +229,26 @@ def test_depth_acceleration_weighs_the_line_of_sight_only(body, mocap):
     stiff = smooth_track(body, inp, SmoothConfig(steps=15, depth_acceleration=1e4))
     depth_jerk = lambda m: np.abs(np.diff(m.joints[:, :, 2] - m.joints[:, :1, 2], 2, axis=0)).mean()  # noqa: E731
     assert depth_jerk(stiff) < depth_jerk(one)
+
+
+def test_a_turning_camera_s_frames_give_the_motion_in_the_first_frame_s_camera(body, mocap):
+    """Frames seen by a camera turning 15 degrees: with the turns the track's estimates are taken
+    into the first frame's camera (exactly, without steps), and the optimisation stays there."""
+    rot, tr, shape, pts, _ = _walk(body, mocap)
+    t = len(rot)
+    turns = roma.rotvec_to_rotmat(torch.tensor(np.outer(np.linspace(0, np.radians(15), t), [0.2, 1.0, 0.1]))).numpy()
+    seen_pts = np.einsum("tij,tnj->tni", turns, pts)  # each frame's camera
+    uv = camera.project(seen_pts, K)
+    rot_seen = rot.copy()
+    rot_seen[:, 0] = turns @ rot[:, 0]
+    boxes = np.concatenate([uv.min(1), uv.max(1)], 1)
+    inp = TrackInput(np.ones(t, bool), uv, seen_pts - seen_pts[:, :1], boxes, rot_seen,
+                     np.einsum("tij,tj->ti", turns, tr), shape, K, (480, 640), turns)
+    exact = smooth_track(body, inp, SmoothConfig(steps=0))
+    assert np.abs(exact.points - pts).max() < 1e-4 and np.abs(exact.translation - tr).max() < 1e-6
+    smooth = smooth_track(body, inp, SmoothConfig(steps=20))
+    assert float(metrics.mpjpe(torch.tensor(smooth.joints), torch.tensor(pts[:, :24]))) < 0.02
+    still = smooth_track(body, TrackInput(*[getattr(inp, f) for f in ("seen", "points2d", "points3d", "boxes",
+                                                                        "rotmats", "translation", "shape", "K",
+                                                                        "image_shape")]), SmoothConfig(steps=0))
+    assert np.abs(still.points - seen_pts).max() < 1e-4  # without the turns: each frame's own camera

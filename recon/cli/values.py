@@ -123,6 +123,7 @@ VALUES = {'recon.backbone.hourglass:SIZES': ('cpu', 'base', 'gpu'),
                                     'other-val-gray',
                                     'other-test-gray'),
  'recon.synth.dataset:generate.workers': 2,
+ 'recon.video.camera_motion:MOVING_DEGREES': 2.0,
  'recon.video:SmoothConfig.steps': 120,
  'recon.video:VideoOptions.batch': 30,
  'recon.video:VideoOptions.max_people': 1}

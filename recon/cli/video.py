@@ -30,6 +30,10 @@ def add_video(p: Parser) -> None:
     p.add_argument("--backbone-weight", type=number(float, 0.0, 1.0), default=known(cfg, "backbone_weight"),
                    help="share of our backbone's keypoints where it is confident (synthetic-like footage; it stops "
                         "asking where it is not); 0: MediaPipe's alone")
+    p.add_argument("--static-camera", action="store_true",
+                   help="take the camera as still even where it turned (default: a turn of more than "
+                        f"{known('recon.video.camera_motion:MOVING_DEGREES')} degrees, measured on the background, "
+                        "is taken out of the people's motion)")
     p.add_argument("--smooth-steps", type=STEPS, default=known("recon.video:SmoothConfig.steps"),
                    help="iterations of the track optimisation (0: the per-frame estimates, gaps interpolated)")
     p.add_argument("--outfit", default=None, help="dress the animated bodies: a trained outfit (presets: "

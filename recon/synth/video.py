@@ -1,13 +1,19 @@
 """Synthetic videos with ground truth: held-out mocap clips played by generated people in front of a
-static camera, rendered like the image benchmarks (``recon.synth.scene``).
+static or moving camera, rendered like the image benchmarks (``recon.synth.scene``).
 
 A clip is a ``ClipSpec``: one or two people, each a mocap clip of the pose set from a start frame,
 with its own body shape, clothing colours and place on the ground; a static camera at head height
 looks at the scene from a random side; ``aim`` says where: the middle of the people's paths
 ("middle"), or the end or the start of the first person's path, so that a walker enters or
-leaves the frame ("enter", "leave"). Frames are 640 x 480 at the pose set's 30 fps, with a fixed
-background and light and fresh sensor noise each frame. Every random choice comes from the clip's
-seed. World frame: +Y up, metres, the ground at y = 0; camera: OpenCV, X_cam = R @ X_world + t.
+leaves the frame ("enter", "leave"). ``camera`` moves it: "pan" turns it to follow the first
+person, "tilt" nods it up and down while it follows, "handheld" shakes it about where it stands
+(a few degrees, a few centimetres), "walk" carries it sideways along the people while it follows.
+Frames are 640 x 480 at the pose set's 30 fps, with a fixed light and fresh sensor noise each
+frame. A static camera's background is the image generator's; a moving camera's is a street
+photograph (``FAR_PHOTOS``, from ``recon.synth.photos``: texture a real street has) far away, seen
+through the homography of the camera's turn. Every random choice comes from the clip's seed.
+World frame: +Y up, metres, the ground at y = 0; camera: OpenCV, X_cam = R_f @ X_world + t_f in
+frame f.
 
 ``ClipRenderer(body).render(spec) -> (frames, truth)``; ``write_clip`` stores the frames as an MP4 (what
 ``recon video`` reads) and the truth as .npz; ``VIDEO_BENCHMARKS`` are the fixed sets.
@@ -19,6 +25,7 @@ import json
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
+import cv2
 import numpy as np
 import torch
 from scipy.spatial.transform import Rotation
@@ -26,11 +33,15 @@ from scipy.spatial.transform import Rotation
 from recon import camera, paths
 from recon.poses.mocap import FPS, MocapPoses
 from recon.poses.sampler import ShapeSampler
+from recon.synth.photos import load_photo
 from recon.synth.raster import Rasterizer
 from recon.synth.scene import background, vertex_colours
 
 SIZE = (480, 640)  # (H, W)
 VIDEO_GENERATOR = 1
+CAMERAS = ("static", "pan", "tilt", "handheld", "walk")
+CANVAS = 2000  # px wide: a moving camera's background photograph, seen at the clip's focal length
+FAR_PHOTOS = ("building.jpg", "leuvenA.jpg", "leuvenB.jpg", "CA_tCA00.jpg", "aero3.jpg")  # streets, large enough
 
 
 @dataclass(frozen=True)
@@ -51,6 +62,7 @@ class ClipSpec:
     distance: float = 5.0  # camera to the aimed point, metres
     focal: float = 600.0  # pixels
     yaw: float | None = None  # degrees: where the camera stands around the aimed point (0: on +z); None: random
+    camera: str = "static"  # or how it moves: ``CAMERAS`` (module doc)
 
 
 # The fixed sets: clips of the held-out subjects of the pose set's val and test splits.
@@ -77,6 +89,20 @@ VIDEO_BENCHMARKS: dict[str, list[ClipSpec]] = {
         ClipSpec("two-cross-03_02-12_01", (Actor("03_02", 0, (0.0, 0.6), 0.0), Actor("12_01", 0, (0.0, -0.6), 180.0)),
                  90, 29, "middle", 6.5, yaw=0.0),
     ],
+    "synth-video-moving-val": [
+        ClipSpec("pan-02_01", (Actor("02_01"),), 80, 31, "middle", 4.0, camera="pan"),
+        ClipSpec("handheld-02_05", (Actor("02_05", 60),), 90, 32, "middle", 4.5, camera="handheld"),
+        ClipSpec("tilt-06_02", (Actor("06_02", 20),), 90, 33, "middle", 5.0, camera="tilt"),
+        ClipSpec("walk-06_01", (Actor("06_01"),), 90, 34, "middle", 4.5, camera="walk"),
+    ],
+    "synth-video-moving-test": [
+        ClipSpec("pan-03_03", (Actor("03_03", 200),), 90, 41, "middle", 4.0, camera="pan"),
+        ClipSpec("handheld-14_12", (Actor("14_12", 150),), 90, 42, "middle", 4.0, camera="handheld"),
+        ClipSpec("tilt-14_07", (Actor("14_07", 60),), 90, 43, "middle", 4.5, camera="tilt"),
+        ClipSpec("walk-09_12", (Actor("09_12", 100),), 90, 44, "middle", 4.5, camera="walk"),
+        ClipSpec("pan-two-03_01-14_17", (Actor("03_01", 0, (0.0, 0.8), 0.0), Actor("14_17", 100, (1.2, -0.8))), 90, 45,
+                 "middle", 5.0, yaw=20.0, camera="pan"),
+    ],
 }
 
 
@@ -85,8 +111,8 @@ class ClipTruth:
     """Ground truth of one clip, person p at frame f. Camera frame: OpenCV, metres."""
 
     K: np.ndarray  # (3, 3)
-    R: np.ndarray  # (3, 3) world -> camera
-    t: np.ndarray  # (3,)
+    R: np.ndarray  # (F, 3, 3) world -> camera of each frame
+    t: np.ndarray  # (F, 3)
     joints: np.ndarray  # (P, F, 24, 3) camera frame
     points: np.ndarray  # (P, F, 42, 3) J+ in the camera frame
     vertices: np.ndarray  # (P, F, V, 3) float16, camera frame minus the pelvis
@@ -108,6 +134,9 @@ class ClipTruth:
             d = {k: z[k] for k in z.files}
         d["meta"] = json.loads(str(d["meta"]))
         d["fps"] = float(d["fps"])
+        if d["R"].ndim == 2:  # stored before cameras moved: one camera for every frame
+            frames = d["joints"].shape[1]
+            d["R"], d["t"] = np.repeat(d["R"][None], frames, 0), np.repeat(d["t"][None], frames, 0)
         return cls(**d)
 
 
@@ -174,20 +203,20 @@ class ClipRenderer:
         yaw = rng.uniform(0, 2 * np.pi) if spec.yaw is None else np.radians(spec.yaw)
         eye = target + spec.distance * np.array([np.sin(yaw), 0.0, np.cos(yaw)])
         eye[1] = rng.uniform(1.2, 1.7)
-        r, t = look_at(eye, target)
         k = np.array([[spec.focal, 0, SIZE[1] / 2], [0, spec.focal, SIZE[0] / 2], [0, 0, 1.0]])
-        bg = background(rng, SIZE[1])[:SIZE[0]]
+        bg = background(rng, SIZE[1]) if spec.camera == "static" else far_photo(rng)
         light = rng.normal(0, 1, 3) * [1, 1, 0.3] + [0, 0, 1.0]
         ambient = rng.uniform(0.35, 0.6)
         noise = rng.uniform(1, 5)
-        to_cam = lambda x: x @ r.T + t  # noqa: E731
+        r, t = camera_path(spec, eye, target, path, rng)
+        to_cam = lambda x: np.einsum("fij,f...j->f...i", r, x) + t[:, None]  # noqa: E731
         faces = np.concatenate([self.faces + p * len(colours[0]) for p in range(len(spec.actors))])
         cols = np.concatenate(colours)
-        frames = []
+        frames, n_mid = [], spec.frames // 2  # the background photo faces the middle frame's camera
         for f in range(spec.frames):
-            vc = np.concatenate([to_cam(v[f]) for v in verts])
+            vc = np.concatenate([v[f] @ r[f].T + t[f] for v in verts])
             rgb, labels, _ = self.raster.render(vc, faces, k, cols, None, light_dir=-light, ambient=ambient)
-            img = bg.copy()
+            img = bg[:SIZE[0]].copy() if spec.camera == "static" else far_background(bg, k, r[n_mid], r[f])
             img[labels >= 0] = rgb[labels >= 0]
             grain = rng.standard_normal(img.shape, dtype=np.float32) * np.float32(noise)
             frames.append(np.clip(img.astype(np.float32) + grain, 0, 255).astype(np.uint8))
@@ -202,6 +231,54 @@ class ClipRenderer:
                           shape=shapes.numpy().astype(np.float32), visible=inside.sum(-1) >= 12,
                           meta={"spec": asdict(spec), "generator": VIDEO_GENERATOR})
         return frames, truth
+
+
+def camera_path(spec: ClipSpec, eye: np.ndarray, target: np.ndarray, path: np.ndarray,
+                rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """(F, 3, 3), (F, 3): each frame's world -> camera (module doc); ``path``: the first person's
+    pelvis (F, 3), which a moving camera follows (held steady: a half-second moving average)."""
+    n = spec.frames
+    if spec.camera not in CAMERAS:
+        raise ValueError(f"camera {spec.camera!r}: one of {CAMERAS}")
+    if spec.camera == "static":
+        r, t = look_at(eye, target)
+        return np.repeat(r[None], n, 0), np.repeat(t[None], n, 0)
+    pad = np.pad(path, ((7, 7), (0, 0)), mode="edge")
+    follow = np.stack([pad[f:f + 15].mean(0) for f in range(n)]) * [1, 0, 1] + [0, target[1], 0]
+    s = np.linspace(0.0, 1.0, n)
+    eyes, targets, shake = np.repeat(eye[None], n, 0), follow, np.zeros((n, 3))
+    if spec.camera == "tilt":
+        nod = np.linalg.norm(eye - target) * np.tan(np.radians(6.0)) * np.sin(2 * np.pi * s)  # +-6 degrees
+        targets = follow + np.outer(nod, [0.0, 1.0, 0.0])
+    elif spec.camera == "handheld":  # about where it stands: slow sway and a faster tremor
+        targets = np.repeat(target[None], n, 0)
+        time = np.arange(n) / FPS
+        for hz, degrees in ((0.4, 2.0), (1.3, 0.8), (4.0, 0.25)):
+            shake += np.radians(degrees) * np.sin(2 * np.pi * hz * time[:, None] + rng.uniform(0, 2 * np.pi, 3))
+        eyes = eye + 0.02 * np.sin(2 * np.pi * 0.7 * time[:, None] + rng.uniform(0, 2 * np.pi, 3))
+    elif spec.camera == "walk":  # a tracking shot: sideways, 1.5 m over the clip
+        side = np.cross([0.0, 1.0, 0.0], target - eye)
+        eyes = eye + np.outer(s - 0.5, 1.5 * side / np.linalg.norm(side))
+    rs, ts = zip(*(look_at(e, g) for e, g in zip(eyes, targets, strict=True)), strict=True)
+    turn = Rotation.from_rotvec(shake).as_matrix()  # about the camera's own centre
+    r = turn @ np.stack(rs)
+    return r, np.einsum("fij,fj->fi", turn, np.stack(ts))
+
+
+def far_photo(rng: np.random.Generator) -> np.ndarray:
+    """A moving camera's background: one of ``FAR_PHOTOS``, ``CANVAS`` pixels wide, maybe mirrored."""
+    im = load_photo(FAR_PHOTOS[rng.integers(len(FAR_PHOTOS))])
+    im = cv2.resize(im, (CANVAS, round(CANVAS * im.shape[0] / im.shape[1])), interpolation=cv2.INTER_CUBIC)
+    return np.ascontiguousarray(im[:, ::-1]) if rng.random() < 0.5 else im
+
+
+def far_background(canvas: np.ndarray, k: np.ndarray, r_canvas: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """The photograph ``canvas`` (seen at ``k``'s focal length by a camera turned as ``r_canvas``)
+    far away, as the camera turned ``r`` sees it: the homography of the turn."""
+    kc = np.array([[k[0, 0], 0, canvas.shape[1] / 2], [0, k[1, 1], canvas.shape[0] / 2], [0, 0, 1.0]])
+    m = kc @ r_canvas @ r.T @ np.linalg.inv(k)  # a frame's pixel -> the canvas's
+    return cv2.warpPerspective(canvas, m, (SIZE[1], SIZE[0]), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                               borderMode=cv2.BORDER_REFLECT)
 
 
 def write_clip(frames: list[np.ndarray], path: Path, fps: float = FPS) -> Path:

@@ -7,8 +7,9 @@ the rotations, is the turn; a camera that also moves gives the rotation of its d
 
 ``CameraRotations(k)(frames)`` ((image, people's boxes) pairs) -> (T, 3, 3) rotations of each
 frame's camera relative to the first one's (OpenCV camera axes: ``x_t = R_t x_0`` for a direction),
-and how many points each step rested on; or frame by frame, ``add(image, boxes)`` then
-``result()``. ``recon video`` uses it to say when its static-camera assumption does not hold.
+and how many points each step rested on; or frame by frame, ``add(image, boxes)`` (``hold()`` for a
+frame that could not be read) then ``result()``. ``recon video`` takes the turn out of the people's
+motion when the camera turned more than ``MOVING_DEGREES``.
 """
 from __future__ import annotations
 
@@ -63,6 +64,11 @@ class CameraRotations:
             self._rotations.append(step @ self._rotations[-1])
             self._used.append(n)
         self._prev = (gray, mask)
+
+    def hold(self) -> None:
+        """A frame that could not be read: taken as turned like the last one read."""
+        self._rotations.append(self._rotations[-1] if self._rotations else np.eye(3))
+        self._used.append(0)
 
     def result(self) -> tuple[np.ndarray, np.ndarray]:
         """The frames added so far: (T, 3, 3) rotations and (T,) points used (``__call__``)."""

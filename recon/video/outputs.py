@@ -5,9 +5,10 @@ Per track (``write_track``): ``motion.bvh`` (the motion on the track's own skele
 dynamics where the outfit has them) and ``motion.json``, all in the track's world frame (+Y up
 from the estimated ground, feet on y = 0, Z towards the camera; ``recon.video.smooth.to_world``).
 ``OverlayFrames`` draws the frames of ``overlay.mp4``: every track's body over the frame, side
-by side with a 3D view of the bodies on the ground. A body the track bridges (its person not found
-in that frame) is drawn fainter, and not at all in a gap longer than ``MAX_DRAWN_GAP`` seconds:
-the files keep the whole track, the picture does not pretend to have seen it.
+by side with a 3D view of the bodies, each standing on its own estimated ground. A body the
+track bridges (its person not found in that frame) is drawn fainter, and not at all in a gap
+longer than ``MAX_DRAWN_GAP`` seconds: the files keep the whole track, the picture does not
+pretend to have seen it.
 """
 from __future__ import annotations
 
@@ -43,11 +44,13 @@ class WorldMotion:
     shape: np.ndarray  # (S,)
     seen: np.ndarray  # (T,) bool
     planted: np.ndarray  # (T, 2) bool
-    to_world: tuple[np.ndarray, np.ndarray]  # (R, o): X_world = R @ (X_cam - o)
+    to_world: tuple[np.ndarray, np.ndarray]  # (R, o): X_world = R @ (X_ref - o), X_ref: the first frame's camera
+    # (T, 3, 3) each frame's camera turn from the clip's first camera (x_f = R_f x_ref); None: static
+    camera_rotations: np.ndarray | None = None
 
     def camera_frame(self, body, f: int) -> np.ndarray:
-        """(V, 3) the body at track frame ``f`` in the camera frame."""
-        return self.to_camera(self.vertices(body, f))
+        """(V, 3) the body at track frame ``f`` in that frame's camera."""
+        return self.to_camera(self.vertices(body, f), f)
 
     def vertices(self, body, f: int) -> np.ndarray:
         with torch.no_grad():
@@ -56,9 +59,27 @@ class WorldMotion:
                      transl=torch.tensor(self.translation[f:f + 1], dtype=torch.float32))
         return o.vertices[0].numpy().astype(np.float64)
 
-    def to_camera(self, x: np.ndarray) -> np.ndarray:
+    def to_reference(self, x: np.ndarray) -> np.ndarray:
+        """World frame -> the clip's first camera (the camera's, where it did not turn)."""
         r, o = self.to_world
         return x @ r + o
+
+    def to_camera(self, x: np.ndarray, f: int | None = None) -> np.ndarray:
+        """World frame -> the camera of track frame ``f`` (OpenCV); ``f`` may be left out only
+        where the camera did not turn."""
+        x = self.to_reference(x)
+        if self.camera_rotations is None:
+            return x
+        if f is None:
+            raise ValueError("the camera turned in this clip: say which frame's camera")
+        return x @ self.camera_rotations[f].T
+
+    def world_to_camera(self) -> tuple[np.ndarray, np.ndarray]:
+        """(T, 3, 3), (T, 3): each frame's X_camera = R @ X_world + t."""
+        r, o = self.to_world
+        turns = self.camera_rotations if self.camera_rotations is not None else np.eye(3)[None].repeat(
+            len(self.rotmats), 0)
+        return turns @ r.T, turns @ o
 
 
 def write_track(folder: Path, body, m: WorldMotion, fps: float, frame_index: list[int], frame_time: list[float],
@@ -86,7 +107,10 @@ def write_track(folder: Path, body, m: WorldMotion, fps: float, frame_index: lis
         "shape": dict(zip(getattr(body, "shape_names", None) or [f"s{i}" for i in range(len(m.shape))],
                           r(m.shape), strict=True)),
         "camera": {**camera, "world_to_camera": {"R": r(m.to_world[0].T, 6), "t": r(m.to_world[1], 5)},
-                   "note": "X_camera = R @ X_world + t (OpenCV camera)"},
+                   "note": "X_camera = R @ X_world + t (OpenCV camera; where the camera turned, the clip's first "
+                           "frame's, and world_to_camera_per_frame has each of the track's frames)",
+                   **({} if m.camera_rotations is None else {"world_to_camera_per_frame": dict(zip(
+                       ("R", "t"), (r(a, 6) for a in m.world_to_camera()), strict=True))})},
         "joint_names": list(skeleton.JOINT_NAMES),
         "joints3d": r(joints),
         "pose_axis_angle": r(roma.rotmat_to_rotvec(torch.tensor(m.rotmats)).numpy()),
@@ -109,7 +133,10 @@ class OverlayFrames:
         self.raster = Rasterizer(size[1], size[0])
         self.world = tracks[0].to_world if tracks else (np.eye(3), np.zeros(3))
         r, o = self.world
-        pelvis = np.concatenate([(t.to_camera(t.translation) - o) @ r.T for t in tracks] or [np.zeros((1, 3))])
+        # each track on its own ground: the first track's world frame, moved up or down by the height of
+        # the track's own ground there (the grounds are estimated apart; a depth off would float or sink)
+        self.lift = [float(((t.to_world[1] - o) @ r.T)[1]) for t in tracks]
+        pelvis = np.concatenate([(t.to_reference(t.translation) - o) @ r.T for t in tracks] or [np.zeros((1, 3))])
         lo, hi = pelvis.min(0), pelvis.max(0)
         centre = np.array([(lo[0] + hi[0]) / 2, 0.9, (lo[2] + hi[2]) / 2])
         extent = float(max(hi[0] - lo[0], hi[2] - lo[2], 1.0))
@@ -124,12 +151,12 @@ class OverlayFrames:
     def __call__(self, rgb: np.ndarray, position: int) -> np.ndarray:
         r, o = self.world
         cam_v, world_v, colours, alpha = [], [], [], []
-        for t, drawn in zip(self.tracks, self.drawn, strict=True):
+        for t, drawn, lift in zip(self.tracks, self.drawn, self.lift, strict=True):
             f = position - t.first
             if 0 <= f < len(t.rotmats) and drawn[f]:
-                v = t.camera_frame(self.body, f)
-                cam_v.append(v)
-                world_v.append((v - o) @ r.T)
+                v = t.to_reference(t.vertices(self.body, f))
+                cam_v.append(v if t.camera_rotations is None else v @ t.camera_rotations[f].T)
+                world_v.append((v - o) @ r.T - [0.0, lift, 0.0])
                 colours.append(COLOURS[t.id % len(COLOURS)][:3])
                 alpha.append(ALPHA_SEEN if t.seen[f] else ALPHA_BRIDGED)
         left = rgb.copy()

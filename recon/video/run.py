@@ -1,5 +1,5 @@
 """``recon video``: the people of a video, each one motion (BVH, rigged animated .glb, JSON), and
-an overlay video of the clip. Static camera assumed.
+an overlay video of the clip.
 
 1. Per frame (``recon.video.perframe``): keypoints (MediaPipe in video mode for one person;
    found one after the other for several), the lifter and SMPLR, without the per-image fit; stored
@@ -7,7 +7,8 @@ an overlay video of the clip. Static camera assumed.
 2. Tracks (``recon.video.track``): people followed across frames, one id each.
 3. Per track (``recon.video.smooth``): one body shape (the median over its frames) and one
    optimisation of the pose and position of every frame; gaps bridged; the ground from the
-   planted feet.
+   planted feet. A camera that turned (``recon.video.camera_motion``, measured on the background
+   during the per-frame pass) is taken out: the motion is in the first frame's camera.
 4. Outputs (``recon.video.outputs``): ``<out>/track_<id>/`` motion.bvh, animated.glb, motion.json;
    ``<out>/overlay.mp4``; ``<out>/video.json`` last (frames, skipped frames, tracks, timings): it is
    removed before the others are written, so it stands only beside a complete set.
@@ -53,7 +54,8 @@ class VideoOptions:
     """frames: which frames; max_people: tracks kept (1: MediaPipe's video mode); smooth: the track
     optimisation (``SmoothConfig(steps=0)``: the per-frame estimates, gaps interpolated); tracker:
     how people are followed; outfit / tightness: dress the animated bodies; overlay: write
-    overlay.mp4; batch: frames per stored batch; force: start again even if finished."""
+    overlay.mp4; batch: frames per stored batch; force: start again even if finished;
+    static_camera: take the camera as still even where it turned."""
 
     frames: FrameRange = field(default_factory=FrameRange)
     max_people: int = 1
@@ -64,6 +66,7 @@ class VideoOptions:
     overlay: bool = True
     batch: int = 30
     force: bool = False
+    static_camera: bool = False
 
     def per_frame_json(self) -> dict:
         """What changes the per-frame pass."""
@@ -142,6 +145,8 @@ def video(path: str | Path, out: str | Path, options: VideoOptions | None = None
                 log(f"skipped frame {f.index}: {f.error}")
             if f.rgb is not None:
                 turn.add(f.rgb, people)
+            else:
+                turn.hold()
     try:
         dets, frames = PerFrame(rec, k, work, options.max_people, options.batch).run(src, on_batch)
     finally:
@@ -150,13 +155,17 @@ def video(path: str | Path, out: str | Path, options: VideoOptions | None = None
         log(f"resumed: {sum(resumed)} frames read back from {work}")
     seconds["per_frame"] = time.perf_counter() - t0
     fps = _output_fps(src, options.frames)
-    turned = turned_degrees(turn.result()[0])
+    rotations = turn.result()[0]
+    turned = turned_degrees(rotations)
+    moving = turned > MOVING_DEGREES and not options.static_camera
     if turned > MOVING_DEGREES:
-        log(f"warning: the camera turned {turned:.1f} degrees in this clip; recon video assumes a static camera, "
-            "so the camera's turn ends up in the people's motion (docs/video.md)")
+        log(f"the camera turned {turned:.1f} degrees in this clip: " + (
+            "its turn is taken out of the people's motion" if moving else
+            "--static-camera: its turn stays in the people's motion") + " (docs/video.md)")
     t0 = time.perf_counter()
     tracks = track(_detections(dets, len(frames.index)), replace(options.tracker, max_people=options.max_people))
-    motions = [_world_motion(rec.body, t, dets, k, src.size, options.smooth) for t in tracks]
+    motions = [_world_motion(rec.body, t, dets, k, src.size, options.smooth, rotations if moving else None)
+               for t in tracks]
     seconds["tracks"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     (out / "video.json").unlink(missing_ok=True)  # present only over a complete set of outputs
@@ -182,7 +191,7 @@ def video(path: str | Path, out: str | Path, options: VideoOptions | None = None
                     "seen": int(m.seen.sum()), "files": track_files[m.id]} for m in motions],
         "seconds": {k_: round(v, 2) for k_, v in seconds.items()},
         "frames_per_second": round(len(frames.index) / max(sum(seconds.values()), 1e-9), 2),
-        "static_camera": turned <= MOVING_DEGREES, "camera_turned_degrees": round(turned, 2),
+        "static_camera": not moving, "camera_turned_degrees": round(turned, 2),
         "made_from": made_from,
     }
     paths.write_text(out / "video.json", json.dumps(summary, indent=1))
@@ -240,8 +249,10 @@ def _detections(dets: Detections, frames: int) -> list[list[Detection]]:
     return per_frame
 
 
-def _world_motion(body, t: Track, dets: Detections, k: np.ndarray, size, cfg: SmoothConfig) -> WorldMotion:
-    """The track's one optimisation (``smooth_track``) and its motion in the world frame."""
+def _world_motion(body, t: Track, dets: Detections, k: np.ndarray, size, cfg: SmoothConfig,
+                  rotations: np.ndarray | None = None) -> WorldMotion:
+    """The track's one optimisation (``smooth_track``) and its motion in the world frame;
+    ``rotations``: (frames, 3, 3) each frame's camera turn from the first one's, or None (still)."""
     rows = np.array([d.index for d in t.detections])
     first, last = int(dets.frame[rows].min()), int(dets.frame[rows].max())
     n = last - first + 1
@@ -256,13 +267,14 @@ def _world_motion(body, t: Track, dets: Detections, k: np.ndarray, size, cfg: Sm
     rot = spread(dets.rotmats)
     rot[~seen] = np.eye(3)
     shape = np.median(dets.shape[rows], 0)
+    turns = None if rotations is None else rotations[first:last + 1]
     inp = TrackInput(seen, spread(dets.points2d), spread(dets.points3d), spread(dets.box), rot,
-                     spread(dets.translation), shape, k, tuple(size))
+                     spread(dets.translation), shape, k, tuple(size), turns)
     m = smooth_track(body, inp, cfg)
     r, o = to_world(m.ground, m.translation[np.flatnonzero(seen)[0]])
     rotw = m.rotmats.copy()
     rotw[:, 0] = r @ m.rotmats[:, 0]
-    return WorldMotion(t.id, first, rotw, (m.translation - o) @ r.T, shape, seen, m.planted, (r, o))
+    return WorldMotion(t.id, first, rotw, (m.translation - o) @ r.T, shape, seen, m.planted, (r, o), turns)
 
 
 def _write_overlay(path: Path, src: FrameSource, body, motions: list[WorldMotion], k, fps: float,

@@ -1,4 +1,4 @@
-"""One track's motion as one optimisation over all its frames (static camera).
+"""One track's motion as one optimisation over all its frames.
 
 The per-frame estimates (SMPLR's pose and placement on each frame's keypoints) start it; the
 body's joint rotations and pelvis positions of every frame then move together, with the track's
@@ -13,6 +13,12 @@ one body shape fixed, to minimise (``SmoothConfig`` weights):
 * contact: a foot found planted in the image (its 2D keypoints still, and low: ``planted``) does
   not move in 3D between planted frames;
 * a small prior keeping the rotations near the per-frame ones.
+
+A turning camera (``TrackInput.camera_rotations``: how each frame's camera turned from the clip's
+first one, ``recon.video.camera_motion``) is taken out: the motion lives in the first frame's camera
+(the reference frame), where the acceleration and contact terms hold, and each frame's body is
+turned into that frame's camera for the reprojection and depth terms. Without rotations the
+reference frame is the camera's.
 
 The ground is the plane through the planted feet (``ground_plane``, held near the mean direction
 of the torso, pelvis to neck); ``to_world`` gives the frame in which the motion is written: +Y up from the ground,
@@ -69,16 +75,29 @@ class TrackInput:
     shape: np.ndarray  # (S,) the track's body shape
     K: np.ndarray  # (3, 3)
     image_shape: tuple[int, int]
+    # (T, 3, 3) each frame's camera turn from the reference camera (x_t = R_t x_ref); None: static
+    camera_rotations: np.ndarray | None = None
+
+    def in_reference(self) -> tuple[np.ndarray, np.ndarray]:
+        """The per-frame root rotations and pelvis positions turned into the reference frame."""
+        if self.camera_rotations is None:
+            return self.rotmats, self.translation
+        back = np.swapaxes(self.camera_rotations, 1, 2)
+        rot = self.rotmats.copy()
+        rot[:, 0] = back @ self.rotmats[:, 0]
+        return rot, np.einsum("tij,tj->ti", back, self.translation)
 
 
 @dataclass
 class TrackMotion:
-    rotmats: np.ndarray  # (T, 24, 3, 3), root into the camera frame
-    translation: np.ndarray  # (T, 3) camera frame
-    joints: np.ndarray  # (T, 24, 3) camera frame
-    points: np.ndarray  # (T, 42, 3) camera frame
+    """The track's motion in the reference frame (the camera's, the first frame's if it turned)."""
+
+    rotmats: np.ndarray  # (T, 24, 3, 3), root into the reference frame
+    translation: np.ndarray  # (T, 3)
+    joints: np.ndarray  # (T, 24, 3)
+    points: np.ndarray  # (T, 42, 3)
     planted: np.ndarray  # (T, 2) bool: left, right foot planted
-    ground: tuple[np.ndarray, float]  # plane (n, d): n . x = d, n up, camera frame
+    ground: tuple[np.ndarray, float]  # plane (n, d): n . x = d, n up
 
 
 def fill_gaps(seen: np.ndarray, rotmats: np.ndarray, translation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -151,9 +170,9 @@ def to_world(ground: tuple[np.ndarray, float], origin: np.ndarray) -> tuple[np.n
 
 
 def smooth_track(body, inp: TrackInput, cfg: SmoothConfig | None = None) -> TrackMotion:
-    """The track's motion (module doc), camera frame, and its ground plane."""
+    """The track's motion (module doc) in the reference frame, and its ground plane."""
     cfg = cfg or SmoothConfig()
-    rot0, tr0 = fill_gaps(inp.seen, inp.rotmats, inp.translation)
+    rot0, tr0 = fill_gaps(inp.seen, *inp.in_reference())
     contact = planted(inp, cfg)
     t = len(rot0)
     dtype = torch.float32
@@ -169,17 +188,19 @@ def smooth_track(body, inp: TrackInput, cfg: SmoothConfig | None = None) -> Trac
     delta = torch.zeros(t, 24, 3, requires_grad=True)
     tr = torch.tensor(tr0, dtype=dtype).requires_grad_(True)
     ids = [list(FOOT_POINTS[s]) for s in ("left", "right")]
+    turn = None if inp.camera_rotations is None else torch.tensor(inp.camera_rotations, dtype=dtype)
     both = torch.tensor(contact[1:] & contact[:-1], dtype=dtype)  # (T-1, 2) planted in f and f+1
 
     def pose(d):
         return r0 @ roma.rotvec_to_rotmat(d)
 
     def objective():
-        pts = body(pose(delta), transl=tr, points_only=True, rest=rest).points
-        depth = pts[:, :1, 2:].detach().clamp_min(0.5)
-        e2d = (((camera.project(pts, k, min_depth=1e-3) - uv) / k[0, 0]) ** 2).sum(-1)
+        pts = body(pose(delta), transl=tr, points_only=True, rest=rest).points  # reference frame
+        seen_pts = pts if turn is None else pts @ turn.transpose(1, 2)  # each frame's camera
+        depth = seen_pts[:, :1, 2:].detach().clamp_min(0.5)
+        e2d = (((camera.project(seen_pts, k, min_depth=1e-3) - uv) / k[0, 0]) ** 2).sum(-1)
         loss = (w * e2d).sum() / w.sum().clamp_min(1)
-        e3d = ((pts - pts[:, :1]) - p3).pow(2).sum(-1).mean(-1)
+        e3d = ((seen_pts - seen_pts[:, :1]) - p3).pow(2).sum(-1).mean(-1)
         loss = loss + cfg.depth_prior * 1e-3 * (seen * e3d).sum() / seen.sum().clamp_min(1)
         loss = loss + cfg.pose_prior * 1e-3 * delta.pow(2).sum() / t
         if t >= 3:

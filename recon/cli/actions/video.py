@@ -17,7 +17,8 @@ def run_video(args) -> int:
     frames = FrameRange(start=args.start, end=args.end, every=args.every, fps=args.fps)
     options = VideoOptions(frames=frames, max_people=args.max_people,
                            smooth=replace(SmoothConfig(), steps=args.smooth_steps), outfit=args.outfit,
-                           tightness=args.tightness, overlay=not args.no_overlay, batch=args.batch, force=args.force)
+                           tightness=args.tightness, overlay=not args.no_overlay, batch=args.batch, force=args.force,
+                           static_camera=args.static_camera)
     executor = ExecutorConfig(**executor_args(args))
     if len(args.inputs) > 1:
         s = videos(args.inputs, Path(args.out), options, config, executor)
