@@ -15,7 +15,8 @@ panning, tilting, hand-held and walking one) are rendered once into the cache. R
 * ``recon video --static-camera`` (moving sets): the camera's turn left in the people's motion.
 
 The cameras' true focal length is given to every row. Each frame's people are matched to the
-truth by their projected joints (Hungarian, within half the person's box). Metrics over matched
+truth by their projected joints (within half the person's box; a track matched the frame before
+is kept while within it, as CLEAR MOT does, the rest by Hungarian assignment). Metrics over matched
 frames (mm, root-aligned): MPJPE, PA-MPJPE, PVE; acceleration error (VIBE: mean distance between
 predicted and true joint accelerations, mm/frame^2, triples of frames matched to one track);
 jitter (mean jerk, mm/frame^3; the truth's own is listed); foot skating (cm a frame a foot joint
@@ -92,6 +93,7 @@ def predict_video(path: Path, truth: ClipTruth, smoothing: smooth.SmoothConfig, 
     people = truth.joints.shape[0]
     cfg = ReconstructorConfig(focal_factor=float(truth.K[0, 0]) / max(SIZE))
     opts = VideoOptions(max_people=people, smooth=smoothing, overlay=False, force=force, static_camera=static_camera)
+    (work / "video.json").unlink(missing_ok=True)  # a finished folder would be left as it is, with no tracks
     res = video(path, work, opts, cfg, progress=False, log=lambda m: None)
     out: list[list[tuple]] = [[] for _ in range(len(res.frames.index))]
     for m in res.tracks:
@@ -106,7 +108,9 @@ def predict_video(path: Path, truth: ClipTruth, smoothing: smooth.SmoothConfig, 
 
 
 def match(truth: ClipTruth, pred: list[list[tuple]]) -> np.ndarray:
-    """(P, F) index into pred[f] of the prediction matched to true person p, -1 where none."""
+    """(P, F) index into pred[f] of the prediction matched to true person p, -1 where none. As
+    CLEAR MOT does: a person's track of the frame before stays matched while still within reach
+    (where two people overlap a distance cannot tell them apart), the rest by Hungarian assignment."""
     p_n, f_n = truth.visible.shape
     out = np.full((p_n, f_n), -1)
     for f in range(f_n):
@@ -121,6 +125,13 @@ def match(truth: ClipTruth, pred: list[list[tuple]]) -> np.ndarray:
                 d = np.median(np.linalg.norm(camera.project(j, truth.K) - g2, axis=1)) / size
                 if d < 0.5:
                     cost[a, b] = d
+        for a, p in enumerate(gts):
+            before = out[p, f - 1] if f else -1
+            track = pred[f - 1][before][0] if before >= 0 else None
+            kept = [b for b, q in enumerate(pred[f]) if track is not None and q[0] == track and cost[a, b] < 1e6]
+            if kept:
+                out[p, f] = kept[0]
+                cost[a, :] = cost[:, kept[0]] = 1e6
         for a, b in zip(*linear_sum_assignment(cost), strict=True):
             if cost[a, b] < 1e6:
                 out[gts[a], f] = b
