@@ -48,10 +48,6 @@ class WorldMotion:
     # (T, 3, 3) each frame's camera turn from the clip's first camera (x_f = R_f x_ref); None: static
     camera_rotations: np.ndarray | None = None
 
-    def camera_frame(self, body, f: int) -> np.ndarray:
-        """(V, 3) the body at track frame ``f`` in that frame's camera."""
-        return self.to_camera(self.vertices(body, f), f)
-
     def vertices(self, body, f: int) -> np.ndarray:
         with torch.no_grad():
             o = body(torch.tensor(self.rotmats[f:f + 1], dtype=torch.float32),
@@ -67,7 +63,10 @@ class WorldMotion:
     def to_camera(self, x: np.ndarray, f: int | None = None) -> np.ndarray:
         """World frame -> the camera of track frame ``f`` (OpenCV); ``f`` may be left out only
         where the camera did not turn."""
-        x = self.to_reference(x)
+        return self.reference_to_camera(self.to_reference(x), f)
+
+    def reference_to_camera(self, x: np.ndarray, f: int | None = None) -> np.ndarray:
+        """The clip's first camera -> the camera of track frame ``f`` (``to_camera``)."""
         if self.camera_rotations is None:
             return x
         if f is None:
@@ -155,7 +154,7 @@ class OverlayFrames:
             f = position - t.first
             if 0 <= f < len(t.rotmats) and drawn[f]:
                 v = t.to_reference(t.vertices(self.body, f))
-                cam_v.append(v if t.camera_rotations is None else v @ t.camera_rotations[f].T)
+                cam_v.append(t.reference_to_camera(v, f))
                 world_v.append((v - o) @ r.T - [0.0, lift, 0.0])
                 colours.append(COLOURS[t.id % len(COLOURS)][:3])
                 alpha.append(ALPHA_SEEN if t.seen[f] else ALPHA_BRIDGED)
