@@ -5,7 +5,7 @@ acceleration error, jitter against the truth's, foot skating of the worst person
 
     OMP_NUM_THREADS=1 .venv/bin/python eval/smooth_tuning.py [--bench synth-video-val]
 
--> eval/results/smooth-tuning-<bench>.{json,md}
+-> eval/results/smooth-tuning-<bench>.{json,md} (``--only``: those rows made again, the rest kept)
 """
 from __future__ import annotations
 
@@ -24,26 +24,31 @@ from recon.video import smooth
 # candidates: name -> changes to SmoothConfig's defaults
 CANDIDATES = {
     "default": {},
-    "acceleration 30": {"acceleration": 30.0},
-    "acceleration 10": {"acceleration": 10.0},
-    "acceleration 30, root 10": {"acceleration": 30.0, "root_acceleration": 10.0},
-    "acceleration 10, root 10": {"acceleration": 10.0, "root_acceleration": 10.0},
-    "acceleration 10, root 10, contact 100": {"acceleration": 10.0, "root_acceleration": 10.0, "contact": 100.0},
-    "across 30, depth 100": {"acceleration": 30.0, "depth_acceleration": 100.0},
-    "across 10, depth 100": {"acceleration": 10.0, "depth_acceleration": 100.0},
-    "across 10, depth 300": {"acceleration": 10.0, "depth_acceleration": 300.0},
-    "across 30, depth 300": {"acceleration": 30.0, "depth_acceleration": 300.0},
+    "120 steps (the default to 0.14)": {"steps": 120},
+    "120 steps, acceleration 30": {"steps": 120, "acceleration": 30.0},
+    "120 steps, acceleration 10": {"steps": 120, "acceleration": 10.0},
+    "120 steps, acceleration 30, root 10": {"steps": 120, "acceleration": 30.0, "root_acceleration": 10.0},
+    "120 steps, acceleration 10, root 10": {"steps": 120, "acceleration": 10.0, "root_acceleration": 10.0},
+    "120 steps, acceleration 10, root 10, contact 100": {"steps": 120, "acceleration": 10.0, "root_acceleration": 10.0,
+                                                         "contact": 100.0},
+    "120 steps, across 30, depth 100": {"steps": 120, "acceleration": 30.0, "depth_acceleration": 100.0},
+    "120 steps, across 10, depth 100": {"steps": 120, "acceleration": 10.0, "depth_acceleration": 100.0},
+    "120 steps, across 10, depth 300": {"steps": 120, "acceleration": 10.0, "depth_acceleration": 300.0},
+    "120 steps, across 30, depth 300": {"steps": 120, "acceleration": 30.0, "depth_acceleration": 300.0},
+    "250 steps": {"steps": 250},
 }
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--bench", default="synth-video-val")
-    ap.add_argument("--only", nargs="*", default=None, help="candidate names")
+    ap.add_argument("--only", nargs="*", default=None, help="candidate names (the file's other rows are kept)")
     args = ap.parse_args()
     torch.set_num_threads(1)
     body, data = default_body(), video_eval.clips(args.bench)
-    rows = {}
+    out = report.RESULTS / f"smooth-tuning-{args.bench}"
+    old = report.read(out) if out.with_suffix(".json").exists() else {}
+    rows = {k: v for k, v in old.get("rows", {}).items() if k in CANDIDATES} if args.only else {}
     for name, change in CANDIDATES.items():
         if args.only and name not in args.only:
             continue
@@ -57,6 +62,7 @@ def main() -> None:
         rows[name] = {"config": asdict(cfg)} | {k: v for k, v in r.items() if k not in ("people", "frames_per_second")}
         print(name, json.dumps({k: round(v, 3) if isinstance(v, float) else v for k, v in rows[name].items()
                                 if k != "config"}), flush=True)
+    rows = {k: rows[k] for k in CANDIDATES if k in rows}
     head = ["candidate", "MPJPE", "PA-MPJPE", "accel error", "jitter / truth's", "jitter ratio per person",
             "worst person's skating (cm)", "people skating >= 2 cm", "WA-MPJPE"]
     body_rows = [[k, r["mpjpe"], r["pa_mpjpe"], r["accel"], r["jitter_ratio"],
@@ -66,8 +72,7 @@ def main() -> None:
                     "`eval/smooth_tuning.py`: the same per-frame detections, each candidate's track optimisation "
                     "(`SmoothConfig`), scored as eval/video.py scores `recon video` (mm; accel error mm/frame^2).", "",
                     report.table(body_rows, head, ["", ".1f", ".1f", ".1f", ".2f", "", ".1f", "", ".1f"]), ""])
-    print(Path(report.write(report.RESULTS / f"smooth-tuning-{args.bench}", {"bench": args.bench, "rows": rows},
-                            md)).read_text())
+    print(Path(report.write(out, {"bench": args.bench, "rows": rows}, md)).read_text())
 
 
 if __name__ == "__main__":

@@ -12,7 +12,8 @@ panning, tilting, hand-held and walking one) are rendered once into the cache. R
 * ``video mode, no smoothing``: ``recon video`` with ``SmoothConfig(steps=0)``: MediaPipe's video
   mode (several people: found one after the other), SMPLR per frame, tracks, gaps interpolated;
 * ``recon video``: the same with the track optimisation;
-* ``recon video --static-camera`` (moving sets): the camera's turn left in the people's motion.
+* ``recon video --static-camera`` (moving sets): the camera's turn left in the people's motion;
+* ``recon video --keypoint-model heavy|full`` (on request, ``--methods``): another landmark model.
 
 The cameras' true focal length is given to every row. Each frame's people are matched to the
 truth by their projected joints (within half the person's box; a track matched the frame before
@@ -37,6 +38,7 @@ from __future__ import annotations
 
 import argparse
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -52,9 +54,10 @@ from recon.video import smooth
 from recon.video.frames import FrameSource
 from recon.video.run import VideoOptions, video
 
-METHODS = ("per-frame", "video-raw", "video", "video-static")
+METHODS = ("per-frame", "video-raw", "video", "video-static", "video-heavy", "video-full")
 LABELS = {"per-frame": "per-frame `recon run`", "video-raw": "video mode, no smoothing", "video": "`recon video`",
-          "video-static": "`recon video --static-camera`"}
+          "video-static": "`recon video --static-camera`", "video-heavy": "`recon video --keypoint-model heavy`",
+          "video-full": "`recon video --keypoint-model full`"}
 FEET = [skeleton.JOINT_NAMES.index(n) for n in ("left_foot", "right_foot")]
 PLANTED_HEIGHT, PLANTED_SPEED = 0.05, 0.02
 
@@ -86,12 +89,14 @@ def predict_per_frame(path: Path, truth: ClipTruth, rec: Reconstructor) -> list[
 
 
 def predict_video(path: Path, truth: ClipTruth, smoothing: smooth.SmoothConfig, work: Path, body,
-                  force: bool = True, static_camera: bool = False) -> list[list[tuple]]:
+                  force: bool = True, static_camera: bool = False, keypoint_model: str | None = None
+                  ) -> list[list[tuple]]:
     """``recon video``'s people per frame [(track id, joints, vertices in the frame's camera, joints
     in the track's world frame)], with the track optimisation ``smoothing``; without ``force`` the
     per-frame detections stored in ``work`` are read back."""
     people = truth.joints.shape[0]
     cfg = ReconstructorConfig(focal_factor=float(truth.K[0, 0]) / max(SIZE))
+    cfg = cfg if keypoint_model is None else replace(cfg, keypoint_model=keypoint_model)
     opts = VideoOptions(max_people=people, smooth=smoothing, overlay=False, force=force, static_camera=static_camera)
     (work / "video.json").unlink(missing_ok=True)  # a finished folder would be left as it is, with no tracks
     res = video(path, work, opts, cfg, progress=False, log=lambda m: None)
@@ -276,8 +281,9 @@ def main() -> None:
     body = default_body()
     work = paths.cache_dir() / "eval-video-work"
     rows = {}
-    methods = args.methods.split(",") if args.methods else [m for m in METHODS if "moving" in args.bench
-                                                             or m != "video-static"]
+    on_request = ("video-heavy", "video-full")
+    methods = args.methods.split(",") if args.methods else [
+        m for m in METHODS if ("moving" in args.bench or m != "video-static") and m not in on_request]
     for method in methods:
         sums = new_sums()
         seconds, frames = 0.0, 0
@@ -290,8 +296,10 @@ def main() -> None:
                 pred = predict_per_frame(path, truth, rec)
             else:
                 steps = 0 if method == "video-raw" else smooth.SmoothConfig.steps
-                pred = predict_video(path, truth, smooth.SmoothConfig(steps=steps), work / name, body,
-                                     force=method != "video-static", static_camera=method == "video-static")
+                model = method.removeprefix("video-") if method in ("video-heavy", "video-full") else None
+                pred = predict_video(path, truth, smooth.SmoothConfig(steps=steps), work / (name + (model or "")),
+                                     body, force=method != "video-static", static_camera=method == "video-static",
+                                     keypoint_model=model)
             seconds += time.perf_counter() - t0
             frames += truth.visible.shape[1]
             score(truth, pred, sums, name)

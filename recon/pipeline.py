@@ -39,6 +39,15 @@ class NoPersonFound(ReconError):
 
 
 @dataclass
+class FoundPeople:
+    """The keypoint stage's answer for one image: its intrinsics and the people found, largest first."""
+
+    k: np.ndarray  # (3, 3)
+    people: list[Keypoints]
+    ms_per_person: float  # the source's time
+
+
+@dataclass
 class Reconstruction:
     """One person in one image. Positions: OpenCV camera frame, metres; 2D: pixels."""
 
@@ -236,12 +245,18 @@ class Reconstructor:
                ) -> list[list[Reconstruction] | Exception]:
         """Up to ``max_people`` people per image (a source without ``people()`` finds one), the
         largest first. Entries are lists of Reconstructions, or NoPersonFound."""
+        return self.people_from(images, self.find_people(images, ks, max_people))
+
+    def find_people(self, images: list[np.ndarray], ks: list[np.ndarray | None] | None = None, max_people: int = 1
+                    ) -> list[FoundPeople]:
+        """The keypoint stage of ``people`` (the source's calls, in order: a video source follows
+        the frames); ``people_from`` does the rest. Split so that a video can run the two stages
+        of consecutive frames at once."""
         if max_people < 1:
             raise ValueError("max_people must be at least 1")
         ks = ks or [None] * len(images)
-        results: list = [None] * len(images)
-        found, kps, kmats, t_kp = [], [], [], {}
-        for i, (rgb, k) in enumerate(zip(images, ks, strict=True)):
+        out = []
+        for rgb, k in zip(images, ks, strict=True):
             _check_image(rgb)
             k = camera.default_intrinsics(*rgb.shape[:2], self.focal_factor) if k is None else np.asarray(k, float)
             t0 = time.perf_counter()
@@ -250,15 +265,26 @@ class Reconstructor:
             else:
                 people = [kp] if (kp := self.source(rgb, k)) is not None else []
             people.sort(key=lambda kp: -(kp.box[2] - kp.box[0]) * (kp.box[3] - kp.box[1]))
-            t_kp[i] = (time.perf_counter() - t0) * 1000 / max(len(people), 1)
-            if not people:
+            out.append(FoundPeople(k, people, (time.perf_counter() - t0) * 1000 / max(len(people), 1)))
+        return out
+
+    def people_from(self, images: list[np.ndarray], found_people: list[FoundPeople]
+                    ) -> list[list[Reconstruction] | Exception]:
+        """``people`` from the keypoint stage's answers (``find_people``) for the same images."""
+        if len(found_people) != len(images):
+            raise ValueError(f"{len(found_people)} keypoint answers for {len(images)} images")
+        results: list = [None] * len(images)
+        found, kps, kmats, t_kp = [], [], [], {}
+        for i, f in enumerate(found_people):
+            t_kp[i] = f.ms_per_person
+            if not f.people:
                 results[i] = NoPersonFound("no person found")
                 continue
             results[i] = []
-            for kp in people:
+            for kp in f.people:
                 found.append(i)
                 kps.append(kp)
-                kmats.append(k)
+                kmats.append(f.k)
         if not found:
             return results
         t0 = time.perf_counter()

@@ -124,6 +124,6 @@ VALUES = {'recon.backbone.hourglass:SIZES': ('cpu', 'base', 'gpu'),
                                     'other-test-gray'),
  'recon.synth.dataset:generate.workers': 2,
  'recon.video.camera_motion:MOVING_DEGREES': 2.0,
- 'recon.video:SmoothConfig.steps': 120,
+ 'recon.video:SmoothConfig.steps': 400,
  'recon.video:VideoOptions.batch': 30,
  'recon.video:VideoOptions.max_people': 1}

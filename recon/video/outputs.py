@@ -29,6 +29,7 @@ from recon.synth.video import look_at
 
 MAX_DRAWN_GAP = 1.0  # seconds: a longer bridged gap is left out of the overlay
 ALPHA_SEEN, ALPHA_BRIDGED = 0.75, 0.35  # the bodies' opacity over the frame
+CHUNK = 30  # frames of a track's vertices made at once for the overlay
 COLOURS = ((0.45, 0.62, 0.92, 1.0), (0.92, 0.55, 0.45, 1.0), (0.5, 0.82, 0.5, 1.0), (0.85, 0.75, 0.4, 1.0),
            (0.7, 0.5, 0.85, 1.0))
 
@@ -48,12 +49,16 @@ class WorldMotion:
     # (T, 3, 3) each frame's camera turn from the clip's first camera (x_f = R_f x_ref); None: static
     camera_rotations: np.ndarray | None = None
 
-    def vertices(self, body, f: int) -> np.ndarray:
+    def vertices(self, body, f: int, stop: int | None = None) -> np.ndarray:
+        """The body's vertices (V, 3) in frame ``f``, world frame; with ``stop``: frames f..stop-1
+        (stop - f, V, 3) in one call."""
+        last = f + 1 if stop is None else stop
         with torch.no_grad():
-            o = body(torch.tensor(self.rotmats[f:f + 1], dtype=torch.float32),
+            o = body(torch.tensor(self.rotmats[f:last], dtype=torch.float32),
                      torch.tensor(self.shape[None], dtype=torch.float32),
-                     transl=torch.tensor(self.translation[f:f + 1], dtype=torch.float32))
-        return o.vertices[0].numpy().astype(np.float64)
+                     transl=torch.tensor(self.translation[f:last], dtype=torch.float32))
+        v = o.vertices.numpy().astype(np.float64)
+        return v[0] if stop is None else v
 
     def to_reference(self, x: np.ndarray) -> np.ndarray:
         """World frame -> the clip's first camera (the camera's, where it did not turn)."""
@@ -146,14 +151,15 @@ class OverlayFrames:
         half = 2.0 * extent + 4.0
         corners = np.array([[-half, 0, -half], [half, 0, -half], [half, 0, half], [-half, 0, half]])
         self.floor = (corners + centre * [1, 0, 1], np.array([[0, 2, 1], [0, 3, 2]]))
+        self._chunks: dict[int, tuple[int, np.ndarray]] = {}  # per track: first frame, vertices
 
     def __call__(self, rgb: np.ndarray, position: int) -> np.ndarray:
         r, o = self.world
         cam_v, world_v, colours, alpha = [], [], [], []
-        for t, drawn, lift in zip(self.tracks, self.drawn, self.lift, strict=True):
+        for n, (t, drawn, lift) in enumerate(zip(self.tracks, self.drawn, self.lift, strict=True)):
             f = position - t.first
             if 0 <= f < len(t.rotmats) and drawn[f]:
-                v = t.to_reference(t.vertices(self.body, f))
+                v = t.to_reference(self._vertices(n, f))
                 cam_v.append(t.reference_to_camera(v, f))
                 world_v.append((v - o) @ r.T - [0.0, lift, 0.0])
                 colours.append(COLOURS[t.id % len(COLOURS)][:3])
@@ -161,16 +167,31 @@ class OverlayFrames:
         left = rgb.copy()
         if cam_v:
             img, labels, _ = self._draw(cam_v, colours, self.k)
-            hit = labels >= 0
-            a = np.asarray(alpha, np.float32)[labels[hit]][:, None]
-            left[hit] = ((1 - a) * rgb[hit] + a * img[hit] + 0.5).astype(np.uint8)
+            rows, cols = np.flatnonzero((labels >= 0).any(1)), np.flatnonzero((labels >= 0).any(0))
+            if len(rows):  # blended within the bodies' bounding box only
+                box = np.s_[rows[0]:rows[-1] + 1, cols[0]:cols[-1] + 1]
+                lab, under, over, out = labels[box], rgb[box], img[box], left[box]
+                hit = lab >= 0
+                a = np.asarray(alpha, np.float32)[lab[hit]][:, None]
+                out[hit] = ((1 - a) * under[hit] + a * over[hit] + 0.5).astype(np.uint8)
         fv, ff = self.floor
         vr, vt = self.view
         img, labels, _ = self._draw([*world_v, fv], [*colours, (0.8, 0.8, 0.78)], self.view_k, vr, vt,
                                     extra_faces=ff)
-        right = np.full_like(rgb, 255)
-        right[labels >= 0] = img[labels >= 0]
-        return np.concatenate([left, right], 1)
+        out = np.empty((rgb.shape[0], 2 * rgb.shape[1], 3), np.uint8)
+        out[:, :rgb.shape[1]] = left
+        out[:, rgb.shape[1]:] = np.where((labels >= 0)[..., None], img, np.uint8(255))
+        return out
+
+    def _vertices(self, n: int, f: int) -> np.ndarray:
+        """Track ``n``'s vertices in its frame ``f``, made ``CHUNK`` frames at a time (frames are
+        drawn in order)."""
+        start, verts = self._chunks.get(n, (0, np.zeros((0, 0, 3))))
+        if not start <= f < start + len(verts):
+            t = self.tracks[n]
+            start, verts = f, t.vertices(self.body, f, min(f + CHUNK, len(t.rotmats)))
+            self._chunks[n] = (start, verts)
+        return verts[f - start]
 
     def _draw(self, meshes: list[np.ndarray], colours, k, rot=None, tr=None, extra_faces=None):
         """Bodies (and last, with ``extra_faces``, the floor) through the rasteriser; (R, t): the

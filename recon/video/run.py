@@ -55,7 +55,8 @@ class VideoOptions:
     optimisation (``SmoothConfig(steps=0)``: the per-frame estimates, gaps interpolated); tracker:
     how people are followed; outfit / tightness: dress the animated bodies; overlay: write
     overlay.mp4; batch: frames per stored batch; force: start again even if finished;
-    static_camera: take the camera as still even where it turned."""
+    static_camera: take the camera as still even where it turned; pipeline: decode and find the
+    keypoints of the next batch on a second thread (the same results)."""
 
     frames: FrameRange = field(default_factory=FrameRange)
     max_people: int = 1
@@ -67,6 +68,7 @@ class VideoOptions:
     batch: int = 30
     force: bool = False
     static_camera: bool = False
+    pipeline: bool = True
 
     def per_frame_json(self) -> dict:
         """What changes the per-frame pass."""
@@ -75,7 +77,7 @@ class VideoOptions:
     def to_json(self) -> dict:
         d = asdict(self)
         d["tightness"] = None if self.tightness is None else [float(t) for t in self.tightness]
-        return {k: v for k, v in d.items() if k not in ("batch", "force")}
+        return {k: v for k, v in d.items() if k not in ("batch", "force", "pipeline")}
 
 
 @dataclass
@@ -148,7 +150,8 @@ def video(path: str | Path, out: str | Path, options: VideoOptions | None = None
             else:
                 turn.hold()
     try:
-        dets, frames = PerFrame(rec, k, work, options.max_people, options.batch).run(src, on_batch)
+        dets, frames = PerFrame(rec, k, work, options.max_people, options.batch,
+                                       options.pipeline).run(src, on_batch)
     finally:
         bar.close()
     if resumed:

@@ -20,6 +20,9 @@ first one, ``recon.video.camera_motion``) is taken out: the motion lives in the 
 turned into that frame's camera for the reprojection and depth terms. Without rotations the
 reference frame is the camera's.
 
+A track longer than ``SmoothConfig.window`` frames is optimised window by window (overlapping by
+``overlap`` frames, blended linearly there), so a long clip's memory stays bounded.
+
 The ground is the plane through the planted feet (``ground_plane``, held near the mean direction
 of the torso, pelvis to neck); ``to_world`` gives the frame in which the motion is written: +Y up from the ground,
 feet on y = 0, Z towards the camera.
@@ -46,7 +49,7 @@ FOOT_POINTS = {  # per foot: ankle, foot joint, toe tip landmark (J+ indices)
 
 @dataclass
 class SmoothConfig:
-    steps: int = 120  # optimiser iterations over the whole track (0: the per-frame estimates, gaps interpolated)
+    steps: int = 400  # optimiser iterations over the whole track (0: the per-frame estimates, gaps interpolated)
     acceleration: float = 100.0  # of the root-relative J+
     # of the root-relative J+ along the line of sight (None: ``acceleration``): the depth is what the
     # frames fix least, while motion across the image is seen in 2D
@@ -60,6 +63,10 @@ class SmoothConfig:
     optimizer: str = "lbfgs"  # or "adam" (``pose_lr``, ``translation_lr``)
     planted_speed: float = 0.012  # a foot moving less than this (units of the box height a frame) in 2D ...
     planted_low: float = 0.06  # ... within this of the lowest foot point of the frame is planted
+    # a longer track is optimised in windows of this many frames, each overlapping the one before by
+    # ``overlap`` frames and blended there: memory stays bounded on long clips
+    window: int = 900
+    overlap: int = 90
 
 
 @dataclass
@@ -77,6 +84,12 @@ class TrackInput:
     image_shape: tuple[int, int]
     # (T, 3, 3) each frame's camera turn from the reference camera (x_t = R_t x_ref); None: static
     camera_rotations: np.ndarray | None = None
+
+    def frames(self, a: int, b: int) -> TrackInput:
+        """The track over its frames a..b-1."""
+        cut = lambda x: None if x is None else x[a:b]  # noqa: E731
+        return TrackInput(self.seen[a:b], self.points2d[a:b], self.points3d[a:b], self.boxes[a:b], self.rotmats[a:b],
+                          self.translation[a:b], self.shape, self.K, self.image_shape, cut(self.camera_rotations))
 
     def in_reference(self) -> tuple[np.ndarray, np.ndarray]:
         """The per-frame root rotations and pelvis positions turned into the reference frame."""
@@ -172,8 +185,54 @@ def to_world(ground: tuple[np.ndarray, float], origin: np.ndarray) -> tuple[np.n
 def smooth_track(body, inp: TrackInput, cfg: SmoothConfig | None = None) -> TrackMotion:
     """The track's motion (module doc) in the reference frame, and its ground plane."""
     cfg = cfg or SmoothConfig()
+    if cfg.overlap < 2 or cfg.window <= cfg.overlap:
+        raise ValueError("SmoothConfig needs overlap >= 2 and window > overlap")
     rot0, tr0 = fill_gaps(inp.seen, *inp.in_reference())
     contact = planted(inp, cfg)
+    t = len(rot0)
+    shape = torch.tensor(inp.shape, dtype=torch.float32)[None]
+    delta, tr = np.zeros((t, 24, 3), np.float32), np.zeros((t, 3), np.float32)
+    for a, b in windows(t, cfg.window, cfg.overlap):
+        d, x = _optimise(body, inp.frames(a, b), cfg, rot0[a:b], tr0[a:b], contact[a:b])
+        w = np.ones(b - a, np.float32)
+        if a > 0:  # the overlap with the window before: from its answer to this one's, linearly
+            n = min(cfg.overlap, b - a)
+            w[:n] = np.arange(1, n + 1) / (n + 1)
+        delta[a:b] = (1 - w[:, None, None]) * delta[a:b] + w[:, None, None] * d
+        tr[a:b] = (1 - w[:, None]) * tr[a:b] + w[:, None] * x
+    with torch.no_grad():
+        rest = tuple(x.expand(t, -1, -1) for x in linear_rest_geometry(body, shape, None, with_jacobian=False)[0])
+        r = torch.tensor(rot0, dtype=torch.float32) @ roma.rotvec_to_rotmat(torch.tensor(delta))
+        out = body(r, transl=torch.tensor(tr), points_only=True, rest=rest)
+    pts = out.points.numpy().astype(np.float64)
+    rot = r.numpy().astype(np.float64)
+    neck = skeleton.JOINT_NAMES.index("neck")
+    torso = pts[:, neck] - pts[:, 0]
+    up = (torso / np.linalg.norm(torso, axis=1, keepdims=True)).mean(0)  # people hold the torso upright
+    feet = np.concatenate([pts[contact[:, s], FOOT_POINTS[side][1]] for s, side in enumerate(("left", "right"))])
+    sole = _sole_height(body, shape)
+    ground = ground_plane(feet, up, sole) if len(feet) else _lowest_plane(pts, up)
+    return TrackMotion(rot, tr.astype(np.float64), pts[:, :24], pts, contact, ground)
+
+
+def windows(frames: int, window: int, overlap: int) -> list[tuple[int, int]]:
+    """(first, stop) of the windows covering ``frames`` frames: one where they fit, else windows
+    of ``window`` frames, each starting ``overlap`` frames before the one before ends."""
+    if frames <= window:
+        return [(0, frames)]
+    out, a = [], 0
+    while True:
+        b = min(a + window, frames)
+        out.append((a, b))
+        if b == frames:
+            return out
+        a = b - overlap
+
+
+def _optimise(body, inp: TrackInput, cfg: SmoothConfig, rot0: np.ndarray, tr0: np.ndarray, contact: np.ndarray
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """One window's optimisation (module doc), started from the per-frame ``rot0``, ``tr0``: the
+    rotation offsets (T, 24, 3) from ``rot0`` (axis-angle) and the pelvis positions (T, 3)."""
     t = len(rot0)
     dtype = torch.float32
     k = torch.tensor(inp.K, dtype=dtype)
@@ -237,18 +296,7 @@ def smooth_track(body, inp: TrackInput, cfg: SmoothConfig | None = None) -> Trac
             opt.zero_grad()
             loss.backward()
             opt.step()
-    with torch.no_grad():
-        r = pose(delta)
-        out = body(r, transl=tr, points_only=True, rest=rest)
-    pts = out.points.numpy().astype(np.float64)
-    rot = r.numpy().astype(np.float64)
-    neck = skeleton.JOINT_NAMES.index("neck")
-    torso = pts[:, neck] - pts[:, 0]
-    up = (torso / np.linalg.norm(torso, axis=1, keepdims=True)).mean(0)  # people hold the torso upright
-    feet = np.concatenate([pts[contact[:, s], FOOT_POINTS[side][1]] for s, side in enumerate(("left", "right"))])
-    sole = _sole_height(body, shape)
-    ground = ground_plane(feet, up, sole) if len(feet) else _lowest_plane(pts, up)
-    return TrackMotion(rot, tr.detach().numpy().astype(np.float64), pts[:, :24], pts, contact, ground)
+    return delta.detach().numpy(), tr.detach().numpy()
 
 
 def _sole_height(body, shape: torch.Tensor) -> float:
