@@ -50,22 +50,22 @@ def main() -> None:
     frames = FrameRange(end=a.frames / 30.0)
     base = video_config(ReconstructorConfig(focal_factor=focal))
     rows = {
-        "`recon video --no-overlay`": (base, False, True),
-        "`recon video --no-overlay`, the per-frame stages one after the other (as 0.14)": (base, False, False),
-        "`recon video --no-overlay --smooth-steps 120` (0.14's iterations)": (base, False, True, 120),
-        "`recon video --no-overlay --keypoint-model full`": (replace(base, keypoint_model="full"), False, True),
-        "`recon video` (with overlay.mp4)": (base, True, True),
+        "`recon video --no-overlay`": (base, {"overlay": False}),
+        "`recon video --no-overlay`, the per-frame stages one after the other (as 0.14)":
+            (base, {"overlay": False, "pipeline": False}),
+        "`recon video --no-overlay --smooth-steps 120` (0.14's iterations)":
+            (base, {"overlay": False, "smooth": SmoothConfig(steps=120)}),
+        "`recon video --no-overlay --keypoint-model full`": (replace(base, keypoint_model="full"), {"overlay": False}),
+        "`recon video` (with overlay.mp4)": (base, {}),
     }
     results = {}
     with tempfile.TemporaryDirectory() as tmp:
         for _ in range(a.repeat):
-            for n, (label, (cfg, overlay, pipeline, *steps)) in enumerate(rows.items()):
+            for n, (label, (cfg, options)) in enumerate(rows.items()):
                 t0 = time.perf_counter()
                 rec = video_reconstructor(cfg, 1)
                 loading = time.perf_counter() - t0
-                smoothing = SmoothConfig(steps=steps[0]) if steps else SmoothConfig()
-                res = video(path, Path(tmp) / str(n), VideoOptions(frames=frames, overlay=overlay, pipeline=pipeline,
-                                                                   smooth=smoothing, force=True),
+                res = video(path, Path(tmp) / str(n), VideoOptions(frames=frames, force=True, **options),
                             reconstructor=rec, progress=False, log=lambda m: None)
                 count = len(res.frames.index)
                 row = {**{k: v / count * 1000 for k, v in res.seconds.items()}, "frames": count,

@@ -58,6 +58,7 @@ METHODS = ("per-frame", "video-raw", "video", "video-static", "video-heavy", "vi
 LABELS = {"per-frame": "per-frame `recon run`", "video-raw": "video mode, no smoothing", "video": "`recon video`",
           "video-static": "`recon video --static-camera`", "video-heavy": "`recon video --keypoint-model heavy`",
           "video-full": "`recon video --keypoint-model full`"}
+ON_REQUEST = ("video-heavy", "video-full")  # other landmark models: run only when named
 FEET = [skeleton.JOINT_NAMES.index(n) for n in ("left_foot", "right_foot")]
 PLANTED_HEIGHT, PLANTED_SPEED = 0.05, 0.02
 
@@ -281,9 +282,8 @@ def main() -> None:
     body = default_body()
     work = paths.cache_dir() / "eval-video-work"
     rows = {}
-    on_request = ("video-heavy", "video-full")
     methods = args.methods.split(",") if args.methods else [
-        m for m in METHODS if ("moving" in args.bench or m != "video-static") and m not in on_request]
+        m for m in METHODS if ("moving" in args.bench or m != "video-static") and m not in ON_REQUEST]
     for method in methods:
         sums = new_sums()
         seconds, frames = 0.0, 0
@@ -296,7 +296,7 @@ def main() -> None:
                 pred = predict_per_frame(path, truth, rec)
             else:
                 steps = 0 if method == "video-raw" else smooth.SmoothConfig.steps
-                model = method.removeprefix("video-") if method in ("video-heavy", "video-full") else None
+                model = method.removeprefix("video-") if method in ON_REQUEST else None
                 pred = predict_video(path, truth, smooth.SmoothConfig(steps=steps), work / (name + (model or "")),
                                      body, force=method != "video-static", static_camera=method == "video-static",
                                      keypoint_model=model)

@@ -5,10 +5,11 @@ per-image fit), stored batch by batch so that a killed run resumes.
 whose keypoint source is MediaPipe in video mode (one person) or ``MediaPipeSource`` with
 ``people()`` (several), and writes each finished batch atomically as ``<work>/batch-<first>.npz``;
 a batch already there is read back instead of computed. Two stages overlap (``pipeline``): a
-thread decodes the next batch and finds its keypoints (MediaPipe runs outside Python's lock)
-while the caller's thread lifts and places the people of the batch before it, so two cores
-share the work; the results are those of the stages run one after the other. ``Detections`` are all the people found,
-one row each, with what the tracker and the track optimisation need.
+thread decodes the next ``STEP`` frames and finds their keypoints (MediaPipe runs outside
+Python's lock) while the caller's thread lifts and places the people of the frames before, so
+two cores share the work; the results are those of the stages run one after the other.
+``Detections`` are all the people found, one row each, with what the tracker and the track
+optimisation need.
 """
 from __future__ import annotations
 

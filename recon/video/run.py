@@ -150,8 +150,8 @@ def video(path: str | Path, out: str | Path, options: VideoOptions | None = None
             else:
                 turn.hold()
     try:
-        dets, frames = PerFrame(rec, k, work, options.max_people, options.batch,
-                                       options.pipeline).run(src, on_batch)
+        per_frame = PerFrame(rec, k, work, options.max_people, options.batch, options.pipeline)
+        dets, frames = per_frame.run(src, on_batch)
     finally:
         bar.close()
     if resumed:

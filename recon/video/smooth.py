@@ -191,9 +191,10 @@ def smooth_track(body, inp: TrackInput, cfg: SmoothConfig | None = None) -> Trac
     contact = planted(inp, cfg)
     t = len(rot0)
     shape = torch.tensor(inp.shape, dtype=torch.float32)[None]
+    rest = linear_rest_geometry(body, shape, None, with_jacobian=False)[0]  # (1, ...): the track's one shape
     delta, tr = np.zeros((t, 24, 3), np.float32), np.zeros((t, 3), np.float32)
     for a, b in windows(t, cfg.window, cfg.overlap):
-        d, x = _optimise(body, inp.frames(a, b), cfg, rot0[a:b], tr0[a:b], contact[a:b])
+        d, x = _optimise(body, inp.frames(a, b), cfg, rot0[a:b], tr0[a:b], contact[a:b], rest)
         w = np.ones(b - a, np.float32)
         if a > 0:  # the overlap with the window before: from its answer to this one's, linearly
             n = min(cfg.overlap, b - a)
@@ -201,9 +202,8 @@ def smooth_track(body, inp: TrackInput, cfg: SmoothConfig | None = None) -> Trac
         delta[a:b] = (1 - w[:, None, None]) * delta[a:b] + w[:, None, None] * d
         tr[a:b] = (1 - w[:, None]) * tr[a:b] + w[:, None] * x
     with torch.no_grad():
-        rest = tuple(x.expand(t, -1, -1) for x in linear_rest_geometry(body, shape, None, with_jacobian=False)[0])
         r = torch.tensor(rot0, dtype=torch.float32) @ roma.rotvec_to_rotmat(torch.tensor(delta))
-        out = body(r, transl=torch.tensor(tr), points_only=True, rest=rest)
+        out = body(r, transl=torch.tensor(tr), points_only=True, rest=tuple(x.expand(t, -1, -1) for x in rest))
     pts = out.points.numpy().astype(np.float64)
     rot = r.numpy().astype(np.float64)
     neck = skeleton.JOINT_NAMES.index("neck")
@@ -229,15 +229,15 @@ def windows(frames: int, window: int, overlap: int) -> list[tuple[int, int]]:
         a = b - overlap
 
 
-def _optimise(body, inp: TrackInput, cfg: SmoothConfig, rot0: np.ndarray, tr0: np.ndarray, contact: np.ndarray
-              ) -> tuple[np.ndarray, np.ndarray]:
-    """One window's optimisation (module doc), started from the per-frame ``rot0``, ``tr0``: the
-    rotation offsets (T, 24, 3) from ``rot0`` (axis-angle) and the pelvis positions (T, 3)."""
+def _optimise(body, inp: TrackInput, cfg: SmoothConfig, rot0: np.ndarray, tr0: np.ndarray, contact: np.ndarray,
+              rest: tuple[torch.Tensor, torch.Tensor]) -> tuple[np.ndarray, np.ndarray]:
+    """One window's optimisation (module doc), started from the per-frame ``rot0``, ``tr0``, with
+    the body's ``rest`` geometry (1, ...): the rotation offsets (T, 24, 3) from ``rot0``
+    (axis-angle) and the pelvis positions (T, 3)."""
     t = len(rot0)
     dtype = torch.float32
     k = torch.tensor(inp.K, dtype=dtype)
-    shape = torch.tensor(inp.shape, dtype=dtype)[None]
-    rest = tuple(x.expand(t, -1, -1) for x in linear_rest_geometry(body, shape, None, with_jacobian=False)[0])
+    rest = tuple(x.expand(t, -1, -1) for x in rest)
     r0 = torch.tensor(rot0, dtype=dtype)
     uv = torch.tensor(inp.points2d, dtype=dtype)
     p3 = torch.tensor(inp.points3d, dtype=dtype)
