@@ -1,9 +1,9 @@
 """PBNS inference speed, side by side in one run for every trained outfit: the shipped inference
 (``PBNS.pose``: vertex-major in chunks of vertices for batches >= 12, else batch-major) against
 three earlier forms: the batch-major forward (the einsum path), the blend-weight softmax
-recomputed every call, and the broadcast-and-sum skinning; then the collision resolution the
-Dresser applies (recon.garment.collide), and its body normals (a sparse incidence matmul)
-against the index_add of recon.garment.mesh.vertex_normals.
+recomputed every call, and the broadcast-and-sum skinning; then the Dresser's post-step
+(recon.garment.collide: collision resolution alone, and with the strain step first), and its body
+normals (a sparse incidence matmul) against the index_add of recon.garment.mesh.vertex_normals.
 
     .venv/bin/python benchmarks/bench_garment.py [--threads 1] [--batch 1 64 256] [--device cuda]
 
@@ -95,9 +95,11 @@ def main() -> None:
         assert np.allclose(CollisionResolver.normals(bv0, bf, inc), same, atol=1e-4)
         ms = compare({"pbns": lambda: model.pose(rot, out.transforms),  # noqa: B023
                       "pbns + resolution": lambda: res(model.pose(rot, out.transforms), bv, bf),  # noqa: B023
+                      "pbns + post-step": lambda: res(model.pose(rot, out.transforms), bv, bf,  # noqa: B023
+                                                      rest=model.rest),  # noqa: B023
                       "normals, incidence": lambda: CollisionResolver.normals(bv0, bf, inc),  # noqa: B023
                       "normals, index_add": lambda: vertex_normals(bv, body.faces)}, rounds=args.rounds)  # noqa: B023
-        resolution.append([name, ms["pbns"], ms["pbns + resolution"], ms["normals, incidence"],
+        resolution.append([name, ms["pbns"], ms["pbns + resolution"], ms["pbns + post-step"], ms["normals, incidence"],
                            ms["normals, index_add"], ms["normals, index_add"] / ms["normals, incidence"]])
     data = {"machine": report.machine(), "device": str(dev), "speed": speed, "resolution": resolution}
     where = report.describe(data["machine"])
@@ -114,8 +116,9 @@ def main() -> None:
                      ["", "", "", ".0f", ".0f", ".2f", ".0f", ".2f", ".0f", ".2f"]),
         "", "## Collision resolution (batch 1)", "",
         report.table(resolution, ["outfit", "PBNS ms/frame", "+ collision resolution ms/frame",
+                                  "+ strain step and collision resolution (post-step) ms/frame",
                                   "body normals: incidence ms", "index_add ms", "ratio"],
-                     ["", ".2f", ".1f", ".2f", ".2f", ".2f"])])
+                     ["", ".2f", ".1f", ".1f", ".2f", ".2f", ".2f"])])
     stem = f"bench-garment-{args.threads}t" if dev.type == "cpu" else f"bench-garment-{dev.type}"
     print(Path(report.write(OUT / stem, data, md)).read_text())
 

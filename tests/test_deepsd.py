@@ -172,5 +172,6 @@ def test_an_untrained_garment_mesh_is_dressed_by_deepsd_into_a_valid_glb(body, t
     glb = write_glb(tmp_path / "a.glb", body, body.mean_shape, rot, transl, 30.0, dresser)
     assert_valid(glb)
     posed = pose_meshes(glb, 2)
-    cloth = dresser(body, rot[2:3], body.mean_shape, transl[2:3]).vertices[0]
-    assert np.abs(posed["outfit"] - cloth).mean() < 2e-3  # W as skin weights, D as morph targets
+    # the network's cloth (the post-step is no blend shape): W as skin weights, D as morph targets
+    cloth = Dresser(mesh, resolve_collisions=False)(body, rot[2:3], body.mean_shape, transl[2:3]).vertices[0]
+    assert np.abs(posed["outfit"] - cloth).mean() < 2e-4

@@ -73,6 +73,20 @@ def test_pbns_identity_and_gradients():
     assert m.D.grad is not None and m.weight_logits.grad is not None
 
 
+def test_apply_blend_is_the_per_vertex_affine_map_and_differentiable():
+    """x -> R x + t per vertex (the convention: t (B, N, 3, 4) = [R | t]), for one rest outfit or
+    one per frame; float64 gradients by finite differences."""
+    g = torch.Generator().manual_seed(0)
+    t = torch.randn(2, 5, 3, 4, generator=g, dtype=torch.float64)
+    x = torch.randn(5, 3, generator=g, dtype=torch.float64)
+    want = (t[..., :3] @ x[None, :, :, None])[..., 0] + t[..., 3]
+    assert torch.allclose(P.BlendShapeGarment.apply_blend(x, t), want)
+    xb = torch.randn(2, 5, 3, generator=g, dtype=torch.float64)
+    assert torch.allclose(P.BlendShapeGarment.apply_blend(xb, t), (t[..., :3] @ xb[..., None])[..., 0] + t[..., 3])
+    assert torch.allclose(P.rotate(t, xb), (t[..., :3] @ xb[..., None])[..., 0])
+    assert torch.autograd.gradcheck(P.BlendShapeGarment.apply_blend, (xb.requires_grad_(), t.requires_grad_()))
+
+
 def test_pbns_weight_cache_follows_changes():
     v, f = _grid(4)
     w = torch.full((len(v), 24), 1 / 24)
@@ -216,12 +230,29 @@ def test_animated_glb_reproduces_body_and_cloth(body, tmp_path):
     with torch.no_grad():
         ref = body(rot[frame:frame + 1], body.mean_shape[None], transl=transl[frame:frame + 1]).vertices[0].numpy()
     assert np.abs(posed["body"] - ref).max() < 1e-4  # every influence: anny's skinning exactly
-    cloth = dresser(body, rot[frame:frame + 1], body.mean_shape, transl[frame:frame + 1]).vertices[0]
-    assert np.abs(posed["outfit"] - cloth).mean() < 2e-3
+    # a motion's cloth is the network's (the Dresser's post-step is no blend shape)
+    raw = Dresser(path=path, resolve_collisions=False)
+    cloth = raw(body, rot[frame:frame + 1], body.mean_shape, transl[frame:frame + 1]).vertices[0]
+    assert np.abs(posed["outfit"] - cloth).mean() < 2e-4
     still = pose_meshes(glb)  # the nodes' own values hold the first frame
     with torch.no_grad():
         first = body(rot[:1], body.mean_shape[None], transl=transl[:1]).vertices[0].numpy()
     assert np.abs(still["body"] - first).max() < 1e-4
+
+
+def test_a_photos_glb_holds_the_dressers_post_step(body, tmp_path):
+    """One frame (a photo): the Dresser's post-step is one more morph target at weight 1, so the
+    file's cloth is the Dresser's, not the network's."""
+    dresser = Dresser("top-shorts")
+    rot = pose_set("test", 500, 0.5, seed=123)[3:4]
+    transl = torch.tensor([[0.1, 0.9, -0.2]])
+    glb = write_glb(tmp_path / "p.glb", body, dresser.shape, rot, transl, 30.0, dresser)
+    assert_valid(glb)
+    posed = pose_meshes(glb)["outfit"]
+    want = dresser(body, rot, dresser.shape, transl).vertices[0]
+    raw = Dresser("top-shorts", resolve_collisions=False)(body, rot, dresser.shape, transl).vertices[0]
+    assert np.abs(raw - want).mean() > 1e-3  # the post-step moved the cloth
+    assert np.abs(posed - want).mean() < 1e-4
 
 
 def test_user_obj_garment(body, outfits, tmp_path):

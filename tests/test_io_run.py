@@ -312,9 +312,9 @@ def test_run_writes_rigged_glb_files(tmp_path, reconstructor):
     np.testing.assert_allclose(posed["body"], camera.to_view(np.asarray(obj.vertices)), atol=1e-4)
     dressed = pose_meshes(folder / "dressed.glb")
     cloth = camera.to_view(np.asarray(trimesh.load(folder / "outfit.obj", process=False).vertices))
-    # outfit.obj has the collision pass on top of skinning + blend shapes
+    # the Dresser's post-step is one more morph target: the file's cloth is outfit.obj's
     assert np.median(np.linalg.norm(dressed["outfit"] - cloth, axis=1)) < 1e-4
-    assert np.linalg.norm(dressed["outfit"] - cloth, axis=1).mean() < 3e-3
+    assert np.linalg.norm(dressed["outfit"] - cloth, axis=1).mean() < 3e-4
     doc, _ = read_glb(folder / "body.glb")
     js = json.loads((folder / "result.json").read_text())
     h, f = js["image_size"][0], js["camera"]["K"][1][1]

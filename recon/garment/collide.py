@@ -5,16 +5,23 @@ hips in deep flexion (eval/results/garment-pbns.md), where skin pokes through th
 render. ``CollisionResolver`` moves every such vertex to ``eps`` outside, along the normal of its nearest
 body vertex (the test of the collision metric and loss), and spreads the move over the
 neighbouring cloth (a harmonic extension over ``spread`` rings) so it leaves no spikes; then outer
-layers are pushed out of the inner ones by the layer order. Not part of the network: the
-evaluation reports PBNS with and without it, and its cost (a KD-tree on the body per frame).
+layers are pushed out of the inner ones by the layer order. Given the rest garment, a strain step
+comes first: ``strain_iters`` iterations of projective dynamics (each edge's target is its rest
+length along its current direction; a global solve with a pre-factored matrix, anchored to the
+prediction by ``strain_anchor``; ``strain_smooth`` > 0 also penalises a rough move, at the cost of
+a denser factor),
+each followed by the contact planes of the vertices near the body. Not part of the networks: the
+evaluations report them with and without it, and its cost.
 """
 from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
 import torch
+from scipy.sparse.linalg import splu
 from scipy.spatial import cKDTree
 
+from recon.garment import mesh
 from recon.garment.mesh import neighbour_mean
 
 
@@ -22,7 +29,8 @@ class CollisionResolver:
     """``CollisionResolver(faces, layer)(cloth, body_v, body_faces) -> cloth`` (B, N, 3), metres."""
 
     def __init__(self, faces: np.ndarray, layer: np.ndarray | None = None, eps: float = 0.002,
-                 spread: int = 2, passes: int = 3, cloth_reach: float = 0.02):
+                 spread: int = 2, passes: int = 3, cloth_reach: float = 0.02, strain_iters: int = 10,
+                 strain_anchor: float = 0.01, strain_smooth: float = 0.0, contact_reach: float = 0.02):
         self.faces = np.asarray(faces)
         self.n = int(self.faces.max()) + 1
         layer = np.zeros(self.n, np.int64) if layer is None else np.asarray(layer).astype(np.int64)
@@ -30,6 +38,10 @@ class CollisionResolver:
         self.pairs = [(np.nonzero(layer < lay)[0], np.nonzero(layer == lay)[0])
                       for lay in sorted(set(layer.tolist()))[1:]]
         self.eps, self.spread, self.passes, self.cloth_reach = eps, spread, passes, cloth_reach
+        self.strain_iters, self.strain_anchor, self.strain_smooth = strain_iters, strain_anchor, strain_smooth
+        self.contact_reach = contact_reach
+        self.edges = mesh.unique_edges(self.faces)
+        self._strain = None  # (edge difference operator G, G^T, smoothing term, factor), made on first use
         self.avg = neighbour_mean(self.faces, self.n).astype(np.float32)
         self.cloth_inc = self.incidence(self.faces, self.n)
         self._body_faces, self._body_inc = None, None
@@ -71,16 +83,60 @@ class CollisionResolver:
         n = inc @ np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])  # area-weighted
         return n / np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-12)
 
+    def _strain_system(self):
+        """G (E, N) takes positions to edge vectors; the strain step solves
+        (G^T G + anchor I + smooth S) x = G^T p + anchor y + smooth S y, S = (I - A)^T (I - A) with A
+        the neighbour mean: a move that is smooth and stays near the prediction y."""
+        if self._strain is None:
+            e, m = self.edges, len(self.edges)
+            rows, cols = np.r_[np.arange(m), np.arange(m)], np.r_[e[:, 0], e[:, 1]]
+            g = sp.csr_matrix((np.r_[-np.ones(m), np.ones(m)], (rows, cols)), shape=(m, self.n))
+            lap = sp.identity(self.n) - self.avg.astype(np.float64)
+            smooth = (lap.T @ lap).tocsr()
+            a = g.T @ g + self.strain_anchor * sp.identity(self.n) + self.strain_smooth * smooth
+            # a symmetric ordering: less fill, faster solves than the default column ordering
+            lu = splu(a.tocsc(), permc_spec="MMD_AT_PLUS_A", options={"SymmetricMode": True})
+            self._strain = (g, g.T.tocsr(), smooth, lu)
+        return self._strain
+
+    def relax(self, v: np.ndarray, rest_len: np.ndarray, tree, surf: np.ndarray, surf_n: np.ndarray) -> np.ndarray:
+        """The strain step on one frame ``v`` (N, 3): ``strain_iters`` projective-dynamics
+        iterations towards the rest lengths (E,), each followed by the contact planes (eps in front
+        of the nearest body vertex, found once) of the vertices within ``contact_reach`` of the body."""
+        g, gt, smooth, lu = self._strain_system()
+        y = v.astype(np.float64)
+        dist, idx = tree.query(v)
+        near = np.nonzero(dist < self.contact_reach)[0]
+        p, nrm = surf[idx[near]].astype(np.float64), surf_n[idx[near]].astype(np.float64)
+        fixed = self.strain_anchor * y + self.strain_smooth * (smooth @ y)
+        x = y
+        for _ in range(self.strain_iters):
+            d = g @ x
+            target = rest_len[:, None] * d / np.maximum(np.linalg.norm(d, axis=-1, keepdims=True), 1e-12)
+            x = lu.solve(gt @ target + fixed)
+            depth = ((x[near] - p) * nrm).sum(-1)
+            x[near] += np.maximum(self.eps - depth, 0.0)[:, None] * nrm
+        return x.astype(np.float32)
+
     @torch.no_grad()
-    def __call__(self, cloth, body_v, body_faces) -> torch.Tensor:
+    def __call__(self, cloth, body_v, body_faces, rest=None) -> torch.Tensor:
+        """``rest``: the rest garment (N, 3) or one per sample (B, N, 3), whose edge lengths the
+        strain step restores (no strain step without it, or with ``strain_iters`` 0)."""
         out = torch.as_tensor(cloth, dtype=torch.float32).detach().cpu().numpy().copy()
         bv = torch.as_tensor(body_v, dtype=torch.float32).detach().cpu().numpy()
         bf = np.asarray(body_faces)
         if self._body_faces is None or not np.array_equal(self._body_faces, bf):  # the body mesh rarely changes
             self._body_faces, self._body_inc = bf.copy(), self.incidence(bf, bv.shape[1])
+        rest_len = None
+        if rest is not None and self.strain_iters:
+            r = torch.as_tensor(rest, dtype=torch.float32).detach().cpu().numpy()
+            r = np.broadcast_to(r, out.shape)
+            rest_len = np.linalg.norm(r[:, self.edges[:, 0]] - r[:, self.edges[:, 1]], axis=-1).astype(np.float64)
         for b in range(len(out)):
             bn = self.normals(bv[b], bf, self._body_inc)
             tree = cKDTree(bv[b], balanced_tree=False, compact_nodes=False)  # builds faster, queries alike
+            if rest_len is not None:
+                out[b] = self.relax(out[b], rest_len[b], tree, bv[b], bn)
             # only moved vertices can change side, so later passes query those alone; a spread
             # move can push a neighbour into another body part (between the thighs)
             query = np.arange(self.n)

@@ -62,8 +62,9 @@ class Dresser:
 
     def __init__(self, outfit: str = "tshirt-trousers", path: str | Path | None = None, resizer: bool = True,
                  resolve_collisions: bool = True, dynamics: bool | None = None, garment_model: str = "pbns"):
-        """``resolve_collisions``: push cloth that PBNS leaves inside the body out of it
-        (recon.garment.collide; its cost: eval/results/bench-garment-1t.md).
+        """``resolve_collisions``: the post-step of recon.garment.collide: restore the edge lengths
+        and push cloth the network leaves inside the body out of it (its cost:
+        eval/results/bench-garment-1t.md).
         ``dynamics``: motions through the outfit's NCS (None: when it has one; True: it must).
         ``garment_model``: "pbns" (PBNS, NCS for motions as ``dynamics`` says), "taylor" (the
         example-based model; its database: ``recon garment train --model taylor``) or "deepsd" (any
@@ -167,7 +168,7 @@ class Dresser:
         rest = torch.stack([self.rest_for(body, s, tightness=tightness) for s in shape])
         verts = self.model.pose(r, out.transforms, rest)
         if self.resolver is not None:
-            verts = self.resolver(verts, out.vertices, body.faces)
+            verts = self.resolver(verts, out.vertices, body.faces, rest=rest)
         return DressedOutfit(verts.numpy(), self.model.faces.numpy(), self.garment_id, self.names)
 
     @property
@@ -206,7 +207,7 @@ class Dresser:
             _, codes = self.sequence_codes(body, rotmats, shape, transl, fps)
             verts = self.ncs.pose_codes(codes, out.transforms, rest)
         if self.resolver is not None:
-            verts = self.resolver(verts, out.vertices, body.faces)
+            verts = self.resolver(verts, out.vertices, body.faces, rest=rest)
         model = self.ncs or self.model
         return DressedOutfit(verts.numpy(), model.faces.numpy(), self.garment_id, self.names)
 

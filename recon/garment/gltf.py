@@ -83,6 +83,22 @@ def _quat_xyzw(r: torch.Tensor) -> np.ndarray:
     return roma.rotmat_to_unitquat(r).numpy().astype(np.float32)  # roma: (x, y, z, w) like glTF
 
 
+def post_step_target(body, shape: torch.Tensor, rotmats: torch.Tensor, transl: torch.Tensor, dresser,
+                     rest: np.ndarray, targets: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """The Dresser's post-step (recon.garment.collide) on one posed frame as a rest-pose morph
+    target (N, 3): its move taken back through each vertex's blended skinning matrix, so that
+    skinning the outfit with it at weight 1 gives what the Dresser returns."""
+    model = dresser.model
+    with torch.no_grad():
+        out = body(rotmats[:1], shape.reshape(1, -1).to(body.mean_shape), transl=transl[:1])
+        x = torch.from_numpy(rest + np.einsum("k,knc->nc", weights[0], targets)).float()
+        blend = model.blend(out.transforms)
+        net = model.apply_blend(x, blend)
+        post = dresser.resolver(net, out.vertices, body.faces, rest=torch.from_numpy(rest).float())
+        move = torch.linalg.solve(blend[0, :, :, :3].double(), (post - net)[0].double()[..., None])[..., 0]
+    return move.float().numpy()
+
+
 def write_glb(path: str | Path, body, shape: torch.Tensor, rotmats: torch.Tensor, transl: torch.Tensor,
               fps: float = 30.0, dresser=None, tightness=None, camera: tuple[np.ndarray, tuple[int, int]] | None = None,
               animation_name: str = "motion", garment: BlendAnimation | None = None) -> Path:
@@ -99,7 +115,9 @@ def write_glb(path: str | Path, body, shape: torch.Tensor, rotmats: torch.Tensor
         camera: (K, (height, width)): a perspective camera at the origin looking down -Z with the
             vertical field of view of K (glTF has no principal point: it is taken as centred).
         garment: an outfit already animated as skinning plus morph targets (instead of ``dresser``).
-    With T = 1 the file holds the pose and no animation."""
+    With T = 1 the file holds the pose and no animation, and the Dresser's post-step (when it has
+    one) is one more morph target at weight 1: the file's cloth is the Dresser's. A motion's cloth
+    is the network's (the post-step differs from frame to frame: no blend shape)."""
     shape = shape.reshape(1, -1)
     rotmats, transl = rotmats.detach().float().cpu(), transl.detach().float().cpu().reshape(-1, 3)
     if rotmats.ndim != 4 or rotmats.shape[1:] != (24, 3, 3) or len(transl) != len(rotmats):
@@ -165,6 +183,9 @@ def write_glb(path: str | Path, body, shape: torch.Tensor, rotmats: torch.Tensor
                 d, morph = model.D.detach(), model.mlp(pose_features(rotmats))
         d = d.numpy().reshape(len(d), -1, 3)
         morph = morph.numpy().astype(np.float32)  # (T, |X|)
+        if t == 1 and dresser.resolver is not None:  # a photo: the post-step as one more target, weight 1
+            d = np.concatenate([d, post_step_target(body, shape, rotmats, transl, dresser, rest_c, d, morph)[None]])
+            morph = np.concatenate([morph, np.ones((1, 1), np.float32)], 1)
         mesh_nodes.append(skinned_mesh("outfit", rest_c, model.faces.numpy(), model.weights.detach().numpy(),
                                        OUTFIT_RGBA, targets=d, morph0=morph[0]))
     scene_nodes = [0] + mesh_nodes

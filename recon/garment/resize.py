@@ -92,10 +92,13 @@ class Transfer:
         t[..., cols] = (t[..., cols] + tightness).clamp(0, 1)
         return t
 
-    def resize(self, shape: torch.Tensor) -> np.ndarray:
-        """(B, S) target shapes -> (B, N, 3) resized rest vertices."""
-        with torch.no_grad():
-            v1 = self.body.rest_geometry(shape.to(self.body.mean_shape))[0].numpy()
+    def resize(self, shape: torch.Tensor, body_rest: np.ndarray | None = None) -> np.ndarray:
+        """(B, S) target shapes -> (B, N, 3) resized rest vertices. ``body_rest`` (B, V, 3): the
+        bodies' rest vertices when the caller has them already."""
+        if body_rest is None:
+            with torch.no_grad():
+                body_rest = self.body.rest_geometry(shape.to(self.body.mean_shape))[0].numpy()
+        v1 = body_rest
         d = [v[self.idx] - self.v0[self.idx] for v in v1]
         smooth = [smooth_vertex_values(x, self.faces, self.smooth, self.avg) for x in d]
         return np.stack([self.rest + x for x in smooth]).astype(np.float32)

@@ -81,6 +81,7 @@ class Sample:
         self.body_v, self.body_n, self.transforms = posed_bodies(body, self.rotmats, body.mean_shape[None])
         self.drapes = rec["drapes"]
         self.family, self.split = rec["family"], rec["split"]
+        self.layer = rec["layer"].numpy() if "layer" in rec else None  # (N,) garment layer; None: one layer
         self._phys = None
 
     def physics_terms(self) -> tuple[losses.EdgeLoss, losses.BendLoss]:

@@ -36,6 +36,7 @@ from recon import paths, report
 from recon.body import default_body
 from recon.errors import MissingFile, ReconError
 from recon.garment import reference, store
+from recon.garment.collide import CollisionResolver
 from recon.garment.data import posed_bodies, trained_outfit
 from recon.garment.mesh import boundary_loops, faces_within
 from recon.garment.metrics import physical_metrics
@@ -110,9 +111,10 @@ def run_models(pbns: PBNS, ncs: NCS | None, body, shape: torch.Tensor, rot: torc
 
 
 def clip_rows(body, pbns: PBNS, ncs: NCS | None, shape: torch.Tensor, clips: list[tuple], stride: int = STRIDE,
-              split: str = "test") -> dict:
+              split: str = "test", post: CollisionResolver | None = None) -> dict:
     """Physical metrics of the three models over the scored frames of ``clips`` [(name, start,
-    frames, hold)] of the ``split``."""
+    frames, hold)] of the ``split``; ``post``: also PBNS's and NCS's frames through that post-step
+    (the Dresser's, recon.garment.collide), as "<model> + post-step"."""
     poses = MocapPoses.load(split)
     models = MODELS if ncs is not None else MODELS[:2]
     posed: dict[str, list] = {m: [] for m in models}
@@ -128,7 +130,12 @@ def clip_rows(body, pbns: PBNS, ncs: NCS | None, shape: torch.Tensor, clips: lis
     bv, bn, _ = posed_bodies(body, torch.cat(rots), shape, transl=torch.cat(trs))
     self_pct = SkinSelfIntersection(body, shape).percent(bv)
     faces = pbns.faces.numpy()
-    return {m: physical_metrics(torch.cat(posed[m]), faces, pbns.rest, bv, bn, self_pct) for m in models}
+    cloth = {m: torch.cat(posed[m]) for m in models}
+    if post is not None:
+        for m in models[1:]:
+            cloth[f"{m} + post-step"] = torch.cat([post(cloth[m][i:i + 64], bv[i:i + 64], body.faces, rest=pbns.rest)
+                                                   for i in range(0, len(bv), 64)])
+    return {m: physical_metrics(v, faces, pbns.rest, bv, bn, self_pct) for m, v in cloth.items()}
 
 
 def split_clips(split: str = "test") -> list[tuple]:
@@ -248,7 +255,9 @@ def speed(pbns: PBNS, ncs: NCS, body, shape: torch.Tensor) -> dict:
                         "fps_batch64": fps(lambda: ncs.animate(static, dynamic, pose, transforms), 64)}}
 
 
-def _load(outfit: str, ncs_weights: Path | None = None) -> tuple[PBNS, NCS, dict, torch.Tensor]:
+def load_models(outfit: str, ncs_weights: Path | None = None) -> tuple[PBNS, NCS, dict, torch.Tensor]:
+    """An outfit's shipped PBNS, its NCS (``ncs_weights``: another file), NCS's checkpoint and the
+    outfit's body shape (1, S)."""
     path = Path(ncs_weights or store.ncs_path(outfit))
     if not path.exists():
         raise MissingFile(f"{path} not found: train it with `recon garment train --model ncs --outfit {outfit}`")
@@ -268,11 +277,21 @@ def ncs_check(outfits: list[str]) -> dict:
     return out
 
 
+def post_step_check(outfit: str) -> dict:
+    """The check slice of garment-post-step-clips.json (eval/post_step_clips.py): PBNS and NCS
+    without and with the Dresser's post-step on CHECK_CLIP."""
+    body = default_body()
+    pbns, ncs, _, shape = load_models(outfit)
+    post = CollisionResolver(pbns.faces.numpy(), PBNS.load(store.pbns_path(outfit))[1]["layer"].numpy())
+    rows = clip_rows(body, pbns, ncs, shape, [CHECK_CLIP], post=post)
+    return {m: {k: r[k] for k in ("collision_pct", "edge_mm")} for m, r in rows.items()}
+
+
 def evaluate(body, outfit: str, dynamic: bool = True, ncs_weights: Path | None = None, log=None,
              clips: tuple[DynamicClip, ...] = DYNAMIC_CLIPS) -> dict:
     """Every row of the table for one outfit; ``dynamic``: against the simulations of ``clips``.
     Collisions and strain over every clip of the split ``clips`` come from (val clips: the val split)."""
-    pbns, ncs, nck, shape = _load(outfit, ncs_weights)
+    pbns, ncs, nck, shape = load_models(outfit, ncs_weights)
     meta = json.loads(nck["meta_json"])
     split = clips[0].split
     rows = clip_rows(body, pbns, ncs, shape, split_clips(split), split=split)

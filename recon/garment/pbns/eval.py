@@ -52,7 +52,11 @@ TEST_POSE_DISTANCE = 0.5
 VALID_POOL = (2000, 0.3)
 VALID_MAX_SELF = 1.0
 MODELS = ("skinning only (dT = 0)", "PBNS", "PBNS + collision resolution")
+POST_STEP = "PBNS + strain step + collision resolution"  # the Dresser's default post-step (garment-pbns only)
 CHECK_POSES, CHECK_CONDITIONS = 8, 16  # the slices tests/test_results.py recomputes
+# after the post-step a vertex at the body's surface may count in or out on another CPU (one is
+# ~0.0014 % of the check's cloth): garment-pbns' collision % are checked to 0.005
+CHECK_TOLERANCE = {"rtol": 1e-3, "atol": 0.005}
 THESIS = "Thesis PBNS (Table 5.1/5.2): collision 0.45 %, edge 0.66 mm, CPU 213 FPS (b=1) / 1,235 (batched)."
 
 
@@ -95,12 +99,14 @@ def valid_test_poses(body, shape: torch.Tensor) -> tuple[torch.Tensor, tuple]:
 
 @torch.no_grad()
 def posed_outfits(model: PBNS, res: CollisionResolver, rot, bt, bv, body_faces) -> dict:
-    """The rows of the tables for every pose: the skinned template (dT = 0), PBNS, and PBNS
-    followed by the collision resolution the Dresser applies by default (not part of the network)."""
+    """The rows of the tables for every pose: the skinned template (dT = 0), PBNS, PBNS followed
+    by collision resolution, and by the Dresser's default post-step (the strain step, then collision
+    resolution; recon.garment.collide): not part of the network."""
     chunks = range(0, len(rot), 64)
     pv = torch.cat([model.pose(rot[i:i + 64], bt[i:i + 64]) for i in chunks])
-    return dict(zip(MODELS, (torch.cat([model.skin(model.rest, bt[i:i + 64]) for i in chunks]), pv,
-                             res(pv, bv, body_faces)), strict=True))
+    return dict(zip(MODELS + (POST_STEP,), (torch.cat([model.skin(model.rest, bt[i:i + 64]) for i in chunks]), pv,
+                                            res(pv, bv, body_faces), res(pv, bv, body_faces, rest=model.rest)),
+                    strict=True))
 
 
 def _load(outfit: str, weights: Path | None) -> tuple[PBNS, dict]:
@@ -160,6 +166,8 @@ def evaluate(body, outfit: str, n_poses: int = 500, weights: Path | None = None)
     rows["PBNS"] |= speed(model, body, t.rot, t.shape)
     rows["PBNS + collision resolution"]["fps_batch1"] = frames_per_second(
         lambda: res(model.pose(t.rot[:1], t.body_transforms[:1]), t.body_verts[:1], body.faces), 1)
+    rows[POST_STEP]["fps_batch1"] = frames_per_second(
+        lambda: res(model.pose(t.rot[:1], t.body_transforms[:1]), t.body_verts[:1], body.faces, rest=model.rest), 1)
     vrot, (vbv, vbn, vbt) = valid_test_poses(body, t.shape)
     valid = _TestPoses(model, t.checkpoint, res, vrot, t.shape, vbv, vbn, vbt, body_self=None)
     return {"outfit": meta.get("outfit", outfit), "vertices": int(model.rest.shape[0]),
@@ -178,7 +186,7 @@ def evaluate_and_report(body, outfits: list[str], n_poses: int = 500, out_dir: P
     data = {"outfits": results}
     if presets:
         data["check"] = {"function": "recon.garment.pbns.eval:pbns_check",
-                         "kwargs": {"outfits": names, "n_poses": CHECK_POSES},
+                         "kwargs": {"outfits": names, "n_poses": CHECK_POSES}, "tolerance": CHECK_TOLERANCE,
                          "values": pbns_check(names, CHECK_POSES)}
     return report.write(stem, data, render_pbns(data))
 

@@ -82,6 +82,13 @@ def vertex_major(x: torch.Tensor) -> bool:
     return x.device.type == "cpu" and x.shape[0] >= VERTEX_MAJOR_MIN_BATCH
 
 
+def rotate(t: torch.Tensor, x: torch.Tensor, add: torch.Tensor | None = None) -> torch.Tensor:
+    """``t[..., :3, :3] @ x`` per vertex (+ ``add``) for matrices t (..., 3, >= 3) and vectors x
+    (..., 3), as fused multiply-adds of t's columns (in place on a new tensor: differentiable)."""
+    o = t[..., 0] * x[..., 0:1] if add is None else torch.addcmul(add, t[..., 0], x[..., 0:1])
+    return o.addcmul_(t[..., 1], x[..., 1:2]).addcmul_(t[..., 2], x[..., 2:3])
+
+
 class BlendShapeGarment(nn.Module):
     """What PBNS and NCS share: a rest outfit, a blend-shape matrix D (code -> rest-pose
     displacement, so an export stays morph targets), learned blend weights and skinning.
@@ -123,12 +130,13 @@ class BlendShapeGarment(nn.Module):
 
     @staticmethod
     def apply_blend(x: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
-        """Rest-pose points x ((N, 3) or (B, N, 3)) through blended transforms t (B, N, 3, 4). The
-        3x3 part with an einsum: broadcasting to (B, N, 3, 3) and summing is memory-bound
-        (benchmarks/bench_garment.py)."""
+        """Rest-pose points x ((N, 3) or (B, N, 3)) through blended transforms t (B, N, 3, 4): the
+        translation plus each column of the 3x3 part times a coordinate, three fused multiply-adds
+        (an einsum makes B x N tiny matmuls; broadcasting to (B, N, 3, 3) and summing is
+        memory-bound: benchmarks/bench_garment.py)."""
         if x.dim() == 2:
             x = x.expand(t.shape[0], -1, -1)
-        return torch.einsum("bnij,bnj->bni", t[..., :3], x) + t[..., 3]
+        return rotate(t, x, t[..., 3])
 
     def decode(self, x: torch.Tensor) -> torch.Tensor:
         """Codes (..., E) -> rest-pose displacements dT (..., N, 3)."""
