@@ -19,11 +19,8 @@ import torch
 
 from recon import report
 from recon.body import default_body
-from recon.garment import store
-from recon.garment.collide import CollisionResolver
 from recon.garment.metrics import SELF_INTERSECTION_BINS
-from recon.garment.ncs.eval import STRIDE, clip_rows, load_models, post_step_check, split_clips
-from recon.garment.pbns.model import PBNS
+from recon.garment.ncs.eval import STRIDE, clip_rows, load_models, post_step, post_step_check, split_clips
 from recon.garment.templates import PRESETS
 
 CHECK_OUTFIT = "top-shorts"
@@ -38,9 +35,7 @@ def evaluate(outfits: list[str], log=print) -> dict:
     for o in outfits:
         t0 = time.perf_counter()
         pbns, ncs, _, shape = load_models(o)
-        layer = PBNS.load(store.pbns_path(o))[1]["layer"].numpy()
-        post = CollisionResolver(pbns.faces.numpy(), layer)
-        out["outfits"][o] = clip_rows(body, pbns, ncs, shape, split_clips("test"), post=post)
+        out["outfits"][o] = clip_rows(body, pbns, ncs, shape, split_clips("test"), post=post_step(o, pbns))
         log(f"{o}: {time.perf_counter() - t0:.0f} s")
     return out
 

@@ -9,9 +9,8 @@ layers are pushed out of the inner ones by the layer order. Given the rest garme
 comes first: ``strain_iters`` iterations of projective dynamics (each edge's target is its rest
 length along its current direction; a global solve with a pre-factored matrix, anchored to the
 prediction by ``strain_anchor``; ``strain_smooth`` > 0 also penalises a rough move, at the cost of
-a denser factor),
-each followed by the contact planes of the vertices near the body. Not part of the networks: the
-evaluations report them with and without it, and its cost.
+a denser factor), each followed by the contact planes of the vertices near the body. Not part of
+the networks: the evaluations report them with and without it, and its cost.
 """
 from __future__ import annotations
 
@@ -22,7 +21,6 @@ from scipy.sparse.linalg import splu
 from scipy.spatial import cKDTree
 
 from recon.garment import mesh
-from recon.garment.mesh import neighbour_mean
 
 
 class CollisionResolver:
@@ -41,8 +39,8 @@ class CollisionResolver:
         self.strain_iters, self.strain_anchor, self.strain_smooth = strain_iters, strain_anchor, strain_smooth
         self.contact_reach = contact_reach
         self.edges = mesh.unique_edges(self.faces)
-        self._strain = None  # (edge difference operator G, G^T, smoothing term, factor), made on first use
-        self.avg = neighbour_mean(self.faces, self.n).astype(np.float32)
+        self._strain = None  # (edge difference operator G, G^T, the prediction's term K, factor), made on first use
+        self.avg = mesh.neighbour_mean(self.faces, self.n).astype(np.float32)
         self.cloth_inc = self.incidence(self.faces, self.n)
         self._body_faces, self._body_inc = None, None
 
@@ -85,30 +83,32 @@ class CollisionResolver:
 
     def _strain_system(self):
         """G (E, N) takes positions to edge vectors; the strain step solves
-        (G^T G + anchor I + smooth S) x = G^T p + anchor y + smooth S y, S = (I - A)^T (I - A) with A
-        the neighbour mean: a move that is smooth and stays near the prediction y."""
+        (G^T G + K) x = G^T p + K y with K = anchor I + smooth S, S = (I - A)^T (I - A) and A the
+        neighbour mean: a move that stays near the prediction y (and is smooth with ``strain_smooth``)."""
         if self._strain is None:
             e, m = self.edges, len(self.edges)
             rows, cols = np.r_[np.arange(m), np.arange(m)], np.r_[e[:, 0], e[:, 1]]
             g = sp.csr_matrix((np.r_[-np.ones(m), np.ones(m)], (rows, cols)), shape=(m, self.n))
-            lap = sp.identity(self.n) - self.avg.astype(np.float64)
-            smooth = (lap.T @ lap).tocsr()
-            a = g.T @ g + self.strain_anchor * sp.identity(self.n) + self.strain_smooth * smooth
+            keep = self.strain_anchor * sp.identity(self.n, format="csr")
+            if self.strain_smooth:  # a 2-ring stencil: a denser factor
+                lap = sp.identity(self.n) - self.avg.astype(np.float64)
+                keep = keep + self.strain_smooth * (lap.T @ lap)
+            keep = keep.tocsr()
             # a symmetric ordering: less fill, faster solves than the default column ordering
-            lu = splu(a.tocsc(), permc_spec="MMD_AT_PLUS_A", options={"SymmetricMode": True})
-            self._strain = (g, g.T.tocsr(), smooth, lu)
+            lu = splu((g.T @ g + keep).tocsc(), permc_spec="MMD_AT_PLUS_A", options={"SymmetricMode": True})
+            self._strain = (g, g.T.tocsr(), keep, lu)
         return self._strain
 
     def relax(self, v: np.ndarray, rest_len: np.ndarray, tree, surf: np.ndarray, surf_n: np.ndarray) -> np.ndarray:
         """The strain step on one frame ``v`` (N, 3): ``strain_iters`` projective-dynamics
         iterations towards the rest lengths (E,), each followed by the contact planes (eps in front
         of the nearest body vertex, found once) of the vertices within ``contact_reach`` of the body."""
-        g, gt, smooth, lu = self._strain_system()
+        g, gt, keep, lu = self._strain_system()
         y = v.astype(np.float64)
         dist, idx = tree.query(v)
         near = np.nonzero(dist < self.contact_reach)[0]
         p, nrm = surf[idx[near]].astype(np.float64), surf_n[idx[near]].astype(np.float64)
-        fixed = self.strain_anchor * y + self.strain_smooth * (smooth @ y)
+        fixed = keep @ y
         x = y
         for _ in range(self.strain_iters):
             d = g @ x
@@ -129,9 +129,9 @@ class CollisionResolver:
             self._body_faces, self._body_inc = bf.copy(), self.incidence(bf, bv.shape[1])
         rest_len = None
         if rest is not None and self.strain_iters:
-            r = torch.as_tensor(rest, dtype=torch.float32).detach().cpu().numpy()
-            r = np.broadcast_to(r, out.shape)
-            rest_len = np.linalg.norm(r[:, self.edges[:, 0]] - r[:, self.edges[:, 1]], axis=-1).astype(np.float64)
+            r = torch.as_tensor(rest, dtype=torch.float32).detach().cpu().numpy()  # (N, 3) or (B, N, 3)
+            lengths = np.linalg.norm(r[..., self.edges[:, 0], :] - r[..., self.edges[:, 1], :], axis=-1)
+            rest_len = np.broadcast_to(lengths.astype(np.float64), (len(out), len(self.edges)))
         for b in range(len(out)):
             bn = self.normals(bv[b], bf, self._body_inc)
             tree = cKDTree(bv[b], balanced_tree=False, compact_nodes=False)  # builds faster, queries alike

@@ -277,13 +277,17 @@ def ncs_check(outfits: list[str]) -> dict:
     return out
 
 
+def post_step(outfit: str, pbns: PBNS) -> CollisionResolver:
+    """The Dresser's post-step for an outfit's shipped PBNS (its garment layers)."""
+    return CollisionResolver(pbns.faces.numpy(), PBNS.load(store.pbns_path(outfit))[1]["layer"].numpy())
+
+
 def post_step_check(outfit: str) -> dict:
     """The check slice of garment-post-step-clips.json (eval/post_step_clips.py): PBNS and NCS
     without and with the Dresser's post-step on CHECK_CLIP."""
     body = default_body()
     pbns, ncs, _, shape = load_models(outfit)
-    post = CollisionResolver(pbns.faces.numpy(), PBNS.load(store.pbns_path(outfit))[1]["layer"].numpy())
-    rows = clip_rows(body, pbns, ncs, shape, [CHECK_CLIP], post=post)
+    rows = clip_rows(body, pbns, ncs, shape, [CHECK_CLIP], post=post_step(outfit, pbns))
     return {m: {k: r[k] for k in ("collision_pct", "edge_mm")} for m, r in rows.items()}
 
 
