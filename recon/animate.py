@@ -29,6 +29,7 @@ from recon.errors import MissingFile, ReconError
 from recon.garment.dress import DressedOutfit, Dresser
 from recon.garment.gltf import write_glb
 from recon.io import load_image
+from recon.page import try_write_page
 from recon.pipeline import NoPersonFound
 from recon.poses.asfamc import read_asf_amc
 from recon.poses.bvh import read_bvh
@@ -170,7 +171,8 @@ def person_from(source: str | Path, out: Path, outfit: str | None = None, log=pr
     if not p.exists():
         raise MissingFile(f"{p} not found")
     load_image(p)  # refuses what is not an image, with the reason
-    s = run([p], out / "reconstruction", RunOptions(outfit=outfit), progress=False, log=lambda m: None)
+    s = run([p], out / "reconstruction", RunOptions(outfit=outfit), progress=False, log=lambda m: None,
+              page=False)
     if s.no_person:
         raise NoPersonFound(f"{p}: no person found")
     if s.failed or s.skipped:
@@ -197,12 +199,13 @@ def write_video(path: Path, frames: list[np.ndarray], fps: float) -> Path:
 def animate(source: str | Path, motion: str | Path, out: str | Path, outfit: str | None = None, tightness=None,
             asf: str | Path | None = None, max_seconds: float | None = None, render: str = "mp4",
             size: tuple[int, int] = (480, 640), yaw_deg: float = 20.0, progress: bool = True, log=print,
-            dynamics: bool | None = None, garment_model: str | None = None) -> dict:
+            dynamics: bool | None = None, garment_model: str | None = None, page: bool = True) -> dict:
     """Animate a reconstructed person; returns {file kind: path}. ``outfit``: an outfit name (default:
     the one ``recon run`` dressed the person in, if any); ``render``: "mp4", "gif" or "none";
     ``dynamics``: the outfit's NCS (swinging cloth) or not (PBNS); None: NCS where it exists;
     ``garment_model``: "pbns" (PBNS / NCS) or "taylor" (the example-based model, quasi-static);
-    None: the one ``recon run`` dressed the person with (else pbns)."""
+    None: the one ``recon run`` dressed the person with (else pbns); ``page``: with the folder's
+    results page (``index.html``, recon.page)."""
     check_motion(motion)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -228,6 +231,8 @@ def animate(source: str | Path, motion: str | Path, out: str | Path, outfit: str
             "tightness": None if tightness is None else [float(t) for t in tightness],
             "files": {k: v.name for k, v in written.items()}}
     written["json"] = paths.write_text(out / "animation.json", json.dumps(info, indent=1))
+    if page and (index := try_write_page(out, log, kind="animate")):
+        written["page"] = index
     return written
 
 

@@ -76,7 +76,8 @@ def example_photos() -> list[Path]:
 def photo_demo(out: Path, outfit: str | None = None) -> list[Path]:
     """``recon run`` on the bundled example photos + one contact sheet (photo | overlay | side)."""
     photos = example_photos()
-    summary = run(photos, out / "photos", RunOptions(outfit=outfit), progress=False, log=lambda m: None)
+    summary = run(photos, out / "photos", RunOptions(outfit=outfit), progress=False, log=lambda m: None,
+                  page=False)  # the demo's own page (recon demo) shows them
     rows = []
     for p in photos:
         d = out / "photos" / p.stem

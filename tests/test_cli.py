@@ -119,7 +119,27 @@ def test_demo_writes_png_obj_glb(tmp_path, body, mocap):
     assert cv2.imread(str(tmp_path / "examples.png")) is not None
     mesh = trimesh.load(tmp_path / "body0.glb", force="mesh")
     assert len(mesh.vertices) > 1000
-    assert not list(tmp_path.glob(".*"))  # no temp files left behind
+    assert not [p for p in tmp_path.glob(".*") if p.name != ".recon-page"]  # no temp files left behind
+    _demo_page_in_a_browser(tmp_path)
+
+
+def _demo_page_in_a_browser(out):
+    """The demo's index.html in headless Chromium: the three photos, each dressed in 3D."""
+    from tests.test_page import Chromium, _errors, _painted, _viewer_pixels, find_chromium, rpage
+    assert (out / "index.html").is_file()
+    if find_chromium() is None or not rpage.viewer_installed():
+        pytest.skip("a headless Chromium and model-viewer (bash scripts/setup.sh --tests)")
+    with Chromium() as c:
+        c.open(out / "index.html")
+        assert c.eval("RECON_STATE.cards") == 3
+        assert c.eval("[...document.querySelectorAll('.controls button.on')].map(b => b.textContent)") == [
+            "dressed"] * 3
+        c.wait_for("RECON_STATE.loaded >= 2", timeout=120)
+        time.sleep(0.5)
+        for n in range(2):
+            pixels, _ = _viewer_pixels(c, n)
+            assert _painted(pixels) > 0.03
+        assert not _errors(c), c.console
 
 
 def test_synth_generate_framing_wide_is_the_wide_benchmarks_framing(monkeypatch, tmp_path):

@@ -39,10 +39,11 @@ def local_ray():
 
 
 def files(folder: Path) -> dict[str, bytes]:
-    """Every file under ``folder`` (the run's timings, which differ run to run, left out)."""
+    """Every file under ``folder`` (the run's timings, which differ run to run, and the results page,
+    named by its files' times, left out)."""
     out = {}
     for p in sorted(folder.rglob("*")):
-        if not p.is_file() or p.name in ("summary.json", "videos.json"):
+        if not p.is_file() or p.name in ("summary.json", "videos.json", "index.html") or ".recon-page" in p.parts:
             continue
         data = p.read_bytes()
         if p.name in ("result.json", "video.json"):
@@ -113,7 +114,8 @@ def test_a_killed_ray_worker_loses_nothing_and_a_stopped_run_resumes(tmp_path):
     assert "a Ray worker died" in err
     s = _summary(out)
     assert s["done"] == keys and s["failed"] == {} and not s["interrupted"]
-    assert sorted(x.name for x in out.iterdir()) == [*keys, "summary.json"]  # nothing twice, no staging left
+    # nothing twice, no staging left
+    assert sorted(x.name for x in out.iterdir()) == sorted([*keys, ".recon-page", "index.html", "summary.json"])
     for k in keys:
         assert {"result.json", "body.obj", "body.glb", "pose.bvh"} <= {f.name for f in (out / k).iterdir()}
         assert json.loads((out / k / "result.json").read_text())["made_from"]["input_sha256"]

@@ -26,6 +26,7 @@ STAGES = [
     ("recon.pipeline",),
     ("recon.viz",),
     ("recon.bench",),
+    ("recon.page",),  # an output folder's results page: what run, video and animate write last
     ("recon.run",),
     ("recon.animate", "recon.garment.author.command", "recon.garment.gcvae.command"),
     ("recon.video",),

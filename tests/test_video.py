@@ -105,7 +105,8 @@ def test_video_writes_each_track_and_the_overlay(body, clip, tmp_path):
     rec.config = replace(rec.config, focal_factor=k_factor)
     res = video(src, tmp_path / "out", VideoOptions(batch=10), reconstructor=rec, progress=False, log=lambda m: None)
     out = tmp_path / "out"
-    assert sorted(p.name for p in out.iterdir()) == [".work", "overlay.mp4", "track_0", "video.json"]
+    assert sorted(p.name for p in out.iterdir()) == [".recon-page", ".work", "index.html", "overlay.mp4", "track_0",
+                                                     "video.json"]
     assert sorted(p.name for p in (out / "track_0").iterdir()) == ["animated.glb", "motion.bvh", "motion.json"]
     assert len(res.tracks) == 1 and len(res.tracks[0].rotmats) == FRAMES
     summary = json.loads((out / "video.json").read_text())  # the synthetic camera stands still

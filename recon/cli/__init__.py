@@ -7,6 +7,7 @@ what it does in ``recon.cli.actions.<command>``, imported when it runs.
     recon demo --out out/demo              the bundled photos, bodies and an outfit (recon.demo)
     recon animate photo.jpg --motion walk --out out/anim    a person moved by a mocap clip
     recon video clip.mp4 --out out/clip    the people of a video, one motion each (recon.video)
+    recon view out/run                     an output folder's results page in the browser (recon.page)
     recon eval --bench synth-test --method ...              methods on a synthetic benchmark
     recon synth bench NAME | generate --out DIR             render benchmarks / training data
     recon body build-cache | info | export
@@ -38,6 +39,7 @@ from recon.errors import ReconError
 COMMANDS = {
     "run": ("recon.cli.run", "reconstruct people in images/folders: JSON, OBJ/GLB, BVH, overlay, side view"),
     "demo": ("recon.cli.run", "the bundled photos through `recon run` (+ contact sheet), body and outfit renders"),
+    "view": ("recon.cli.run", "open an output folder's results page (index.html, offline) in the browser"),
     "animate": ("recon.cli.run", "move a reconstructed person (shape, outfit) with a mocap clip: animated .glb + "
                                  "video"),
     "video": ("recon.cli.video", "a video (or frame folder) -> one motion per person: BVH, animated .glb, JSON, "

@@ -1,5 +1,5 @@
-"""``recon run`` (photos -> bodies), ``recon demo`` (the bundled photos) and ``recon animate``
-(a reconstructed person moved by a mocap clip)."""
+"""``recon run`` (photos -> bodies), ``recon demo`` (the bundled photos), ``recon animate``
+(a reconstructed person moved by a mocap clip) and ``recon view`` (an output folder's page)."""
 from __future__ import annotations
 
 import argparse
@@ -26,6 +26,8 @@ GARMENT_MODEL_HELP = ("with an outfit: pbns (PBNS, NCS for motions), taylor (exa
                       "from drapes on many bodies; `recon garment train --model taylor` builds its database) or "
                       "deepsd (any outfit mesh, no training; what a mesh without PBNS weights gets)")
 
+PAGE_HELP = "no results page (index.html: the folder's results in a browser, offline; see `recon view`)"
+
 
 def add_run(p: Parser) -> None:
     models = tuple(known("recon.keypoints.mediapipe:MODELS"))
@@ -45,6 +47,7 @@ def add_run(p: Parser) -> None:
                    help="focal length in units of the longer image side (default: the photo's EXIF 35 mm "
                         f"equivalent, else {known(cfg, 'focal_factor')})")
     p.add_argument("--no-overlay", action="store_true", help="skip overlay.png / side.png rendering")
+    p.add_argument("--no-page", action="store_true", help=PAGE_HELP)
     p.add_argument("--max-people", type=number(int, 1, 50), default=known(opts, "max_people"),
                    help="people per image, the largest first (MediaPipe: found one after the other); above 1 every "
                         "image folder holds person_0/, person_1/, ... and one overlay")
@@ -115,6 +118,7 @@ def add_animate(p: Parser) -> None:
     p.add_argument("--render", choices=("mp4", "gif", "none"), default="mp4",
                    help="the video (GIF where OpenCV has no MP4 encoder)")
     p.add_argument("--list-motions", action="store_true", help="list the shipped clips and stop")
+    p.add_argument("--no-page", action="store_true", help=PAGE_HELP)
 
 
 def add_demo(p: Parser) -> None:
@@ -124,5 +128,12 @@ def add_demo(p: Parser) -> None:
     p.add_argument("--outfit", default="tshirt-trousers", help="outfit of the dressed renders (if trained)")
 
 
-ADD = {"run": add_run, "animate": add_animate, "demo": add_demo}
+def add_view(p: Parser) -> None:
+    p.set_defaults(func=run_by("run:view"))
+    p.add_argument("folder", help="an output folder of recon run, video, animate or demo (or its index.html)")
+    p.add_argument("--rebuild", action="store_true", help="write the page again first (else only when missing)")
+    p.add_argument("--no-open", action="store_true", help="print the page's path without opening a browser")
+
+
+ADD = {"run": add_run, "animate": add_animate, "demo": add_demo, "view": add_view}
 

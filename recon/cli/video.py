@@ -41,6 +41,8 @@ def add_video(p: Parser) -> None:
     p.add_argument("--tightness", type=TIGHTNESS, nargs=2, default=None, metavar=("WEIGHT", "HEIGHT"),
                    help="with --outfit: looser (> 0) or tighter (< 0) (needs a resizer)")
     p.add_argument("--no-overlay", action="store_true", help="skip overlay.mp4")
+    p.add_argument("--no-page", action="store_true",
+                   help="no results page (index.html: the folder's results in a browser, offline; see `recon view`)")
     p.add_argument("--batch", type=COUNT, default=known(opts, "batch"), help="frames per stored batch")
     p.add_argument("--force", action="store_true",
                    help="start again (default: a finished folder is left as it is, an unfinished one continues)")

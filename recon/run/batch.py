@@ -31,6 +31,7 @@ from recon import paths
 from recon.errors import ReconError
 from recon.executor import ExecutorConfig, WorkerLost, WorkerSpec, run_job
 from recon.io import file_digest, scan_inputs
+from recon.page import try_write_page
 from recon.pipeline import Reconstructor, ReconstructorConfig
 from recon.run.worker import Job, Outcome, RunOptions, RunWorker, dresser_for
 from recon.version import __version__
@@ -88,12 +89,13 @@ def recorded(folder: Path) -> dict | None:
 
 def run(inputs: list[str | Path], out: str | Path, options: RunOptions | None = None,
         config: ReconstructorConfig | None = None, reconstructor: Reconstructor | None = None,
-        progress: bool = True, log=print, executor: ExecutorConfig | None = None) -> RunSummary:
+        progress: bool = True, log=print, executor: ExecutorConfig | None = None, page: bool = True) -> RunSummary:
     """Reconstruct every image of ``inputs`` into ``out`` (see the module doc). ``config``: the
     reconstruction (default ``recon run``'s); ``reconstructor``: one already built (its config is
     used; this process only), else one is built when the first image needs it. ``executor``:
     where the batches of ``options.batch_size`` images run (default this process); the batches,
-    and so every output, are the same for any executor and number of workers."""
+    and so every output, are the same for any executor and number of workers. ``page``: write the
+    folder's results page (``index.html``, recon.page) at the end, also of an interrupted run."""
     options = options or RunOptions()
     executor = executor or ExecutorConfig()
     if options.max_people < 1 or options.batch_size < 1:
@@ -151,6 +153,8 @@ def run(inputs: list[str | Path], out: str | Path, options: RunOptions | None = 
             paths.write_text(out / "summary.json", json.dumps(summary.to_json(), indent=1))
         except OSError:
             pass
+    if page:
+        try_write_page(out, log, kind="run")
     log(summary.line())
     return summary
 

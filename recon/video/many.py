@@ -61,8 +61,8 @@ class VideoWorker:
     """Runs ``video`` on (input, output folder) tasks; the Reconstructor is built once, its
     keypoint source made again for every video."""
 
-    def __init__(self, options: VideoOptions, config: ReconstructorConfig):
-        self.options, self.config = options, video_config(config)
+    def __init__(self, options: VideoOptions, config: ReconstructorConfig, page: bool = True):
+        self.options, self.config, self.page = options, video_config(config), page
         self.rec: Reconstructor | None = None
 
     def __call__(self, task: tuple[str, str]) -> dict:
@@ -77,7 +77,8 @@ class VideoWorker:
         lines: list[str] = []
         t0 = time.perf_counter()
         try:
-            r = video(path, out, self.options, reconstructor=self.rec, progress=False, log=lines.append)
+            r = video(path, out, self.options, reconstructor=self.rec, progress=False, log=lines.append,
+                      page=self.page)
         except ReconError as e:
             return {"status": "failed", "message": str(e), "log": lines}
         return {"status": "unchanged" if r.unchanged else "done", "tracks": len(r.tracks),
@@ -86,8 +87,8 @@ class VideoWorker:
 
 def videos(inputs: list[str | Path], out: str | Path, options: VideoOptions | None = None,
            config: ReconstructorConfig | None = None, executor: ExecutorConfig | None = None, progress: bool = True,
-           log=print) -> VideosSummary:
-    """Every input video into ``<out>/<name>/`` (module doc)."""
+           log=print, page: bool = True) -> VideosSummary:
+    """Every input video into ``<out>/<name>/`` (module doc), each with its results page (``page``)."""
     options = options or VideoOptions()
     out = Path(out)
     check_writable(out)
@@ -110,9 +111,10 @@ def videos(inputs: list[str | Path], out: str | Path, options: VideoOptions | No
     def lost(i: int, why: WorkerLost) -> dict:
         return {"status": "failed", "message": f"worker lost: {why}", "log": []}
 
+    spec = WorkerSpec(VideoWorker, (options, config or ReconstructorConfig(), page))
     try:
-        summary.interrupted = not run_job(WorkerSpec(VideoWorker, (options, config or ReconstructorConfig())), tasks,
-                                          finished, lost, executor, None, "recon video", "video", progress=progress)
+        summary.interrupted = not run_job(spec, tasks, finished, lost, executor, None, "recon video", "video",
+                                          progress=progress)
     finally:
         summary.seconds = time.time() - t0
         summary.done = dict(sorted(summary.done.items(), key=lambda kv: keys.index(kv[0])))

@@ -35,6 +35,7 @@ from recon.fit import FitConfig
 from recon.garment.dress import Dresser
 from recon.io import file_digest
 from recon.keypoints.video import MediaPipeVideoSource, PeopleVideoSource
+from recon.page import try_write_page
 from recon.pipeline import Reconstructor, ReconstructorConfig
 from recon.run import check_writable
 from recon.version import __version__
@@ -111,8 +112,9 @@ def input_digest(path: Path) -> str:
 
 def video(path: str | Path, out: str | Path, options: VideoOptions | None = None,
           config: ReconstructorConfig | None = None, reconstructor: Reconstructor | None = None,
-          progress: bool = True, log=print) -> VideoResult:
-    """Reconstruct the people of the video (or frame folder) ``path`` into ``out`` (module doc)."""
+          progress: bool = True, log=print, page: bool = True) -> VideoResult:
+    """Reconstruct the people of the video (or frame folder) ``path`` into ``out`` (module doc);
+    ``page``: with the folder's results page (``index.html``, recon.page)."""
     options = options or VideoOptions()
     if options.max_people < 1 or options.batch < 1:
         raise ReconError("max_people and batch must be at least 1")
@@ -124,6 +126,8 @@ def video(path: str | Path, out: str | Path, options: VideoOptions | None = None
     made_from = stamp(input_digest(Path(path)), options.to_json(), config.to_json(), __version__)
     if not options.force and _finished(out) == json.loads(json.dumps(made_from)):
         log(f"{out}: already made from the same video and options (--force makes it again)")
+        if page and not (out / "index.html").is_file():
+            try_write_page(out, log, kind="video")
         return VideoResult(out, [], FrameLog([], [], []), Detections.empty(0), 0.0, {}, unchanged=True)
     work = out / WORK
     per_frame_from = stamp(made_from["input"], options.per_frame_json(), config.to_json(), __version__)
@@ -198,6 +202,8 @@ def video(path: str | Path, out: str | Path, options: VideoOptions | None = None
         "made_from": made_from,
     }
     paths.write_text(out / "video.json", json.dumps(summary, indent=1))
+    if page:
+        try_write_page(out, log, kind="video")
     log(f"{len(frames.index)} frames, {len(motions)} track(s), {summary['frames_per_second']} frames/s -> {out}")
     return VideoResult(out, motions, frames, dets, fps, seconds)
 

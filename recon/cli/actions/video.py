@@ -21,12 +21,12 @@ def run_video(args) -> int:
                            static_camera=args.static_camera)
     executor = ExecutorConfig(**executor_args(args))
     if len(args.inputs) > 1:
-        s = videos(args.inputs, Path(args.out), options, config, executor)
+        s = videos(args.inputs, Path(args.out), options, config, executor, page=not args.no_page)
         return 130 if s.interrupted else (1 if s.failed else 0)
     if not executor.in_process:
         print("one video runs in this process (its frames follow each other); --executor spreads several videos")
     try:
-        video(args.inputs[0], Path(args.out), options, config)
+        video(args.inputs[0], Path(args.out), options, config, page=not args.no_page)
     except KeyboardInterrupt:
         print(f"interrupted: run the same command again to continue from the last finished batch ({args.out})")
         return 130
