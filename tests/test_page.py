@@ -90,7 +90,7 @@ def test_slim_model_keeps_skeleton_and_motion_drops_blend_shapes(body, tmp_path)
     dresser = Dresser("tshirt-trousers")
     torch.manual_seed(0)
     rot = roma.rotvec_to_rotmat(0.2 * torch.randn(4, 24, 3))
-    transl = torch.tensor([[0.0, 0.9, 0.0]] * 4)
+    transl = torch.tensor([[0.3 * i, 0.9 + 0.01 * i, -0.2 * i] for i in range(4)])  # walking
     full = write_glb(tmp_path / "a.glb", body, body.mean_shape, rot, transl, 30.0, dresser)
     slim = tmp_path / "slim.glb"
     slim.write_bytes(models.slim_glb(full.read_bytes()))
@@ -104,6 +104,9 @@ def test_slim_model_keeps_skeleton_and_motion_drops_blend_shapes(body, tmp_path)
         assert np.array_equal(acc(prim["attributes"]["JOINTS_0"]), acc0(prim0["attributes"]["JOINTS_0"]))
         w, w0 = acc(prim["attributes"]["WEIGHTS_0"]), acc0(prim0["attributes"]["WEIGHTS_0"])
         assert np.allclose(w.sum(1), 1, atol=1e-6) and np.allclose(w, w0 / w0.sum(1, keepdims=True), atol=1e-6)
+    (moved,) = [c for c in doc["animations"][0]["channels"] if c["target"]["path"] == "translation"]
+    path = acc(doc["animations"][0]["samplers"][moved["sampler"]]["output"])
+    assert np.allclose(path[:, [0, 2]], 0) and np.allclose(path[:, 1], transl[:, 1].numpy())  # in place, same height
     paths = [c["target"]["path"] for c in doc["animations"][0]["channels"]]
     assert "weights" not in paths and paths.count("rotation") == 24
     rot_ch = [c for c in doc["animations"][0]["channels"] if c["target"]["path"] == "rotation"]

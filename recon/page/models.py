@@ -7,9 +7,10 @@ loads it as a classic script when its viewer scrolls into view. What goes in a m
 - a photo's result (``static_glb``): the meshes of body.obj / outfit.obj as they are, turned from
   the camera frame (y down, z forward) to glTF's (y up, z towards the viewer). Exactly the OBJ's
   vertices, a fraction of the rigged .glb's size (no skin, no blend shapes).
-- an animation (``slim_glb``): the animated .glb without its morph targets and with the four
-  strongest skinning influences per vertex, renormalised (three.js uses four). The cloth then
-  follows the skeleton without its per-frame deformation; the .glb itself has it.
+- an animation (``slim_glb``): the animated .glb without its morph targets, with the four
+  strongest skinning influences per vertex, renormalised (three.js uses four), and in place (the
+  path over the ground taken out). The cloth then follows the skeleton without its per-frame
+  deformation; the .glb itself has it, and the path.
 """
 from __future__ import annotations
 
@@ -27,7 +28,7 @@ from recon import paths
 
 GLB_MAGIC, JSON_CHUNK, BIN_CHUNK = 0x46546C67, 0x4E4F534A, 0x004E4942
 CAMERA_TO_GLTF = np.diag([1.0, -1.0, -1.0])  # OpenCV camera axes -> glTF's (a 180 degree turn about x)
-FORMAT = 1  # part of every model's id: a page written by a recon that makes models differently remakes them
+FORMAT = 3  # part of every model's id: a page written by a recon that makes models differently remakes them
 COLOURS = {"body": (0.55, 0.52, 0.50, 1.0), "outfit": (0.22, 0.40, 0.75, 1.0)}
 
 
@@ -82,8 +83,10 @@ def write_glb_bytes(gltf: dict, binary: bytes) -> bytes:
 
 
 def slim_glb(data: bytes) -> bytes:
-    """An animated glb without morph targets (and their weight animation) and with only its first
-    JOINTS/WEIGHTS set (recon writes the strongest influences first); unused data is dropped."""
+    """An animated glb without morph targets (and their weight animation), with only its first
+    JOINTS/WEIGHTS set (recon writes the strongest influences first), renormalised, and in place:
+    the root's path over the ground is taken out (a viewer keeps the person in view; the height
+    and every turn stay). Unused data is dropped."""
     gltf, binary = read_glb(data)
     for mesh in gltf.get("meshes", []):
         mesh.pop("weights", None)
@@ -97,7 +100,13 @@ def slim_glb(data: bytes) -> bytes:
     for mesh in gltf.get("meshes", []):
         for prim in mesh["primitives"]:
             if "WEIGHTS_0" in prim["attributes"]:
-                _renormalise(gltf, binary, prim["attributes"]["WEIGHTS_0"])
+                _rewrite(gltf, binary, prim["attributes"]["WEIGHTS_0"], 4,
+                         lambda w: w / np.maximum(w.sum(1, keepdims=True), 1e-12))
+    children = {c for n in gltf.get("nodes", []) for c in n.get("children", [])}
+    for anim in gltf.get("animations", []):
+        for c in anim["channels"]:
+            if c["target"].get("path") == "translation" and c["target"].get("node") not in children:
+                _rewrite(gltf, binary, anim["samplers"][c["sampler"]]["output"], 3, lambda t: t * [0.0, 1.0, 0.0])
     for anim in gltf.get("animations", []):
         keep = [c for c in anim["channels"] if c["target"].get("path") != "weights"]
         samplers = sorted({c["sampler"] for c in keep})
@@ -107,20 +116,23 @@ def slim_glb(data: bytes) -> bytes:
     return write_glb_bytes(*_repack(gltf, binary))
 
 
-def _renormalise(gltf: dict, binary: bytearray, index: int) -> None:
-    """Float skinning weights that sum to 1 again (a new buffer view at the end of ``binary``)."""
+def _rewrite(gltf: dict, binary: bytearray, index: int, width: int, change) -> None:
+    """Replace a float accessor's values (count, ``width``) by ``change(values)``, as a new buffer
+    view at the end of ``binary`` (views may be shared)."""
     acc = gltf["accessors"][index]
     if acc["componentType"] != 5126 or "bufferView" not in acc:
         return
     view = gltf["bufferViews"][acc["bufferView"]]
     start = view.get("byteOffset", 0) + acc.get("byteOffset", 0)
-    w = np.frombuffer(bytes(binary[start:start + acc["count"] * 16]), np.float32).reshape(-1, 4)
-    w = (w / np.maximum(w.sum(1, keepdims=True), 1e-12)).astype(np.float32)
+    values = np.frombuffer(bytes(binary[start:start + acc["count"] * width * 4]), np.float32).reshape(-1, width)
+    values = np.ascontiguousarray(change(values), dtype=np.float32)
     binary += b"\0" * (-len(binary) % 4)
-    gltf["bufferViews"].append({"buffer": 0, "byteOffset": len(binary), "byteLength": w.nbytes,
+    gltf["bufferViews"].append({"buffer": 0, "byteOffset": len(binary), "byteLength": values.nbytes,
                                 **({"target": view["target"]} if "target" in view else {})})
-    binary += w.tobytes()
+    binary += values.tobytes()
     acc["bufferView"], acc["byteOffset"] = len(gltf["bufferViews"]) - 1, 0
+    if "min" in acc:
+        acc["min"], acc["max"] = values.min(0).tolist(), values.max(0).tolist()
 
 
 def _repack(gltf: dict, binary: bytes) -> tuple[dict, bytes]:

@@ -1,6 +1,6 @@
 // The results page (recon/page/build.py): cards from .recon-page/data.js; 3D models loaded as
-// scripts (.recon-page/models/<id>.js call RECON_MODEL) when their viewer scrolls into view, dropped when it
-// scrolls far away, so a page of thousands of results stays light.
+// scripts (.recon-page/models/<id>.js call RECON_MODEL) when their viewer scrolls into view,
+// dropped when it scrolls far away, so a page of thousands of results stays light.
 (function () {
   "use strict";
   const D = window.RECON_PAGE;
@@ -102,7 +102,7 @@
         if (box.mv.paused) { box.mv.play(); p.textContent = "pause"; } else { box.mv.pause(); p.textContent = "play"; }
       };
       bar.appendChild(p);
-      bar.appendChild(el("span", { text: " preview: the cloth follows the skeleton; the .glb has its own motion " }));
+      bar.appendChild(el("span", { text: " preview: in place, the cloth follows the skeleton (the .glb has the path and the cloth's motion) " }));
     }
     for (const v of views) bar.appendChild(el("a", { href: v.file, text: v.file.split("/").pop() }));
     return bar;
