@@ -13,8 +13,8 @@ frame (quasi-static).
 
 ``garment_model="taylor"``: the example-based model (recon.garment.taylor.model) instead, quasi-static:
 PBNS's pose deformations plus the body-shape dimension from drapes on many bodies at anchor poses;
-it sizes the outfit to the body itself (no resizer, no tightness) and resolves penetrations its
-own way.
+it sizes the outfit to the body itself (no resizer, no tightness) and pushes penetrations out its
+own way; the post-step follows, with the outfit graded to the body as its rest.
 
 ``garment_model="deepsd"``: any outfit without training (recon.garment.deepsd.model, thesis ch. 4): its
 blend weights and pose-space blend shapes predicted from the template mesh, then as PBNS
@@ -109,7 +109,7 @@ class Dresser:
                 raise MissingFile(f"{self.outfit} has no Taylor database {tp}: run "
                                   f"`recon garment train --model taylor --outfit {self.outfit}` (~45 min)")
             self.taylor, _ = TaylorGarment.load(tp, self.model)
-            self.resolver, dynamics = None, False  # its own penetration handling
+            dynamics = False  # quasi-static; the post-step follows its own penetration handling
         if dynamics is not False and ncs_path is not None and ncs_path.exists():
             self.ncs, _ = NCS.load(ncs_path)
         elif dynamics:
@@ -161,10 +161,14 @@ class Dresser:
             r[:, 0] = up.to(r) @ r[:, 0]
         if self.taylor is not None:
             self.rest_for(body, shape[0], tightness=tightness)  # refuses a tightness
-            verts = torch.cat([self.taylor.set_shape(body, s).pose(r[i:i + 1], out.transforms[i:i + 1],
-                                                               out.vertices[i:i + 1])
-                               for i, s in enumerate(shape)])
-            return DressedOutfit(verts.numpy(), self.model.faces.numpy(), self.garment_id, self.names)
+            posed = []
+            for i, s in enumerate(shape):
+                taylor = self.taylor.set_shape(body, s)
+                v = taylor.pose(r[i:i + 1], out.transforms[i:i + 1], out.vertices[i:i + 1])
+                if self.resolver is not None:
+                    v = self.resolver(v, out.vertices[i:i + 1], body.faces, rest=taylor.graded)
+                posed.append(v)
+            return DressedOutfit(torch.cat(posed).numpy(), self.model.faces.numpy(), self.garment_id, self.names)
         rest = torch.stack([self.rest_for(body, s, tightness=tightness) for s in shape])
         verts = self.model.pose(r, out.transforms, rest)
         if self.resolver is not None:

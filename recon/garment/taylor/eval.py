@@ -29,9 +29,11 @@ from recon.garment.resize import OutfitResizer, Transfer
 from recon.garment.taylor.model import TaylorGarment
 from recon.garment.taylor.train import SHAPE_BOX, TaylorBuildConfig, cluster_anchors, drape_poses
 from recon.poses.sampler import ShapeSampler
-from recon.timing import frames_per_second
+from recon.timing import compare
 
 PHENOTYPES = ("weight", "height")  # "far" bodies: top or bottom quintile of either in anny's prior
+POSTED = "Taylor + post-step"
+VAL_SEED = 2025  # val poses and bodies: other draws than the test's
 
 
 def test_shapes(body, n_far: int = 6, n_near: int = 2, seed: int = 2024) -> tuple[torch.Tensor, np.ndarray]:
@@ -90,6 +92,7 @@ class Methods:
         self.taylor.set_shape(self.body, shape)
         out["Taylor, no penetration handling"] = self.taylor.pose(rot[None], bt)[0]
         out["Taylor"] = self.taylor.pose(rot[None], bt, bv)[0]
+        out[POSTED] = self.resolver(out["Taylor"][None], bv, self.body.faces, rest=self.taylor.graded[None])[0]
         self.taylor.correct_pose = False
         out["Taylor, PBNS uncorrected as pose model"] = self.taylor.pose(rot[None], bt, bv)[0]
         self.taylor.correct_pose = True
@@ -150,8 +153,9 @@ def separability(cfg: TaylorBuildConfig, m: Methods, anchors: list[int], radii: 
 
 @torch.no_grad()
 def speed(body, outfit: str, taylor: TaylorGarment | None) -> dict:
-    """Frames a second at batch 1 (1 thread, given the posed body) of PBNS and of the Taylor model
-    (with penetration handling), and the time of a new body shape (ms). Without a built database
+    """Frames a second at batch 1 (1 thread, given the posed body) of PBNS, of the Taylor model
+    (with penetration handling) and of it with the post-step, timed in interleaved rounds (the
+    median over rounds), and the time of a new body shape (ms). Without a built database
     the Taylor model is timed on one of the default size with random contents (its cost does not
     depend on the values)."""
     pbns, ck = PBNS.load(store.pbns_path(outfit))
@@ -173,15 +177,39 @@ def speed(body, outfit: str, taylor: TaylorGarment | None) -> dict:
         taylor.set_shape(body, shape + 0.01 * k)
         t_ms.append((time.perf_counter() - t) * 1000)
     r, tr, bv = rot[:1], out.transforms, out.vertices
+    resolver = CollisionResolver(pbns.faces.numpy(), ck["layer"].numpy())
+    ms = compare({"pbns": lambda: pbns.pose(r, tr), "taylor": lambda: taylor.pose(r, tr, bv),
+                  "post": lambda: resolver(taylor.pose(r, tr, bv), bv, body.faces, rest=taylor.graded)}, rounds=7)
     return {"vertices": int(pbns.rest.shape[0]), "random_database": random_db, "anchors": len(taylor.anchors),
-            "pbns_fps": frames_per_second(lambda: pbns.pose(r, tr), 1),
-            "taylor_fps": frames_per_second(lambda: taylor.pose(r, tr, bv), 1),
+            "pbns_fps": 1000.0 / ms["pbns"], "taylor_fps": 1000.0 / ms["taylor"],
+            "taylor_post_fps": 1000.0 / ms["post"],
             "new_shape_ms": float(np.median(t_ms))}
 
 
 @torch.no_grad()
+def val_check(cfg: TaylorBuildConfig, m: Methods, body, poses: int, faces: np.ndarray) -> dict:
+    """Taylor with and without the Dresser's post-step on val poses (val performers) x other
+    bodies than the test's: where the choice of the Taylor path's post-step is made."""
+    shapes, far = test_shapes(body, seed=VAL_SEED)
+    r = pose_set("val", poses, 0.5, VAL_SEED)
+    r[:, 0] = remove_yaw(r[:, 0])
+    drapes = drape_poses(cfg, r, shapes, desc="val drapes")
+    acc: dict = {}
+    for p in range(len(r)):
+        for k in range(len(shapes)):
+            gt = torch.from_numpy(drapes[p]["posed"][k + 1])
+            outs, (bv, bn), graded = m(r[p], shapes[k], None)
+            for name in ("Taylor", POSTED):
+                phys = physical_metrics(outs[name][None], faces, graded, bv, bn)
+                acc.setdefault(name, []).append((float((outs[name] - gt).norm(dim=-1).mean()) * 1000,
+                                                 phys["collision_pct"], phys["edge_mm"]))
+    return {"poses": len(r), "bodies": len(shapes), "rows": {
+        name: {"error_mm": _mean([a[0] for a in v]), "collision_pct": _mean([a[1] for a in v]),
+               "edge_mm": _mean([a[2] for a in v])} for name, v in acc.items()}}
+
+
 def evaluate(outfit: str, poses: int = 20, workers: int = 2, anchor_counts=(8, 16, 32, 64),
-             radii=(0.05, 0.1, 0.2, 0.4), separability_samples: int = 2, log=print) -> dict:
+             radii=(0.05, 0.1, 0.2, 0.4), separability_samples: int = 2, val_poses: int = 10, log=print) -> dict:
     body = default_body()
     path = store.taylor_path(outfit)
     cfg = TaylorBuildConfig(outfit=outfit, workers=workers)
@@ -223,7 +251,9 @@ def evaluate(outfit: str, poses: int = 20, workers: int = 2, anchor_counts=(8, 1
                                                 "error_far_mm": rows["Taylor"]["error_far_mm"]}
     log("scored; separability")
     sep = separability(cfg, m, [0, len(m.taylor.anchors) // 2], radii, separability_samples)
+    val = val_check(cfg, m, body, val_poses, faces) if val_poses else None
     return {"outfit": outfit, "poses": len(rot), "shapes": shapes.tolist(), "far": far.tolist(), "rows": rows,
+            "val": val,
             "anchors_curve": anchors_curve, "separability": sep, "database": {
                 "anchors": meta["anchors"], "bodies_per_anchor": len(meta["shapes"]),
                 "size_mb": path.stat().st_size / 1e6,
@@ -262,7 +292,7 @@ def newton_comparison(outfit: str, poses=(3, 11), workers: int = 2) -> list[dict
 
 
 ROW_ORDER = ("skinning only", "PBNS (graded)", "PBNS + resizer", "PBNS + resizer + collision resolution",
-             "Taylor, PBNS uncorrected as pose model", "Taylor, no penetration handling", "Taylor",
+             "Taylor, PBNS uncorrected as pose model", "Taylor, no penetration handling", "Taylor", POSTED,
              "Taylor, simulation as pose model", "drape (ground truth)")
 
 
@@ -279,8 +309,17 @@ def render(data: dict) -> str:
                                                  "edge_mm"))] for k in ROW_ORDER if k in r["rows"]]
         out += [report.table(rows, ["model", "error mm", "far bodies mm", "near bodies mm", "collision %", "edge mm"],
                              [""] + [".2f"] * 5), ""]
+        if r.get("val"):
+            v = r["val"]
+            out += [f"The post-step (the Dresser's strain step and collision resolution, settings chosen on DeePSD's "
+                    f"val outfits) on Taylor's output, first on {v['poses']} val poses (val performers) x "
+                    f"{v['bodies']} other bodies:", "",
+                    report.table([[k, *(v["rows"][k][c] for c in ("error_mm", "collision_pct", "edge_mm"))]
+                                  for k in ("Taylor", POSTED) if k in v["rows"]],
+                                 ["model (val)", "error mm", "collision %", "edge mm"], ["", ".2f", ".2f", ".2f"]), ""]
         out += [f"Database: {db['anchors']} anchors x {db['bodies_per_anchor']} bodies, {db['size_mb']:.1f} MB, "
-                f"built in {db['build_min']:.0f} min (2 processes); the shape models' 5 PCA components keep "
+                f"{db['build_min']:.0f} min of draping and fitting as its last build run recorded them (the model "
+                "card has the build times); the shape models' 5 PCA components keep "
                 f"{db['explained_variance_pct']:.1f} % of the variance of each anchor's drapes; ridge {db['ridge']:g} "
                 "(least leave-one-body-out error).", ""]
         curve = r["anchors_curve"]
@@ -307,13 +346,16 @@ def render(data: dict) -> str:
                              ["", ".1f", ".1f", ".1f", ".0f", ".0f", ""]), ""]
     sp = data.get("speed", {})
     if sp:
-        out += ["## Speed", "", "Batch 1, 1 thread, given the posed body (as PBNS's FPS in garment-pbns.md); the "
-                "Taylor model with its penetration handling. New body: `set_shape` (shape terms of every anchor "
-                "and the penetration binding).", ""]
+        out += ["## Speed", "", "Batch 1, 1 thread, given the posed body (as PBNS's FPS in garment-pbns.md), the "
+                "three timed in 7 interleaved rounds (median); the Taylor model with its penetration handling, and "
+                "with the post-step after it (what the Dresser runs). New body: `set_shape` (shape terms of every "
+                "anchor and the penetration binding), median of 5.", ""]
         out += [report.table([[o, s["vertices"], s["anchors"], "random" if s["random_database"] else "built",
-                               s["pbns_fps"], s["taylor_fps"], s["new_shape_ms"]] for o, s in sp.items()],
-                             ["outfit", "vertices", "anchors", "database", "PBNS FPS", "Taylor FPS", "new body ms"],
-                             ["", "", "", "", ".0f", ".0f", ".1f"]), ""]
+                               s["pbns_fps"], s["taylor_fps"], s.get("taylor_post_fps"), s["new_shape_ms"]]
+                              for o, s in sp.items()],
+                             ["outfit", "vertices", "anchors", "database", "PBNS FPS", "Taylor FPS",
+                              "Taylor + post-step FPS", "new body ms"],
+                             ["", "", "", "", ".0f", ".0f", ".1f", ".1f"]), ""]
         out += ["Databases marked random: an outfit whose database was not built here, timed with one of the default "
                 "size and random contents (the cost does not depend on the values).", ""]
     return "\n".join(out)

@@ -167,8 +167,12 @@ class TaylorGarment:
             self._transfer = Transfer(body, self.pbns.rest.numpy(), self.pbns.faces.numpy(), self.shape0)
             self._body_inc = CollisionResolver.incidence(np.asarray(body.faces), len(bv))
         self.graded = torch.from_numpy(self._transfer.resize(self.shape[None], bv[None])[0])
-        self.delta = self.shape_terms(self.shape)
-        self.corrected = self.delta if self.pose_residual is None else self.delta + self.pose_residual
+        # stored coordinate-major (A, 3, N), so that blending them per vertex runs on contiguous rows;
+        # delta and corrected are (A, N, 3) views of them
+        self.delta_t = self.shape_terms(self.shape).transpose(1, 2).contiguous()
+        self.corrected_t = self.delta_t if self.pose_residual is None else (
+            self.delta_t + self.pose_residual.transpose(1, 2))
+        self.delta, self.corrected = self.delta_t.transpose(1, 2), self.corrected_t.transpose(1, 2)
         rest = self.graded + self.delta.mean(0)  # the outfit on this body, at rest (a typical anchor's)
         bn = CollisionResolver.normals(bv, np.asarray(body.faces), self._body_inc)
         # a tree that builds faster (and queries alike) than the balanced, compact default
@@ -194,12 +198,13 @@ class TaylorGarment:
     def correction(self, weights: torch.Tensor, pose_model: bool = True) -> torch.Tensor:
         """(B, G, A) blend weights -> (B, N, 3) blended rest-pose terms (``terms``)."""
         active = torch.nonzero(weights.sum((0, 1)) > 0)[:, 0]
-        c = self.regions @ weights[:, :, active]  # (B, N, a): per vertex weight of each anchor
-        terms = self.terms(pose_model)
-        out = torch.zeros(c.shape[0], c.shape[1], 3, dtype=terms.dtype)
+        # (a, B, 1, N): each active anchor's weight at every vertex, contiguous per anchor
+        c = (self.regions @ weights[:, :, active]).permute(2, 0, 1).contiguous()[:, :, None]
+        terms = self.corrected_t if pose_model and self.correct_pose else self.delta_t  # (A, 3, N)
+        out = torch.zeros(c.shape[1], 3, c.shape[3], dtype=terms.dtype)
         for j, a in enumerate(active.tolist()):  # in place, no gathered copy of the active terms
-            out.addcmul_(c[:, :, j:j + 1], terms[a])
-        return out
+            out.addcmul_(c[j], terms[a])
+        return out.transpose(1, 2)
 
     @torch.no_grad()
     def pose(self, rotmats: torch.Tensor, transforms: torch.Tensor, body_v: torch.Tensor | None = None,
