@@ -217,9 +217,13 @@ def test_ray_is_imported_only_for_a_ray_job():
 
 
 CTRL_C_DRIVER = '''
-import sys, time
+import signal, sys, time
 from pathlib import Path
 from recon import executor as ex
+
+# Ctrl-C as in a terminal: a background job of a non-interactive shell (a CI runner's) starts with
+# SIGINT ignored, and Python then leaves it ignored
+signal.signal(signal.SIGINT, signal.default_int_handler)
 
 class Sleeper:
     def __init__(self, marker):
