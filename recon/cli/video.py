@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 from recon.cli.parsing import COUNT, NON_NEGATIVE, POSITIVE, STEPS, Parser, add_executor, known, number, run_by
-from recon.cli.run import FOCAL, TIGHTNESS
+from recon.cli.run import FOCAL, PAGE_HELP, TIGHTNESS
 
 
 def add_video(p: Parser) -> None:
@@ -41,8 +41,7 @@ def add_video(p: Parser) -> None:
     p.add_argument("--tightness", type=TIGHTNESS, nargs=2, default=None, metavar=("WEIGHT", "HEIGHT"),
                    help="with --outfit: looser (> 0) or tighter (< 0) (needs a resizer)")
     p.add_argument("--no-overlay", action="store_true", help="skip overlay.mp4")
-    p.add_argument("--no-page", action="store_true",
-                   help="no results page (index.html: the folder's results in a browser, offline; see `recon view`)")
+    p.add_argument("--no-page", action="store_true", help=PAGE_HELP)
     p.add_argument("--batch", type=COUNT, default=known(opts, "batch"), help="frames per stored batch")
     p.add_argument("--force", action="store_true",
                    help="start again (default: a finished folder is left as it is, an unfinished one continues)")

@@ -31,6 +31,7 @@ from recon.garment.pbns.model import pose_features
 
 FLOAT, UBYTE, USHORT, UINT = 5126, 5121, 5123, 5125
 ARRAY_BUFFER, ELEMENT_ARRAY_BUFFER = 34962, 34963
+GLB_MAGIC, JSON_CHUNK, BIN_CHUNK = 0x46546C67, 0x4E4F534A, 0x004E4942  # "glTF", "JSON", "BIN\0"
 BODY_RGBA = (0.8, 0.72, 0.66, 1.0)
 OUTFIT_RGBA = (0.3, 0.45, 0.75, 1.0)
 
@@ -215,10 +216,15 @@ def write_glb(path: str | Path, body, shape: torch.Tensor, rotmats: torch.Tensor
     doc |= {"scenes": [{"nodes": scene_nodes}], "nodes": nodes, "meshes": meshes, "materials": materials,
             "skins": [skin], "buffers": [{"byteLength": len(buf.data)}], "bufferViews": buf.views,
             "accessors": buf.accessors}
-    js = json.dumps(doc, separators=(",", ":")).encode()
-    js += b" " * (-len(js) % 4)
-    bin_ = bytes(buf.data) + b"\0" * (-len(buf.data) % 4)
-    glb = struct.pack("<III", 0x46546C67, 2, 12 + 8 + len(js) + 8 + len(bin_))
-    glb += struct.pack("<II", len(js), 0x4E4F534A) + js + struct.pack("<II", len(bin_), 0x004E4942) + bin_
+    glb = glb_bytes(doc, bytes(buf.data))
     paths.atomic_write(Path(path), lambda tmp: Path(tmp).write_bytes(glb))
     return Path(path)
+
+
+def glb_bytes(doc: dict, binary: bytes) -> bytes:
+    """A binary glTF file: the JSON chunk (space-padded) and the binary chunk (zero-padded)."""
+    js = json.dumps(doc, separators=(",", ":")).encode()
+    js += b" " * (-len(js) % 4)
+    binary += b"\0" * (-len(binary) % 4)
+    return (struct.pack("<III", GLB_MAGIC, 2, 12 + 8 + len(js) + 8 + len(binary))
+            + struct.pack("<II", len(js), JSON_CHUNK) + js + struct.pack("<II", len(binary), BIN_CHUNK) + binary)

@@ -60,6 +60,10 @@ class Page:
     def rel(self, path: Path) -> str:
         return Path(os.path.relpath(path, self.root)).as_posix()
 
+    def files(self, folder: Path, names) -> list[dict]:
+        """Links to the files ``names`` of ``folder`` that exist."""
+        return [{"href": self.rel(folder / n), "label": n} for n in names if (folder / n).is_file()]
+
     def view(self, v: View) -> dict:
         mid = model_id(list(v.sources.values()), v.kind, self.root)
         self.views[mid] = v
@@ -101,8 +105,8 @@ def _person(page: Page, folder: Path, label: str) -> dict | None:
                                     folder / "dressed.glb")))
     if (folder / "body.obj").is_file():
         views.append(page.view(View("body", "static", {"body": folder / "body.obj"}, folder / "body.glb")))
-    files = [{"href": page.rel(folder / f), "label": f} for f in r.get("files", []) if (folder / f).is_file()]
-    return {"label": label, "numbers": person_numbers(r), "views": views, "files": files}
+    return {"label": label, "numbers": person_numbers(r), "views": views,
+            "files": page.files(folder, r.get("files", []))}
 
 
 def _image(page: Page, path: Path, label: str) -> dict | None:
@@ -164,9 +168,9 @@ def video_page(out: Path) -> Page:
         views = [page.view(View("animated", "animated", {"glb": folder / "animated.glb"}, folder / "animated.glb"))] \
             if (folder / "animated.glb").is_file() else []
         numbers = [["first frame", t.get("first")], ["frames", t.get("frames")], ["seen in", t.get("seen")]]
-        files = [{"href": page.rel(folder / f), "label": f} for f in t.get("files", []) if (folder / f).is_file()]
         page.items.append({"key": t["folder"], "images": [], "people": [
-            {"label": f"track {t['id']}", "numbers": numbers, "views": views, "files": files}]})
+            {"label": f"track {t['id']}", "numbers": numbers, "views": views,
+             "files": page.files(folder, t.get("files", []))}]})
     for frame, why in (v.get("skipped") or {}).items():
         page.missing.append({"key": f"frame {frame}", "why": f"skipped: {why}", "image": None})
     return page
@@ -186,8 +190,7 @@ def animate_page(out: Path) -> Page:
         glb = out / files["glb"]
         views.append(page.view(View("animated", "animated", {"glb": glb}, glb)))
     page.items.append({"key": out.resolve().name, "images": images, "people": [
-        {"label": "person", "numbers": [], "views": views,
-         "files": [{"href": f, "label": f} for f in files.values() if (out / f).is_file()]}]})
+        {"label": "person", "numbers": [], "views": views, "files": page.files(out, files.values())}]})
     return page
 
 

@@ -25,8 +25,8 @@ import numpy as np
 import trimesh
 
 from recon import paths
+from recon.garment.gltf import BIN_CHUNK, GLB_MAGIC, JSON_CHUNK, glb_bytes
 
-GLB_MAGIC, JSON_CHUNK, BIN_CHUNK = 0x46546C67, 0x4E4F534A, 0x004E4942
 CAMERA_TO_GLTF = np.diag([1.0, -1.0, -1.0])  # OpenCV camera axes -> glTF's (a 180 degree turn about x)
 FORMAT = 3  # part of every model's id: a page written by a recon that makes models differently remakes them
 COLOURS = {"body": (0.55, 0.52, 0.50, 1.0), "outfit": (0.22, 0.40, 0.75, 1.0)}
@@ -74,14 +74,6 @@ def read_glb(data: bytes) -> tuple[dict, bytes]:
     return gltf, binary
 
 
-def write_glb_bytes(gltf: dict, binary: bytes) -> bytes:
-    text = json.dumps(gltf, separators=(",", ":")).encode()
-    text += b" " * (-len(text) % 4)
-    binary += b"\0" * (-len(binary) % 4)
-    chunks = struct.pack("<II", len(text), JSON_CHUNK) + text + struct.pack("<II", len(binary), BIN_CHUNK) + binary
-    return struct.pack("<III", GLB_MAGIC, 2, 12 + len(chunks)) + chunks
-
-
 def slim_glb(data: bytes) -> bytes:
     """An animated glb without morph targets (and their weight animation), with only its first
     JOINTS/WEIGHTS set (recon writes the strongest influences first), renormalised, and in place:
@@ -113,7 +105,7 @@ def slim_glb(data: bytes) -> bytes:
         remap = {s: i for i, s in enumerate(samplers)}
         anim["samplers"] = [anim["samplers"][s] for s in samplers]
         anim["channels"] = [{**c, "sampler": remap[c["sampler"]]} for c in keep]
-    return write_glb_bytes(*_repack(gltf, binary))
+    return glb_bytes(*_repack(gltf, binary))
 
 
 def _rewrite(gltf: dict, binary: bytearray, index: int, width: int, change) -> None:

@@ -186,6 +186,12 @@ def speed(body, outfit: str, taylor: TaylorGarment | None) -> dict:
             "new_shape_ms": float(np.median(t_ms))}
 
 
+def score(v: torch.Tensor, gt: torch.Tensor, faces: np.ndarray, graded, bv, bn) -> tuple[float, float, float]:
+    """A cloth (N, 3) against its drape: mean vertex error (mm), collisions (%), edge error (mm)."""
+    phys = physical_metrics(v[None], faces, graded, bv, bn)
+    return float((v - gt).norm(dim=-1).mean()) * 1000, phys["collision_pct"], phys["edge_mm"]
+
+
 @torch.no_grad()
 def val_check(cfg: TaylorBuildConfig, m: Methods, body, poses: int, faces: np.ndarray) -> dict:
     """Taylor with and without the Dresser's post-step on val poses (val performers) x other
@@ -200,9 +206,7 @@ def val_check(cfg: TaylorBuildConfig, m: Methods, body, poses: int, faces: np.nd
             gt = torch.from_numpy(drapes[p]["posed"][k + 1])
             outs, (bv, bn), graded = m(r[p], shapes[k], None)
             for name in ("Taylor", POSTED):
-                phys = physical_metrics(outs[name][None], faces, graded, bv, bn)
-                acc.setdefault(name, []).append((float((outs[name] - gt).norm(dim=-1).mean()) * 1000,
-                                                 phys["collision_pct"], phys["edge_mm"]))
+                acc.setdefault(name, []).append(score(outs[name], gt, faces, graded, bv, bn))
     return {"poses": len(r), "bodies": len(shapes), "rows": {
         name: {"error_mm": _mean([a[0] for a in v]), "collision_pct": _mean([a[1] for a in v]),
                "edge_mm": _mean([a[2] for a in v])} for name, v in acc.items()}}
@@ -225,9 +229,8 @@ def evaluate(outfit: str, poses: int = 20, workers: int = 2, anchor_counts=(8, 1
     curve = {n: {"far": [], "all": []} for n in subsets}
 
     def add(name, v, gt, k, bv, bn, graded):
-        phys = physical_metrics(v[None], faces, graded, bv, bn)
-        acc.setdefault(name, []).append((float((v - gt).norm(dim=-1).mean()) * 1000, bool(far[k]),
-                                         phys["collision_pct"], phys["edge_mm"]))
+        err, coll, edge = score(v, gt, faces, graded, bv, bn)
+        acc.setdefault(name, []).append((err, bool(far[k]), coll, edge))
 
     for p in range(len(rot)):
         for k in range(len(shapes)):

@@ -139,8 +139,10 @@ class TaylorGarment:
         self.correct_pose = correct_pose
         self.regions = region_weights(pbns.weights.detach())  # (N, G)
         self.shape: torch.Tensor | None = None  # (S,) the body of set_shape
-        self.delta: torch.Tensor | None = None  # (A, N, 3) per-anchor shape terms beyond the grading
-        self.corrected: torch.Tensor | None = None  # delta + pose_residual (PBNS corrected as pose model)
+        # per-anchor shape terms beyond the grading, and with pose_residual (PBNS corrected as pose
+        # model), stored coordinate-major (A, 3, N): blending them per vertex runs on contiguous rows
+        self.delta_t: torch.Tensor | None = None
+        self.corrected_t: torch.Tensor | None = None
         self.graded: torch.Tensor | None = None  # (N, 3) the template graded to the body of set_shape
         self._transfer: Transfer | None = None
         self._body_inc = None  # the body's vertex-face incidence (its normals), made with _transfer
@@ -167,13 +169,10 @@ class TaylorGarment:
             self._transfer = Transfer(body, self.pbns.rest.numpy(), self.pbns.faces.numpy(), self.shape0)
             self._body_inc = CollisionResolver.incidence(np.asarray(body.faces), len(bv))
         self.graded = torch.from_numpy(self._transfer.resize(self.shape[None], bv[None])[0])
-        # stored coordinate-major (A, 3, N), so that blending them per vertex runs on contiguous rows;
-        # delta and corrected are (A, N, 3) views of them
         self.delta_t = self.shape_terms(self.shape).transpose(1, 2).contiguous()
         self.corrected_t = self.delta_t if self.pose_residual is None else (
             self.delta_t + self.pose_residual.transpose(1, 2))
-        self.delta, self.corrected = self.delta_t.transpose(1, 2), self.corrected_t.transpose(1, 2)
-        rest = self.graded + self.delta.mean(0)  # the outfit on this body, at rest (a typical anchor's)
+        rest = self.graded + self.delta_t.mean(0).T  # the outfit on this body, at rest (a typical anchor's)
         bn = CollisionResolver.normals(bv, np.asarray(body.faces), self._body_inc)
         # a tree that builds faster (and queries alike) than the balanced, compact default
         _, bound = cKDTree(bv, balanced_tree=False, compact_nodes=False).query(rest.numpy())
@@ -190,17 +189,21 @@ class TaylorGarment:
         d = pose_vector(rotmats)[:, None] - self.anchor_vec[None]  # (B, A, 72)
         return torch.einsum("bam,gm->bga", d ** 2, self.q)
 
-    def terms(self, pose_model: bool = True) -> torch.Tensor:
-        """(A, N, 3) what each anchor adds: its shape term, and its pose-model correction when PBNS is
+    def terms_t(self, pose_model: bool = True) -> torch.Tensor:
+        """(A, 3, N) what each anchor adds: its shape term, and its pose-model correction when PBNS is
         the pose model and ``correct_pose``."""
-        return self.corrected if pose_model and self.correct_pose else self.delta
+        return self.corrected_t if pose_model and self.correct_pose else self.delta_t
+
+    def terms(self, pose_model: bool = True) -> torch.Tensor:
+        """``terms_t`` as (A, N, 3)."""
+        return self.terms_t(pose_model).transpose(1, 2)
 
     def correction(self, weights: torch.Tensor, pose_model: bool = True) -> torch.Tensor:
         """(B, G, A) blend weights -> (B, N, 3) blended rest-pose terms (``terms``)."""
         active = torch.nonzero(weights.sum((0, 1)) > 0)[:, 0]
         # (a, B, 1, N): each active anchor's weight at every vertex, contiguous per anchor
         c = (self.regions @ weights[:, :, active]).permute(2, 0, 1).contiguous()[:, :, None]
-        terms = self.corrected_t if pose_model and self.correct_pose else self.delta_t  # (A, 3, N)
+        terms = self.terms_t(pose_model)
         out = torch.zeros(c.shape[1], 3, c.shape[3], dtype=terms.dtype)
         for j, a in enumerate(active.tolist()):  # in place, no gathered copy of the active terms
             out.addcmul_(c[j], terms[a])
@@ -216,7 +219,7 @@ class TaylorGarment:
         output to use instead of PBNS's (an unposed simulation, for the upper bound). ``distance``
         (B, G, A): the blending's distances (``distances``; damped by ``animate``); ``weights``
         (B, G, A): blend weights to use instead."""
-        if self.delta is None:
+        if self.delta_t is None:
             raise RuntimeError("TaylorGarment.set_shape(body, shape) first")
         base = self.pbns.rest + self.pbns.deformation(rotmats) if pose_model is None else pose_model
         if weights is None:
