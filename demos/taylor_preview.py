@@ -1,6 +1,7 @@
 """Taylor garment model preview: one outfit on five very different bodies (columns) at a held-out
-pose; rows: PBNS + resizer (the default Dresser), the Taylor model, the quasi-static drape (what
-both try to be). Needs the outfit's Taylor database (`recon garment train --model taylor`).
+pose; rows: PBNS + resizer (the default Dresser), the Taylor model as a motion's frame gets it
+(the model and the post-step), as a photo gets it (drape iterations first), the quasi-static
+drape (what all try to be). Needs the outfit's Taylor database (`recon garment train --model taylor`).
 
     .venv/bin/python demos/taylor_preview.py [--outfit tshirt-skirt] [--out demos/previews/taylor-tshirt-skirt.jpg]
 """
@@ -36,7 +37,9 @@ def main() -> None:
     shapes = torch.tensor(BODIES, dtype=torch.float32)
     rot = test_poses(20)[a.pose:a.pose + 1]
     drapes = drape_poses(TaylorBuildConfig(outfit=a.outfit), rot, [shapes], desc="preview")[0]["posed"][1:]
-    rows = {"PBNS + resizer": Dresser(a.outfit, dynamics=False), "Taylor": Dresser(a.outfit, garment_model="taylor")}
+    rows = {"PBNS + resizer": Dresser(a.outfit, dynamics=False),
+            "Taylor, motion": Dresser(a.outfit, garment_model="taylor", drape_iterations=0),
+            "Taylor, photo": Dresser(a.outfit, garment_model="taylor")}
     faces, tiles = body.faces.numpy(), {k: [] for k in (*rows, "drape")}
     for i, s in enumerate(shapes):
         with torch.no_grad():
@@ -45,7 +48,8 @@ def main() -> None:
         clothes = {k: d(body, rot, s[None]).vertices[0] for k, d in rows.items()} | {"drape": drapes[i]}
         for k, cloth in clothes.items():
             err = "" if k == "drape" else f" {1000 * np.linalg.norm(cloth - drapes[i], axis=1).mean():.1f} mm"
-            img = render_meshes([(bv, faces, BODY_RGBA), (cloth, rows["Taylor"].model.faces.numpy(), CLOTH_RGBA)],
+            cloth_faces = rows["Taylor, photo"].model.faces.numpy()
+            img = render_meshes([(bv, faces, BODY_RGBA), (cloth, cloth_faces, CLOTH_RGBA)],
                                 size=(260, 380), center=centre, distance=3.0)
             cv2.putText(img, k + err, (6, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
             tiles[k].append(img)

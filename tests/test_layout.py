@@ -37,9 +37,11 @@ STAGES = [
 GARMENT_FAMILIES = ("pbns", "ncs", "deepsd", "gcvae", "taylor", "author")
 ROOMS = {"model": "inference", "sample": "inference", "data": "training data", "config": "training settings",
          "losses": "training losses", "train": "training", "eval": "evaluation", "command": "a CLI command"}
+# the drape solver (drape, on integrate's minimiser) runs at inference too: it continues the Taylor
+# model's cloth on a photo
 GARMENT_CORE_RUNTIME = ("templates", "outfits", "mesh", "store", "dress", "resize", "collide", "losses", "metrics",
-                        "gltf", "self_intersection")
-GARMENT_CORE_TRAINING = ("data", "drape", "integrate", "reference")
+                        "gltf", "self_intersection", "drape", "integrate")
+GARMENT_CORE_TRAINING = ("data", "reference")
 # a family uses another's inference rooms only; author's data is NCS's teacher run on its own parameters
 CROSS_FAMILY = {("author", "ncs.data"), ("author", "ncs.config")}
 

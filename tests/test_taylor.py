@@ -23,6 +23,7 @@ from recon.garment.taylor.model import (
     TaylorGarment,
     blend_weights,
     fit_shape_model,
+    pose_vector,
     region_weights,
     shape_features,
 )
@@ -118,6 +119,46 @@ def test_taylor_term_is_exact_at_an_anchor_and_vanishes_on_the_pose_models_body(
     rot = poses(4, seed=5)
     _, _, bt = posed_bodies(body, rot, shapes[0][None])
     assert torch.equal(m.pose(rot, bt), model.pose(rot, bt))
+
+
+def test_pose_examples_correct_the_pose_model_with_weights_of_their_own(body, top, tmp_path):
+    """Pose examples (drapes on the pose model's body alone, beyond the anchors): at an example the
+    model is PBNS plus that example's residual plus the shape term; saved, loaded, animated and as
+    blend shapes alike."""
+    _, model = top
+    anchors, extra = poses(3), poses(4, seed=9)
+    shapes = torch.cat([body.mean_shape[None], database_shapes(5, seed=1)])
+    m = toy_model(body, model, anchors, shapes, shifted_drape(model))
+    g = torch.Generator().manual_seed(5)
+    examples = torch.cat([anchors, extra])
+    m.pose_examples, m.example_vec = examples, pose_vector(examples)
+    m.pose_residual = 1e-3 * torch.randn(len(examples), model.rest.shape[0], 3, generator=g)
+    assert m.separate_examples
+    rot = extra[2:3]
+    for k in (0, 3):
+        _, _, bt = posed_bodies(body, rot, shapes[k][None])
+        m.set_shape(body, shapes[k])
+        w = blend_weights(m.distances(rot), m.cfg)
+        with torch.no_grad():
+            want = model.skin(model.rest + model.deformation(rot) + m.graded - model.rest
+                              + m.blend(w, m.delta_t)[0] + m.pose_residual[5], bt)
+        assert (m.pose(rot, bt) - want).norm(dim=-1).max() < 1e-5
+        m.correct_pose = False  # PBNS alone as the pose model: no example's residual
+        assert (m.pose(rot, bt) - want).norm(dim=-1).mean() > 5e-4
+        m.correct_pose = True
+    m.save(tmp_path / "t.pt", "{}")
+    loaded = TaylorGarment.load(tmp_path / "t.pt", model)[0].set_shape(body, shapes[3])
+    assert torch.equal(loaded.pose_examples, examples) and loaded.separate_examples
+    assert (loaded.pose(rot, bt) - m.pose(rot, bt)).norm(dim=-1).mean() < 5e-5  # float16 storage
+    motion = poses(6, seed=11)
+    with torch.no_grad():
+        out = body(motion, shapes[3][None].expand(6, -1))
+    ref = m.pose(motion, out.transforms, distance=m.damped_distances(motion),
+                 example_distance=m.damped_distances(motion, examples=True))
+    assert (m.animate(motion, out.transforms) - ref).norm(dim=-1).max() < 1e-6
+    d, codes = m.sequence_codes(motion)
+    posed = model.skin(m.graded + (codes @ d).view(6, -1, 3), out.transforms)
+    assert (posed - ref).norm(dim=-1).max() < 1e-4
 
 
 def test_separability_on_a_toy_function(body, top):
@@ -256,7 +297,7 @@ def test_dresser_with_the_taylor_model_poses_animates_and_exports(body, top, tmp
     shapes = torch.cat([body.mean_shape[None], database_shapes(6, seed=1)])
     m = toy_model(body, model, poses(4), shapes, shifted_drape(model))
     m.save(store.taylor_path(str(path)), json.dumps({"outfit": "mytop"}))
-    dresser = Dresser(path=path, garment_model="taylor", resolve_collisions=False)
+    dresser = Dresser(path=path, garment_model="taylor", resolve_collisions=False, drape_iterations=0)
     shape = shapes[3]
     rot = poses(5, seed=7)
     transl = torch.zeros(5, 3)
@@ -266,7 +307,7 @@ def test_dresser_with_the_taylor_model_poses_animates_and_exports(body, top, tmp
     direct = m.set_shape(body, shape).pose(rot[:2], out.transforms, out.vertices)
     assert np.abs(one - direct.numpy()).mean() < 1e-4  # float16 storage (a push-out may flip: the mean)
     # by default the Dresser's post-step follows, with the outfit graded to the body as its rest
-    posted = Dresser(path=path, garment_model="taylor")
+    posted = Dresser(path=path, garment_model="taylor", drape_iterations=0)
     got = posted(body, rot[:2], shape[None].expand(2, -1), transl[:2]).vertices
     ref = posted.resolver(torch.from_numpy(one), out.vertices, body.faces, rest=m.graded)
     assert np.abs(got - ref.numpy()).mean() < 1e-4 and np.abs(got - one).mean() > 1e-6
@@ -290,3 +331,40 @@ def test_dresser_with_the_taylor_model_poses_animates_and_exports(body, top, tmp
     ref = m.set_shape(body, shape).pose(rot, out.transforms, distance=m.damped_distances(rot))
     assert (posed - ref).norm(dim=-1).max() < 1e-4
     assert unposed(model, ref, out.transforms).shape == ref.shape
+
+
+def test_dresser_continues_a_taylor_pose_with_the_drape_solver_in_the_gravity_frame(body, top, tmp_path, monkeypatch):
+    """``drape_iterations``: a single pose's Taylor cloth continued by the database's drape solver,
+    which brings it nearer the drape; solved with gravity along -Y and moved with the body to the
+    camera frame."""
+    monkeypatch.setenv("RECON_CACHE_DIR", str(tmp_path / "cache"))
+    outfit, model = top
+    path = tmp_path / "mytop.pt"
+    model.save(path, {"meta_json": json.dumps({"garments": ["top"]}), "layer": torch.zeros(len(outfit.vertices)),
+                      "garment_id": torch.zeros(len(outfit.vertices), dtype=torch.long), "shape": body.mean_shape})
+    monkeypatch.setattr("recon.garment.dress.trained_outfit", lambda b, p: (outfit, body.mean_shape, "mytop"))
+    shapes = torch.cat([body.mean_shape[None], database_shapes(6, seed=1)])
+    m = toy_model(body, model, poses(4), shapes, shifted_drape(model, amplitude=0.01))
+    m.save(store.taylor_path(str(path)), json.dumps({"outfit": "mytop"}))
+    refined = Dresser(path=path, garment_model="taylor", resolve_collisions=False, drape_iterations=15)
+    shape, rot = shapes[2], poses(1, scale=0.2, seed=3)
+    got = torch.from_numpy(refined(body, rot, shape[None]).vertices[0])
+    bv, bn, bt = posed_bodies(body, rot, shape[None])
+    taylor = m.set_shape(body, shape).pose(rot, bt, bv)[0]
+    skinned = model.skin(m.graded[None], bt)[0]
+    # on its way from the model's cloth to where the same solver, run on, takes it
+    further = DrapeSolver(outfit, DrapeSolverConfig(rounds=1, iterations=150))(m.graded, taylor, bv[0], bn[0],
+                                                                              carried=skinned)
+    assert (got - further).norm(dim=-1).mean() < 0.7 * (taylor - further).norm(dim=-1).mean()
+    assert (got - taylor).norm(dim=-1).mean() > 1e-3
+    # in a camera frame (the root turned upside down, translated): the same cloth, moved with the body
+    up = torch.diag(torch.tensor([1.0, -1.0, -1.0]))
+    cam = rot.clone()
+    cam[:, 0] = up.T @ rot[:, 0]
+    transl = torch.tensor([[0.3, -0.2, 2.5]])
+    moved = torch.from_numpy(refined(body, cam, shape[None], transl, up=up).vertices[0])
+    with torch.no_grad():
+        body_cam = body(cam, shape[None], transl=transl).vertices[0]
+    r, t = roma.rigid_points_registration(bv[0], body_cam)
+    assert (body_cam - (bv[0] @ r.T + t)).norm(dim=-1).max() < 1e-4  # the two bodies: one rigid motion apart
+    assert (moved - (got @ r.T + t)).norm(dim=-1).max() < 1e-4

@@ -27,8 +27,9 @@ def add_garment(p: Parser) -> None:
     help_outfit = ("preset names, 'all', or your own garment meshes (.obj, .ply, .glb, ...: body frame, metres, "
                    "+Y up; trained into ~/.cache/recon/garments)")
     help_model = ("pbns: quasi-static (ch. 5); ncs: dynamic (ch. 6), trained from the outfit's PBNS; taylor: the "
-                  "example-based model's database (drapes on many bodies at anchor poses; ~45 min); author: keyframe "
-                  "authoring (simulations with random fabrics, then the intrinsic-space networks; ~1.5 h); "
+                  "example-based model's database (drapes on many bodies at anchor poses; ~1.5 h on 2 cores); "
+                  "author: keyframe authoring (simulations with random fabrics, then the intrinsic-space networks; "
+                  "~1.5 h); "
                   "deepsd: one model for any outfit (drapes of generated outfits, then the network; --outfit "
                   "unused); gcvae: the generative garment space (registered generated garments; --outfit unused)")
     a = action("train", "garment:train", "train outfits (unsupervised, physics energies): PBNS, then NCS")
@@ -45,6 +46,9 @@ def add_garment(p: Parser) -> None:
     a.add_argument("--shapes", type=COUNT, default=None,
                    help=f"taylor: bodies draped at each anchor besides PBNS's "
                         f"(default {known(taylor, 'shapes')})")
+    a.add_argument("--pose-examples", type=NON_NEGATIVE, default=None,
+                   help=f"taylor: poses draped on PBNS's body alone to correct it, besides the anchors "
+                        f"(default {known(taylor, 'pose_examples')}; 0: the anchors only)")
     a.add_argument("--epochs", type=COUNT, default=None,
                    help=f"PBNS: default {known(pbns, 'epochs')}")
     a.add_argument("--poses", type=COUNT, default=known(pbns, "poses"))

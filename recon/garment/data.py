@@ -1,18 +1,13 @@
-"""What every garment family trains and evaluates on: balanced mocap pose sets, the posed bodies,
-and the template a trained PBNS file was made for."""
+"""What every garment family trains and evaluates on: balanced mocap pose sets and the posed
+bodies (and, from recon.garment.pbns.model, the template a trained PBNS file was made for)."""
 from __future__ import annotations
-
-import json
-from pathlib import Path
 
 import numpy as np
 import roma
 import torch
 
-from recon.errors import ReconError
 from recon.garment.mesh import vertex_normals
-from recon.garment.pbns.model import PBNS
-from recon.garment.templates import Outfit, make_outfit
+from recon.garment.pbns.model import PBNS, trained_outfit  # noqa: F401 - trained_outfit: its home is pbns.model
 from recon.poses.mocap import MocapPoses
 
 MIN_POSE_DISTANCE = 0.5  # radians: every pair of a pose set differs this much in some joint (thesis 5.4.3)
@@ -54,14 +49,3 @@ def posed_bodies(body, rotmats: torch.Tensor, shape: torch.Tensor, chunk: int = 
             ns.append(vertex_normals(o.vertices, body.faces))
             ts.append(o.transforms)
     return torch.cat(vs), torch.cat(ns), torch.cat(ts)
-
-
-def trained_outfit(body, pbns_path: Path) -> tuple[Outfit, torch.Tensor, str]:
-    """The template a PBNS file was trained on (rebuilt, and checked against the file), its
-    body shape and the outfit's name."""
-    model, ck = PBNS.load(pbns_path)
-    meta = json.loads(ck["meta_json"])
-    outfit = make_outfit(body, meta.get("source", meta["outfit"]), ck["shape"][None])  # source: a preset or a mesh
-    if not np.allclose(outfit.vertices, model.rest.numpy(), atol=1e-5):
-        raise ReconError(f"the {meta['outfit']} template changed since {pbns_path} was trained: retrain it")
-    return outfit, ck["shape"], meta["outfit"]

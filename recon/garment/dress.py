@@ -14,7 +14,11 @@ frame (quasi-static).
 ``garment_model="taylor"``: the example-based model (recon.garment.taylor.model) instead, quasi-static:
 PBNS's pose deformations plus the body-shape dimension from drapes on many bodies at anchor poses;
 it sizes the outfit to the body itself (no resizer, no tightness) and pushes penetrations out its
-own way; the post-step follows, with the outfit graded to the body as its rest.
+own way; the post-step follows, with the outfit graded to the body as its rest. A single pose (a
+photo) is first continued by ``drape_iterations`` iterations of the drape solver the database was
+built with (recon.garment.drape, one contact search, in the gravity-aligned frame): the model is
+its warm start, and the cloth nears the drape at a fraction of a drape's cost. Motions are not
+(frames refined apart would flicker).
 
 ``garment_model="deepsd"``: any outfit without training (recon.garment.deepsd.model, thesis ch. 4): its
 blend weights and pose-space blend shapes predicted from the template mesh, then as PBNS
@@ -34,8 +38,10 @@ from recon.errors import MissingFile, ReconError
 from recon.garment import store
 from recon.garment.collide import CollisionResolver
 from recon.garment.deepsd.model import animation_model
+from recon.garment.drape import DrapeSolver, DrapeSolverConfig
+from recon.garment.mesh import vertex_normals
 from recon.garment.ncs.model import FPS, NCS
-from recon.garment.pbns.model import PBNS, pose_features
+from recon.garment.pbns.model import PBNS, pose_features, trained_outfit
 from recon.garment.resize import OutfitResizer, Transfer
 from recon.garment.taylor.model import TaylorGarment
 from recon.garment.templates import MESH_SUFFIXES
@@ -57,11 +63,16 @@ def untrained_mesh(outfit: str) -> bool:
     return Path(outfit).suffix.lower() in MESH_SUFFIXES and not store.pbns_path(outfit).exists()
 
 
+# drape-solver iterations after the Taylor model on a single pose (chosen on val: garment-taylor.md)
+DRAPE_ITERATIONS = 20
+
+
 class Dresser:
     """``Dresser("tshirt-trousers")(body, rotmats, shape, transl) -> DressedOutfit``."""
 
     def __init__(self, outfit: str = "tshirt-trousers", path: str | Path | None = None, resizer: bool = True,
-                 resolve_collisions: bool = True, dynamics: bool | None = None, garment_model: str = "pbns"):
+                 resolve_collisions: bool = True, dynamics: bool | None = None, garment_model: str = "pbns",
+                 drape_iterations: int = DRAPE_ITERATIONS):
         """``resolve_collisions``: the post-step of recon.garment.collide: restore the edge lengths
         and push cloth the network leaves inside the body out of it (its cost:
         eval/results/bench-garment-1t.md).
@@ -69,7 +80,9 @@ class Dresser:
         ``garment_model``: "pbns" (PBNS, NCS for motions as ``dynamics`` says), "taylor" (the
         example-based model; its database: ``recon garment train --model taylor``) or "deepsd" (any
         outfit animated without training, recon.garment.deepsd.model; what a garment mesh with no PBNS
-        weights of its own gets)."""
+        weights of its own gets).
+        ``drape_iterations``: the Taylor model's single poses continued by this many iterations of
+        the drape solver (0: the model alone, real time)."""
         if garment_model not in GARMENT_MODELS:
             raise ReconError(f"unknown garment model {garment_model!r}: {', '.join(GARMENT_MODELS)}")
         if garment_model in ("taylor", "deepsd") and dynamics:
@@ -107,8 +120,9 @@ class Dresser:
             tp = store.taylor_path(self.outfit)
             if not tp.exists():
                 raise MissingFile(f"{self.outfit} has no Taylor database {tp}: run "
-                                  f"`recon garment train --model taylor --outfit {self.outfit}` (~45 min)")
+                                  f"`recon garment train --model taylor --outfit {self.outfit}` (~1.5 h on 2 cores)")
             self.taylor, _ = TaylorGarment.load(tp, self.model)
+            self.drape_iterations, self._pbns_path, self._solver = int(drape_iterations), path, None
             dynamics = False  # quasi-static; the post-step follows its own penetration handling
         if dynamics is not False and ncs_path is not None and ncs_path.exists():
             self.ncs, _ = NCS.load(ncs_path)
@@ -164,7 +178,10 @@ class Dresser:
             posed = []
             for i, s in enumerate(shape):
                 taylor = self.taylor.set_shape(body, s)
-                v = taylor.pose(r[i:i + 1], out.transforms[i:i + 1], out.vertices[i:i + 1])
+                if self.drape_iterations:
+                    v = self._draped(body, taylor, r[i:i + 1], s, out.transforms[i:i + 1])
+                else:
+                    v = taylor.pose(r[i:i + 1], out.transforms[i:i + 1], out.vertices[i:i + 1])
                 if self.resolver is not None:
                     v = self.resolver(v, out.vertices[i:i + 1], body.faces, rest=taylor.graded)
                 posed.append(v)
@@ -174,6 +191,22 @@ class Dresser:
         if self.resolver is not None:
             verts = self.resolver(verts, out.vertices, body.faces, rest=rest)
         return DressedOutfit(verts.numpy(), self.model.faces.numpy(), self.garment_id, self.names)
+
+    def _draped(self, body, taylor: TaylorGarment, r: torch.Tensor, shape: torch.Tensor, transforms: torch.Tensor
+                ) -> torch.Tensor:
+        """One person's Taylor cloth (1, N, 3) continued by the drape solver: posed in the gravity
+        -aligned frame (pose ``r``, no translation; the solver's gravity is -Y), then moved rigidly
+        to the frame of ``transforms`` (1, 24, 3, 4) as the body's root moves between the two."""
+        if self._solver is None:
+            outfit, _, _ = trained_outfit(body, self._pbns_path)
+            self._solver = DrapeSolver(outfit, DrapeSolverConfig(rounds=1, iterations=self.drape_iterations))
+        out = body(r, shape[None])
+        bv, bn, bt = out.vertices, vertex_normals(out.vertices, body.faces), out.transforms
+        v = taylor.pose(r, bt, bv)
+        v = self._solver(taylor.graded, v[0], bv[0], bn[0], carried=self.model.skin(taylor.graded[None], bt)[0])
+        a, g = transforms[0, 0], bt[0, 0]
+        rot = a[:, :3] @ g[:, :3].T
+        return (v @ rot.T + (a[:, 3] - rot @ g[:, 3]))[None]
 
     @property
     def dynamic(self) -> bool:

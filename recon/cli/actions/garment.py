@@ -84,10 +84,11 @@ def train(args) -> None:
                               "seconds": meta["seconds"]}))
             continue
         if args.model == "taylor":
-            more = {k: getattr(args, k) for k in ("anchors", "shapes", "workers") if getattr(args, k) is not None}
+            more = {k: getattr(args, k) for k in ("anchors", "shapes", "pose_examples", "workers")
+                    if getattr(args, k) is not None}
             path = taylor_build.build(taylor_build.TaylorBuildConfig(outfit=o, **more))
             meta = json.loads(taylor_build.read_meta(path))
-            keys = ("anchors", "drape_seconds", "fit_seconds", "explained_variance", "ridge")
+            keys = ("anchors", "pose_examples", "drape_seconds", "fit_seconds", "explained_variance", "ridge")
             print(json.dumps({"outfit": o, "weights": str(path), **{k: meta[k] for k in keys}}))
             continue
         if args.model == "ncs":

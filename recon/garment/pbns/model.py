@@ -9,6 +9,7 @@ skirts only; here it is done for every outfit, see eval/results/garment-ablation
 """
 from __future__ import annotations
 
+import json
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -18,8 +19,9 @@ from scipy.spatial import cKDTree
 from torch import nn
 
 from recon import paths
+from recon.errors import ReconError
 from recon.garment.mesh import smooth_vertex_values
-from recon.garment.templates import Outfit, RestBody
+from recon.garment.templates import Outfit, RestBody, make_outfit
 
 
 @dataclass
@@ -228,3 +230,14 @@ def initial_weights(rb: RestBody, outfit: Outfit, diffusion: int = 0) -> np.ndar
     if diffusion > 0:
         w = smooth_vertex_values(w, outfit.faces, diffusion)
     return (w / w.sum(1, keepdims=True)).astype(np.float32)
+
+
+def trained_outfit(body, pbns_path: Path) -> tuple[Outfit, torch.Tensor, str]:
+    """The template a PBNS file was trained on (rebuilt, and checked against the file), its
+    body shape and the outfit's name."""
+    model, ck = PBNS.load(pbns_path)
+    meta = json.loads(ck["meta_json"])
+    outfit = make_outfit(body, meta.get("source", meta["outfit"]), ck["shape"][None])  # source: a preset or a mesh
+    if not np.allclose(outfit.vertices, model.rest.numpy(), atol=1e-5):
+        raise ReconError(f"the {meta['outfit']} template changed since {pbns_path} was trained: retrain it")
+    return outfit, ck["shape"], meta["outfit"]

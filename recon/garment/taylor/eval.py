@@ -22,7 +22,8 @@ from recon.body import default_body
 from recon.garment import reference, store
 from recon.garment.collide import CollisionResolver
 from recon.garment.data import pose_set, posed_bodies, trained_outfit
-from recon.garment.drape import DrapeSolver
+from recon.garment.drape import DrapeSolver, DrapeSolverConfig
+from recon.garment.dress import DRAPE_ITERATIONS
 from recon.garment.metrics import physical_metrics
 from recon.garment.pbns.model import PBNS, remove_yaw
 from recon.garment.resize import OutfitResizer, Transfer
@@ -33,6 +34,8 @@ from recon.timing import compare
 
 PHENOTYPES = ("weight", "height")  # "far" bodies: top or bottom quintile of either in anny's prior
 POSTED = "Taylor + post-step"
+REFINED = "Taylor + drape iterations + post-step"  # what the Dresser returns for a single pose
+VAL_ITERATIONS = (10, 20, 40)  # drape-solver iterations after the model, scored on val
 VAL_SEED = 2025  # val poses and bodies: other draws than the test's
 
 
@@ -75,6 +78,19 @@ class Methods:
         rp = store.resizer_path(outfit)
         self.resizer = OutfitResizer(body, rp, self.pbns.rest.numpy(), self.pbns.faces.numpy()) if rp.exists() else None
         self.resolver = CollisionResolver(self.pbns.faces.numpy(), ck["layer"].numpy())
+        self.outfit = trained_outfit(body, store.pbns_path(outfit))[0]
+        self._solvers: dict[int, DrapeSolver] = {}
+
+    def refined(self, x: torch.Tensor, iterations: int, bv, bn, bt) -> tuple[torch.Tensor, float]:
+        """Taylor's cloth (1, N, 3) continued by ``iterations`` of the drape solver, then the post-step
+        (the Dresser's single-pose path): (N, 3) and its seconds."""
+        if iterations not in self._solvers:
+            self._solvers[iterations] = DrapeSolver(self.outfit, DrapeSolverConfig(rounds=1, iterations=iterations))
+        t = time.perf_counter()
+        g = self.taylor.graded
+        v = self._solvers[iterations](g, x[0], bv[0], bn[0], carried=self.pbns.skin(g[None], bt)[0])
+        v = self.resolver(v[None], bv, self.body.faces, rest=g[None])[0]
+        return v, time.perf_counter() - t
 
     @torch.no_grad()
     def __call__(self, rot: torch.Tensor, shape: torch.Tensor, sim_pose_model: torch.Tensor | None) -> dict:
@@ -93,6 +109,7 @@ class Methods:
         out["Taylor, no penetration handling"] = self.taylor.pose(rot[None], bt)[0]
         out["Taylor"] = self.taylor.pose(rot[None], bt, bv)[0]
         out[POSTED] = self.resolver(out["Taylor"][None], bv, self.body.faces, rest=self.taylor.graded[None])[0]
+        out[REFINED] = self.refined(out["Taylor"][None], DRAPE_ITERATIONS, bv, bn, bt)[0]
         self.taylor.correct_pose = False
         out["Taylor, PBNS uncorrected as pose model"] = self.taylor.pose(rot[None], bt, bv)[0]
         self.taylor.correct_pose = True
@@ -108,11 +125,26 @@ def _mean(xs) -> float | None:
 
 def subset(model: TaylorGarment, joint_weights: torch.Tensor, n: int) -> TaylorGarment:
     """The model with ``n`` of its anchors (clustered like the database's, the member nearest each
-    centre): the error-against-anchors curve without a database per count."""
+    centre; its pose examples kept): the error-against-anchors curve without a database per count."""
     idx = torch.from_numpy(cluster_anchors(model.anchors, joint_weights, n))
-    res = None if model.pose_residual is None else model.pose_residual[idx]
+    res = model.pose_residual
+    if res is not None and not model.separate_examples:
+        res = res[idx]
     return TaylorGarment(model.pbns, model.anchors[idx], model.q, model.basis[idx], model.maps[idx], model.shape0,
-                         model.cfg, res)
+                         model.cfg, res, pose_examples=model.pose_examples)
+
+
+def example_subset(model: TaylorGarment, joint_weights: torch.Tensor, n: int) -> TaylorGarment:
+    """The model with ``n`` of its pose examples: its anchors alone when ``n`` is their number (the
+    database without examples of its own), else ``n`` clustered among all of them."""
+    a = len(model.anchors)
+    if n == a:
+        res, examples = model.pose_residual[:a], None
+    else:
+        idx = torch.from_numpy(cluster_anchors(model.pose_examples, joint_weights, n))
+        res, examples = model.pose_residual[idx], model.pose_examples[idx]
+    return TaylorGarment(model.pbns, model.anchors, model.q, model.basis, model.maps, model.shape0, model.cfg, res,
+                         pose_examples=examples)
 
 
 def separability(cfg: TaylorBuildConfig, m: Methods, anchors: list[int], radii: tuple[float, ...], samples: int,
@@ -167,9 +199,14 @@ def speed(body, outfit: str, taylor: TaylorGarment | None) -> dict:
         a, n, s = cfg.anchors, pbns.rest.shape[0], len(shape)
         g = torch.Generator().manual_seed(0)
         q = torch.rand(7, 72, generator=g)
-        taylor = TaylorGarment(pbns, test_poses(a + 8)[8:], q / q.sum(1, keepdim=True),
+        e = a + cfg.pose_examples
+        anchors = test_poses(a + 8)[8:]
+        examples = torch.cat([anchors, roma.rotvec_to_rotmat(0.3 * torch.randn(e - a, 24, 3, generator=g))])
+        taylor = TaylorGarment(pbns, anchors, q / q.sum(1, keepdim=True),
                                1e-3 * torch.randn(a, cfg.components, n, 3, generator=g),
-                               torch.randn(a, cfg.components, 2 * s + 1, generator=g), shape)
+                               torch.randn(a, cfg.components, 2 * s + 1, generator=g), shape,
+                               pose_residual=1e-3 * torch.randn(e, n, 3, generator=g),
+                               pose_examples=examples if cfg.pose_examples else None)
     out = body(rot[:1], shape[None])
     t_ms = []
     for k in range(5):
@@ -181,6 +218,7 @@ def speed(body, outfit: str, taylor: TaylorGarment | None) -> dict:
     ms = compare({"pbns": lambda: pbns.pose(r, tr), "taylor": lambda: taylor.pose(r, tr, bv),
                   "post": lambda: resolver(taylor.pose(r, tr, bv), bv, body.faces, rest=taylor.graded)}, rounds=7)
     return {"vertices": int(pbns.rest.shape[0]), "random_database": random_db, "anchors": len(taylor.anchors),
+            "pose_examples": len(taylor.pose_examples if taylor.separate_examples else taylor.anchors),
             "pbns_fps": 1000.0 / ms["pbns"], "taylor_fps": 1000.0 / ms["taylor"],
             "taylor_post_fps": 1000.0 / ms["post"],
             "new_shape_ms": float(np.median(t_ms))}
@@ -194,8 +232,9 @@ def score(v: torch.Tensor, gt: torch.Tensor, faces: np.ndarray, graded, bv, bn) 
 
 @torch.no_grad()
 def val_check(cfg: TaylorBuildConfig, m: Methods, body, poses: int, faces: np.ndarray) -> dict:
-    """Taylor with and without the Dresser's post-step on val poses (val performers) x other
-    bodies than the test's: where the choice of the Taylor path's post-step is made."""
+    """Taylor alone, with the Dresser's post-step and with drape-solver iterations before it, on
+    val poses (val performers) x other bodies than the test's: where the Taylor path's choices
+    are made."""
     shapes, far = test_shapes(body, seed=VAL_SEED)
     r = pose_set("val", poses, 0.5, VAL_SEED)
     r[:, 0] = remove_yaw(r[:, 0])
@@ -204,16 +243,28 @@ def val_check(cfg: TaylorBuildConfig, m: Methods, body, poses: int, faces: np.nd
     for p in range(len(r)):
         for k in range(len(shapes)):
             gt = torch.from_numpy(drapes[p]["posed"][k + 1])
-            outs, (bv, bn), graded = m(r[p], shapes[k], None)
-            for name in ("Taylor", POSTED):
-                acc.setdefault(name, []).append(score(outs[name], gt, faces, graded, bv, bn))
+            bv, bn, bt = posed_bodies(body, r[p][None], shapes[k][None])
+            m.taylor.set_shape(body, shapes[k])
+            graded = m.taylor.graded
+            t = time.perf_counter()
+            x = m.taylor.pose(r[p][None], bt, bv)
+            seconds = time.perf_counter() - t
+            acc.setdefault("Taylor", []).append((*score(x[0], gt, faces, graded, bv, bn), seconds))
+            t = time.perf_counter()
+            v = m.resolver(x, bv, body.faces, rest=graded[None])[0]
+            acc.setdefault(POSTED, []).append((*score(v, gt, faces, graded, bv, bn), seconds + time.perf_counter() - t))
+            for n in VAL_ITERATIONS:
+                v, s = m.refined(x, n, bv, bn, bt)
+                acc.setdefault(f"Taylor + {n} drape iterations + post-step", []).append(
+                    (*score(v, gt, faces, graded, bv, bn), seconds + s))
     return {"poses": len(r), "bodies": len(shapes), "rows": {
         name: {"error_mm": _mean([a[0] for a in v]), "collision_pct": _mean([a[1] for a in v]),
-               "edge_mm": _mean([a[2] for a in v])} for name, v in acc.items()}}
+               "edge_mm": _mean([a[2] for a in v]), "seconds": _mean([a[3] for a in v])} for name, v in acc.items()}}
 
 
 def evaluate(outfit: str, poses: int = 20, workers: int = 2, anchor_counts=(8, 16, 32, 64),
-             radii=(0.05, 0.1, 0.2, 0.4), separability_samples: int = 2, val_poses: int = 10, log=print) -> dict:
+             example_counts=(128, 256), radii=(0.05, 0.1, 0.2, 0.4), separability_samples: int = 2,
+             val_poses: int = 10, log=print) -> dict:
     body = default_body()
     path = store.taylor_path(outfit)
     cfg = TaylorBuildConfig(outfit=outfit, workers=workers)
@@ -225,8 +276,12 @@ def evaluate(outfit: str, poses: int = 20, workers: int = 2, anchor_counts=(8, 1
     faces = m.pbns.faces.numpy()
     joint_w = torch.tensor(meta["joint_weights"])
     subsets = {n: subset(m.taylor, joint_w, n) for n in anchor_counts if n < len(m.taylor.anchors)}
+    n_examples = len(m.taylor.pose_examples) if m.taylor.separate_examples else len(m.taylor.anchors)
+    example_subsets = {n: example_subset(m.taylor, joint_w, n) for n in (len(m.taylor.anchors), *example_counts)
+                       if n < n_examples}
     acc: dict = {}
     curve = {n: {"far": [], "all": []} for n in subsets}
+    example_curve = {n: {"far": [], "all": []} for n in example_subsets}
 
     def add(name, v, gt, k, bv, bn, graded):
         err, coll, edge = score(v, gt, faces, graded, bv, bn)
@@ -240,25 +295,31 @@ def evaluate(outfit: str, poses: int = 20, workers: int = 2, anchor_counts=(8, 1
                 add(name, v, gt, k, bv, bn, graded)
             add("drape (ground truth)", gt, gt, k, bv, bn, graded)
             _, _, bt = posed_bodies(body, rot[p][None], shapes[k][None])
-            for n, sub in subsets.items():
-                sub.set_shape(body, shapes[k])
-                e = float((sub.pose(rot[p][None], bt, bv)[0] - gt).norm(dim=-1).mean()) * 1000
-                curve[n]["all"].append(e)
-                if far[k]:
-                    curve[n]["far"].append(e)
+            for models, c in ((subsets, curve), (example_subsets, example_curve)):
+                for n, sub in models.items():
+                    sub.set_shape(body, shapes[k])
+                    e = float((sub.pose(rot[p][None], bt, bv)[0] - gt).norm(dim=-1).mean()) * 1000
+                    c[n]["all"].append(e)
+                    if far[k]:
+                        c[n]["far"].append(e)
     rows = {name: {"error_mm": _mean([a[0] for a in v]), "error_far_mm": _mean([a[0] for a in v if a[1]]),
                    "error_near_mm": _mean([a[0] for a in v if not a[1]]), "collision_pct": _mean([a[2] for a in v]),
                    "edge_mm": _mean([a[3] for a in v])} for name, v in acc.items()}
     anchors_curve = {str(n): {"error_mm": _mean(c["all"]), "error_far_mm": _mean(c["far"])} for n, c in curve.items()}
     anchors_curve[str(len(m.taylor.anchors))] = {"error_mm": rows["Taylor"]["error_mm"],
                                                 "error_far_mm": rows["Taylor"]["error_far_mm"]}
+    examples_curve = {str(n): {"error_mm": _mean(c["all"]), "error_far_mm": _mean(c["far"])}
+                      for n, c in example_curve.items()}
+    examples_curve[str(n_examples)] = anchors_curve[str(len(m.taylor.anchors))]
     log("scored; separability")
     sep = separability(cfg, m, [0, len(m.taylor.anchors) // 2], radii, separability_samples)
     val = val_check(cfg, m, body, val_poses, faces) if val_poses else None
     return {"outfit": outfit, "poses": len(rot), "shapes": shapes.tolist(), "far": far.tolist(), "rows": rows,
+            "drape_iterations": DRAPE_ITERATIONS,
             "val": val,
-            "anchors_curve": anchors_curve, "separability": sep, "database": {
+            "anchors_curve": anchors_curve, "examples_curve": examples_curve, "separability": sep, "database": {
                 "anchors": meta["anchors"], "bodies_per_anchor": len(meta["shapes"]),
+                "pose_examples": meta.get("pose_examples", meta["anchors"]),
                 "size_mb": path.stat().st_size / 1e6,
                 "build_min": ((meta["drape_seconds"] or 0.0) + meta["fit_seconds"]) / 60, "ridge": meta["ridge"],
                 "explained_variance_pct": 100 * meta["explained_variance"]}}
@@ -295,7 +356,7 @@ def newton_comparison(outfit: str, poses=(3, 11), workers: int = 2) -> list[dict
 
 
 ROW_ORDER = ("skinning only", "PBNS (graded)", "PBNS + resizer", "PBNS + resizer + collision resolution",
-             "Taylor, PBNS uncorrected as pose model", "Taylor, no penetration handling", "Taylor", POSTED,
+             "Taylor, PBNS uncorrected as pose model", "Taylor, no penetration handling", "Taylor", POSTED, REFINED,
              "Taylor, simulation as pose model", "drape (ground truth)")
 
 
@@ -307,35 +368,51 @@ def render(data: dict) -> str:
                 f"{r['poses']} held-out poses (test performers) x {len(r['shapes'])} anny bodies not in the database "
                 f"({sum(r['far'])} far: weight or height in the prior's top or bottom quintile); error = mean vertex "
                 "distance to the drape of each pair (recon.garment.drape, the database's solver); edge against the "
-                "outfit graded to the body.", ""]
+                "outfit graded to the body. What the Dresser returns: Taylor + post-step for a motion's frames, "
+                f"Taylor + drape iterations ({r['drape_iterations']} iterations of that solver from the model's cloth, "
+                "one contact search) + post-step for a single pose.", ""]
         rows = [[k, *(r["rows"][k][c] for c in ("error_mm", "error_far_mm", "error_near_mm", "collision_pct",
                                                  "edge_mm"))] for k in ROW_ORDER if k in r["rows"]]
         out += [report.table(rows, ["model", "error mm", "far bodies mm", "near bodies mm", "collision %", "edge mm"],
                              [""] + [".2f"] * 5), ""]
         if r.get("val"):
             v = r["val"]
-            out += [f"The post-step (the Dresser's strain step and collision resolution, settings chosen on DeePSD's "
-                    f"val outfits) on Taylor's output, first on {v['poses']} val poses (val performers) x "
-                    f"{v['bodies']} other bodies:", "",
-                    report.table([[k, *(v["rows"][k][c] for c in ("error_mm", "collision_pct", "edge_mm"))]
-                                  for k in ("Taylor", POSTED) if k in v["rows"]],
-                                 ["model (val)", "error mm", "collision %", "edge mm"], ["", ".2f", ".2f", ".2f"]), ""]
-        out += [f"Database: {db['anchors']} anchors x {db['bodies_per_anchor']} bodies, {db['size_mb']:.1f} MB, "
+            out += [f"The choices of the Dresser's Taylor path, made on {v['poses']} val poses (val performers) x "
+                    f"{v['bodies']} other bodies: the post-step (strain step and collision resolution, settings "
+                    "chosen on DeePSD's val outfits) after the model (motions), and before it, for a single pose "
+                    f"(a photo), iterations of the drape solver from the model's cloth (one contact search; the "
+                    f"Dresser's `drape_iterations`, {r['drape_iterations']}). Seconds a frame on one thread:", "",
+                    report.table([[k, *(v["rows"][k].get(c) for c in ("error_mm", "collision_pct", "edge_mm",
+                                                                      "seconds"))]
+                                  for k in v["rows"]],
+                                 ["model (val)", "error mm", "collision %", "edge mm", "s a frame"],
+                                 ["", ".2f", ".2f", ".2f", ".3f"]), ""]
+        out += [f"Database: {db['anchors']} anchors x {db['bodies_per_anchor']} bodies and "
+                f"{db.get('pose_examples', db['anchors'])} pose examples (the anchors and poses draped on the pose "
+                f"model's body alone), {db['size_mb']:.1f} MB, "
                 f"{db['build_min']:.0f} min of draping and fitting as its last build run recorded them (the model "
                 "card has the build times); the shape models' 5 PCA components keep "
                 f"{db['explained_variance_pct']:.1f} % of the variance of each anchor's drapes; ridge {db['ridge']:g} "
                 "(least leave-one-body-out error).", ""]
         curve = r["anchors_curve"]
-        out += ["Error against the number of anchors (subsets of the database's, clustered alike):", "",
+        out += ["Error against the number of anchors (subsets of the database's, clustered alike; every pose "
+                "example kept):", "",
                 report.table([[int(n), c["error_mm"], c["error_far_mm"]] for n, c in
                               sorted(curve.items(), key=lambda t: int(t[0]))],
                              ["anchors", "error mm", "far bodies mm"], ["", ".2f", ".2f"]), ""]
+        if r.get("examples_curve"):
+            out += ["Error against the number of pose examples (the anchors alone, then subsets of all examples "
+                    "clustered alike; every anchor kept):", "",
+                    report.table([[int(n), c["error_mm"], c["error_far_mm"]] for n, c in
+                                  sorted(r["examples_curve"].items(), key=lambda t: int(t[0]))],
+                                 ["pose examples", "error mm", "far bodies mm"], ["", ".2f", ".2f"]), ""]
         sep: dict = {}
         for s in r["separability"]:
             sep.setdefault(s["r"], []).append(s)
         out += ["Separability (the paper's 4.2): error of eq. 3 at distance r from an anchor (a random direction over "
                 "the 72 joint-rotation components in rad and the 6 phenotypes), practical (the pose model, PBNS "
-                "corrected at the anchor, and the anchor's shape model) and theoretical (every term a drape):", "",
+                "corrected at its pose examples, and the anchor's shape model) and theoretical (every term a "
+                "drape):", "",
                 report.table([[r_, len(v), _mean([x["practical_mm"] for x in v]),
                                _mean([x["theoretical_mm"] for x in v])] for r_, v in sorted(sep.items())],
                              ["r", "samples", "practical mm", "theoretical mm"], [".2f", "", ".2f", ".2f"]), ""]
@@ -353,12 +430,13 @@ def render(data: dict) -> str:
                 "three timed in 7 interleaved rounds (median); the Taylor model with its penetration handling, and "
                 "with the post-step after it (what the Dresser runs). New body: `set_shape` (shape terms of every "
                 "anchor and the penetration binding), median of 5.", ""]
-        out += [report.table([[o, s["vertices"], s["anchors"], "random" if s["random_database"] else "built",
+        out += [report.table([[o, s["vertices"], s["anchors"], s.get("pose_examples", s["anchors"]),
+                               "random" if s["random_database"] else "built",
                                s["pbns_fps"], s["taylor_fps"], s.get("taylor_post_fps"), s["new_shape_ms"]]
                               for o, s in sp.items()],
-                             ["outfit", "vertices", "anchors", "database", "PBNS FPS", "Taylor FPS",
+                             ["outfit", "vertices", "anchors", "pose examples", "database", "PBNS FPS", "Taylor FPS",
                               "Taylor + post-step FPS", "new body ms"],
-                             ["", "", "", "", ".0f", ".0f", ".1f", ".1f"]), ""]
+                             ["", "", "", "", "", ".0f", ".0f", ".1f", ".1f"]), ""]
         out += ["Databases marked random: an outfit whose database was not built here, timed with one of the default "
                 "size and random contents (the cost does not depend on the values).", ""]
     return "\n".join(out)

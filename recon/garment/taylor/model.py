@@ -18,10 +18,12 @@ is that inverse followed by the skinning at theta. The shape term of every ancho
 weighted sum of those displacements added to the pose model's rest-pose output before its one
 skinning: the cost of the shape dimension is a blend, not one skinning per anchor.
 
-The pose model: PBNS, corrected at the anchors like the paper's SOR pose model (example poses
-blended): each anchor's drape on PBNS's body minus PBNS's cloth there (``pose_residual``, unposed)
-is blended with the same weights as the shape terms, so the model meets the drape at an anchor
-(``correct_pose=False``: PBNS alone, the paper's formula with PBNS as f(beta0, .)).
+The pose model: PBNS, corrected at example poses like the paper's SOR pose model (example poses
+blended): each example's drape on PBNS's body minus PBNS's cloth there (``pose_residual``, unposed)
+is blended like the shape terms, so the model meets the drape at an example. The examples are the
+anchors and, when the database has them, more poses draped on PBNS's body alone
+(``pose_examples``; one drape a pose where an anchor costs a drape per body), blended with weights
+of their own (``correct_pose=False``: PBNS alone, the paper's formula with PBNS as f(beta0, .)).
 
 Blending (the paper's eq. 7-8): the clothing is split into regions by bone groups (``REGIONS``);
 per region the distance of the query pose to each anchor weighs each joint rotation difference
@@ -126,7 +128,8 @@ class TaylorGarment:
 
     def __init__(self, pbns: PBNS, anchors: torch.Tensor, sensitivity_q: torch.Tensor, basis: torch.Tensor,
                  maps: torch.Tensor, shape0: torch.Tensor, cfg: BlendConfig | None = None,
-                 pose_residual: torch.Tensor | None = None, correct_pose: bool = True):
+                 pose_residual: torch.Tensor | None = None, correct_pose: bool = True,
+                 pose_examples: torch.Tensor | None = None):
         self.pbns, self.cfg = pbns, cfg or BlendConfig()
         self.anchors = anchors  # (A, 24, 3, 3) anchor poses
         self.anchor_vec = pose_vector(anchors)  # (A, 72)
@@ -134,7 +137,10 @@ class TaylorGarment:
         self.basis = basis  # (A, C, N, 3) shape-model components (the means cancel in the Taylor term)
         self.maps = maps  # (A, C, 2S + 1)
         self.shape0 = shape0  # (S,) the body of the pose model
-        # (A, N, 3) drape minus PBNS at each anchor on PBNS's body, unposed (None: zeros)
+        # (E, 24, 3, 3) the poses of pose_residual, blended on their own; None: the anchors (E = A)
+        self.pose_examples = pose_examples
+        self.example_vec = None if pose_examples is None else pose_vector(pose_examples)
+        # (E, N, 3) drape minus PBNS at each example on PBNS's body, unposed (None: zeros)
         self.pose_residual = pose_residual
         self.correct_pose = correct_pose
         self.regions = region_weights(pbns.weights.detach())  # (N, G)
@@ -146,6 +152,22 @@ class TaylorGarment:
         self.graded: torch.Tensor | None = None  # (N, 3) the template graded to the body of set_shape
         self._transfer: Transfer | None = None
         self._body_inc = None  # the body's vertex-face incidence (its normals), made with _transfer
+
+    @property
+    def pose_residual(self) -> torch.Tensor | None:
+        return self._residual
+
+    @pose_residual.setter
+    def pose_residual(self, residual: torch.Tensor | None) -> None:
+        self._residual = residual
+        self.residual_t = None if residual is None else residual.transpose(1, 2).contiguous()
+        self.delta_t = None  # set_shape again
+        self.shape = None
+
+    @property
+    def separate_examples(self) -> bool:
+        """Whether the pose model's corrections are blended over examples of their own."""
+        return self.example_vec is not None and self.residual_t is not None
 
     # --- per body shape -------------------------------------------------------------------------
     @torch.no_grad()
@@ -170,8 +192,8 @@ class TaylorGarment:
             self._body_inc = CollisionResolver.incidence(np.asarray(body.faces), len(bv))
         self.graded = torch.from_numpy(self._transfer.resize(self.shape[None], bv[None])[0])
         self.delta_t = self.shape_terms(self.shape).transpose(1, 2).contiguous()
-        self.corrected_t = self.delta_t if self.pose_residual is None else (
-            self.delta_t + self.pose_residual.transpose(1, 2))
+        self.corrected_t = self.delta_t if self.residual_t is None or self.separate_examples else (
+            self.delta_t + self.residual_t)
         rest = self.graded + self.delta_t.mean(0).T  # the outfit on this body, at rest (a typical anchor's)
         bn = CollisionResolver.normals(bv, np.asarray(body.faces), self._body_inc)
         # a tree that builds faster (and queries alike) than the balanced, compact default
@@ -184,14 +206,17 @@ class TaylorGarment:
         return self
 
     # --- per frame ------------------------------------------------------------------------------
-    def distances(self, rotmats: torch.Tensor) -> torch.Tensor:
-        """(B, G, A) sensitivity distance of each region of poses (B, 24, 3, 3) to each anchor."""
-        d = pose_vector(rotmats)[:, None] - self.anchor_vec[None]  # (B, A, 72)
-        return torch.einsum("bam,gm->bga", d ** 2, self.q)
+    def distances(self, rotmats: torch.Tensor, examples: bool = False, vec: torch.Tensor | None = None
+                  ) -> torch.Tensor:
+        """(B, G, A) sensitivity distance of each region of poses (B, 24, 3, 3) to each anchor (to
+        each pose example: (B, G, E)); ``vec``: their ``pose_vector`` when known."""
+        vec = pose_vector(rotmats) if vec is None else vec
+        d = vec[:, None] - (self.example_vec if examples else self.anchor_vec)[None]
+        return self.q @ (d ** 2).transpose(1, 2)
 
     def terms_t(self, pose_model: bool = True) -> torch.Tensor:
         """(A, 3, N) what each anchor adds: its shape term, and its pose-model correction when PBNS is
-        the pose model and ``correct_pose``."""
+        the pose model, ``correct_pose`` and the anchors are the pose examples."""
         return self.corrected_t if pose_model and self.correct_pose else self.delta_t
 
     def terms(self, pose_model: bool = True) -> torch.Tensor:
@@ -200,32 +225,44 @@ class TaylorGarment:
 
     def correction(self, weights: torch.Tensor, pose_model: bool = True) -> torch.Tensor:
         """(B, G, A) blend weights -> (B, N, 3) blended rest-pose terms (``terms``)."""
+        return self.blend(weights, self.terms_t(pose_model))
+
+    def blend(self, weights: torch.Tensor, terms_t: torch.Tensor) -> torch.Tensor:
+        """(B, G, A) blend weights of terms (A, 3, N) -> (B, N, 3): each vertex blends with its
+        regions' weights."""
         active = torch.nonzero(weights.sum((0, 1)) > 0)[:, 0]
         # (a, B, 1, N): each active anchor's weight at every vertex, contiguous per anchor
         c = (self.regions @ weights[:, :, active]).permute(2, 0, 1).contiguous()[:, :, None]
-        terms = self.terms_t(pose_model)
-        out = torch.zeros(c.shape[1], 3, c.shape[3], dtype=terms.dtype)
+        out = torch.zeros(c.shape[1], 3, c.shape[3], dtype=terms_t.dtype)
         for j, a in enumerate(active.tolist()):  # in place, no gathered copy of the active terms
-            out.addcmul_(c[j], terms[a])
+            out.addcmul_(c[j], terms_t[a])
         return out.transpose(1, 2)
 
     @torch.no_grad()
     def pose(self, rotmats: torch.Tensor, transforms: torch.Tensor, body_v: torch.Tensor | None = None,
              pose_model: torch.Tensor | None = None, distance: torch.Tensor | None = None,
-             weights: torch.Tensor | None = None) -> torch.Tensor:
+             weights: torch.Tensor | None = None, example_distance: torch.Tensor | None = None) -> torch.Tensor:
         """Cloth (B, N, 3) for poses (B, 24, 3, 3) (+Y up) on the body of ``set_shape``:
         ``transforms`` (B, 24, 3, 4) its joint transforms, ``body_v`` (B, V, 3) its posed vertices
         (penetration handling; None: none). ``pose_model`` (B, N, 3): the pose model's rest-pose
         output to use instead of PBNS's (an unposed simulation, for the upper bound). ``distance``
         (B, G, A): the blending's distances (``distances``; damped by ``animate``); ``weights``
-        (B, G, A): blend weights to use instead."""
+        (B, G, A): blend weights to use instead; ``example_distance`` (B, G, E): the distances to
+        the pose examples (``distances(rotmats, examples=True)``)."""
         if self.delta_t is None:
             raise RuntimeError("TaylorGarment.set_shape(body, shape) first")
         base = self.pbns.rest + self.pbns.deformation(rotmats) if pose_model is None else pose_model
+        examples = pose_model is None and self.correct_pose and self.separate_examples
+        vec = pose_vector(rotmats) if (weights is None and distance is None) or (
+            examples and example_distance is None) else None  # once for both sets
         if weights is None:
-            weights = blend_weights(self.distances(rotmats) if distance is None else distance, self.cfg)
+            weights = blend_weights(self.distances(rotmats, vec=vec) if distance is None else distance, self.cfg)
         shift = self.graded - self.pbns.rest  # the grading's term, the same at every anchor
         rest = base + shift + self.correction(weights, pose_model is None)
+        if examples:
+            if example_distance is None:
+                example_distance = self.distances(rotmats, examples=True, vec=vec)
+            rest = rest + self.blend(blend_weights(example_distance, self.cfg), self.residual_t)
         t = self.pbns.blend(transforms)  # for the skinning and the push-out alike
         x = self.pbns.apply_blend(rest, t)
         return x if body_v is None else self.push_out(x, t, body_v)
@@ -239,9 +276,10 @@ class TaylorGarment:
         h = ((x - body_v[:, self.bound]) * n).sum(-1)
         return x + (self.clearance - h).clamp_min(0.0)[..., None] * n
 
-    def damped_distances(self, rotmats: torch.Tensor) -> torch.Tensor:
-        """(T, G, A) distances of a motion, each frame's blended with the previous one's (eq. 9)."""
-        d = self.distances(rotmats)
+    def damped_distances(self, rotmats: torch.Tensor, examples: bool = False) -> torch.Tensor:
+        """(T, G, A) distances of a motion (to the pose examples: (T, G, E)), each frame's blended
+        with the previous one's (eq. 9)."""
+        d = self.distances(rotmats, examples)
         for t in range(1, len(d)):
             d[t] = self.cfg.damping * d[t - 1] + (1.0 - self.cfg.damping) * d[t]
         return d
@@ -251,21 +289,30 @@ class TaylorGarment:
                 ) -> torch.Tensor:
         """A motion (T, 24, 3, 3) frame by frame with the distances damped (eq. 9): (T, N, 3)."""
         d = self.damped_distances(rotmats)
+        e = self.damped_distances(rotmats, examples=True) if self.separate_examples else None
         return torch.cat([self.pose(rotmats[i:i + 64], transforms[i:i + 64],
-                                    None if body_v is None else body_v[i:i + 64], distance=d[i:i + 64])
+                                    None if body_v is None else body_v[i:i + 64], distance=d[i:i + 64],
+                                    example_distance=None if e is None else e[i:i + 64])
                           for i in range(0, len(rotmats), 64)])
 
     @torch.no_grad()
     def sequence_codes(self, rotmats: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """The model of a motion as blend shapes on the graded outfit (``graded``; an export's morph
         targets): PBNS's rows of D and, for every (region, anchor) pair the motion blends, that
-        anchor's shape term on that region; and their weights per frame: (D (E + P, N * 3), codes
-        (T, E + P)). Skinned like PBNS; without the penetration handling (not a blend shape)."""
-        w = blend_weights(self.damped_distances(rotmats), self.cfg)  # (T, G, A)
-        g, a = torch.nonzero(w.amax(0) > 0, as_tuple=True)
-        targets = self.regions[:, g].T[:, :, None] * self.terms()[a]  # (P, N, 3)
-        d = torch.cat([self.pbns.D.detach(), targets.reshape(len(g), -1)])
-        return d, torch.cat([self.pbns.mlp(pose_features(rotmats)), w[:, g, a]], 1)
+        anchor's shape term on that region (and each pose example's correction likewise); and their
+        weights per frame: (D (E + P, N * 3), codes (T, E + P)). Skinned like PBNS; without the
+        penetration handling (not a blend shape)."""
+        sets = [(self.damped_distances(rotmats), self.terms_t())]
+        if self.correct_pose and self.separate_examples:
+            sets.append((self.damped_distances(rotmats, examples=True), self.residual_t))
+        rows, codes = [self.pbns.D.detach()], [self.pbns.mlp(pose_features(rotmats))]
+        for distance, terms_t in sets:
+            w = blend_weights(distance, self.cfg)  # (T, G, A)
+            g, a = torch.nonzero(w.amax(0) > 0, as_tuple=True)
+            targets = self.regions[:, g].T[:, None] * terms_t[a]  # (P, 3, N)
+            rows.append(targets.transpose(1, 2).reshape(len(g), -1))
+            codes.append(w[:, g, a])
+        return torch.cat(rows), torch.cat(codes, 1)
 
     # --- persistence ----------------------------------------------------------------------------
     def save(self, path: Path, meta_json: str) -> None:
@@ -273,6 +320,8 @@ class TaylorGarment:
                  "shape0": self.shape0, "blend": asdict(self.cfg), "meta_json": meta_json}
         if self.pose_residual is not None:
             state["pose_residual"] = self.pose_residual.half()
+        if self.pose_examples is not None:
+            state["pose_examples"] = self.pose_examples
         paths.atomic_write(Path(path), lambda t: torch.save(state, t))
 
     @classmethod
@@ -282,5 +331,5 @@ class TaylorGarment:
             raise ValueError(f"{path} was built for another outfit ({ck['basis'].shape[2]} vertices)")
         res = ck.get("pose_residual")
         m = cls(pbns, ck["anchors"], ck["q"], ck["basis"].float(), ck["maps"], ck["shape0"], BlendConfig(**ck["blend"]),
-                None if res is None else res.float())
+                None if res is None else res.float(), pose_examples=ck.get("pose_examples"))
         return m, ck

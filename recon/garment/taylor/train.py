@@ -15,6 +15,10 @@ section 3.6 on our outfits, bodies and mocap.
    anchor, what a PCA can model); the drapes are unposed and their departures from the outfit
    graded to each body fitted (``taylor.fit_shape_model``); the first drape minus PBNS's cloth is
    the anchor's pose-model correction.
+4. Pose examples: ``pose_examples`` more poses of the train mocap (clustered alike) draped on the
+   pose model's body alone; each drape minus PBNS's cloth corrects the pose model there too (the
+   pose model's error dominates the shape model's, and an example costs one drape, an anchor
+   ``shapes + 1``).
 
 Drapes run in ``workers`` processes, one anchor a task, each kept in ``<cache>/taylor-drapes/``
 (resumable: a rerun drapes only what is missing).
@@ -63,6 +67,7 @@ class TaylorBuildConfig:
     outfit: str = "tshirt-skirt"
     anchors: int = 64  # the paper: ~150; 64 x 9 drapes fit the 45-min budget on 2 cores
     shapes: int = 8  # bodies per anchor besides the pose model's (the paper: 17)
+    pose_examples: int = 512  # poses draped on the pose model's body alone, besides the anchors
     components: int = 5  # PCA components of a shape model (the paper: 5, 98.6 % of the variance)
     # L2 weight of the shape-to-coefficient map on standardised phenotypes; None: the one of RIDGES
     # with the least leave-one-body-out error over the anchors' drapes (the paper: 0.2 on SMPL betas)
@@ -269,10 +274,24 @@ def build(cfg: TaylorBuildConfig, out: Path | None = None, log=print, progress: 
     idx = cluster_anchors(train, joint_w, cfg.anchors, cfg.seed)
     anchors = train[torch.from_numpy(idx)]
     log(f"{len(anchors)} anchors from {len(train)} train poses; {cfg.shapes + 1} bodies each")
+    t_drape = time.time()
     drapes = drape_poses(cfg, anchors, shapes, progress)
+    t_drape = time.time() - t_drape
     with torch.no_grad():  # the pose model's miss at each anchor, on its own body (unposed)
         pbns_at = pbns.rest + pbns.deformation(anchors)
-    pose_residual = torch.stack([torch.from_numpy(d["unposed"][0]).float() for d in drapes]) - pbns_at
+    first = [torch.from_numpy(d["unposed"][0]).float() for d in drapes]
+    examples = None
+    if cfg.pose_examples:
+        extra = train[torch.from_numpy(cluster_anchors(train, joint_w, cfg.pose_examples, cfg.seed))]
+        log(f"{len(extra)} pose examples on the pose model's body")
+        t = time.time()
+        first += [torch.from_numpy(d["unposed"][0]).float()
+                  for d in drape_poses(cfg, extra, torch.zeros(0, len(shape0)), progress, desc="pose examples")]
+        t_drape += time.time() - t
+        examples = torch.cat([anchors, extra])
+        with torch.no_grad():
+            pbns_at = torch.cat([pbns_at, pbns.rest + pbns.deformation(extra)])
+    pose_residual = torch.stack(first) - pbns_at
     for d in drapes:
         d["unposed"] = torch.from_numpy(d["unposed"]).float() - graded
     loo = {}
@@ -292,14 +311,18 @@ def build(cfg: TaylorBuildConfig, out: Path | None = None, log=print, progress: 
         total = float((flat ** 2).sum())
         kept = float(((flat @ b.reshape(len(b), -1).T) ** 2).sum())
         explained.append(kept / max(total, 1e-12))
-    model = TaylorGarment(pbns, anchors, q, torch.stack(basis), torch.stack(maps), shape0, cfg.blend, pose_residual)
+    model = TaylorGarment(pbns, anchors, q, torch.stack(basis), torch.stack(maps), shape0, cfg.blend, pose_residual,
+                          pose_examples=examples)
     strain = np.stack([d["strain"] for d in drapes])
     meta = {"outfit": cfg.outfit, "config": asdict(cfg), "shapes": all_shapes.tolist(),
             "pbns_sha256": hashlib.sha256(store.pbns_path(cfg.outfit).read_bytes()).hexdigest(),
             "joint_weights": joint_w.tolist(), "explained_variance": float(np.mean(explained)),
             "ridge": ridge, "leave_one_out_mm": {str(k): v for k, v in loo.items()},
             "max_strain_mm_p95": float(np.percentile(strain, 95) * 1000),
-            "drape_seconds": draping_seconds(cfg, shapes), "fit_seconds": time.time() - t0, "anchors": len(anchors)}
+            "drape_seconds": (draping_seconds(cfg, shapes) or 0.0) + (draping_seconds(cfg, torch.zeros(0, len(shape0)))
+                                                                      or 0.0) or None,
+            "fit_seconds": time.time() - t0 - t_drape, "anchors": len(anchors),
+            "pose_examples": len(pose_residual)}
     path = Path(out) if out else store.taylor_path(cfg.outfit)
     path.parent.mkdir(parents=True, exist_ok=True)
     model.save(path, json.dumps(meta))
