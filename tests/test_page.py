@@ -253,7 +253,8 @@ def test_browser_shows_a_run_and_plays_an_animation(body, tmp_path):
         a, _ = _viewer_pixels(c)
         time.sleep(1.0)
         b, _ = _viewer_pixels(c)
-        assert _painted(a) > 0.02 and _painted(b) > 0.02
+        # drawn (an empty viewer paints nothing); the turning body covers ~2 % front-on, less side-on
+        assert _painted(a) > 0.008 and _painted(b) > 0.008
         assert (np.abs(a.astype(int) - b.astype(int)).sum(-1) > 30).mean() > 0.005  # it moved
         c.eval("document.querySelector('.controls button').click()")  # pause
         time.sleep(0.3)
