@@ -3,8 +3,8 @@ import numpy as np
 import torch
 
 from recon.garment import resize, store
-from recon.garment.data import trained_outfit
 from recon.garment.dress import Dresser
+from recon.garment.pbns.model import trained_outfit
 from recon.garment.pbns.train import train_resizer
 from recon.garment.templates import PRESETS
 from recon.paths import load_checkpoint

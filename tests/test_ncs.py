@@ -13,7 +13,7 @@ from recon.body import lbs, skeleton
 from recon.body.lbs import forward_kinematics
 from recon.errors import ReconError
 from recon.garment import losses, store
-from recon.garment.data import pose_set, posed_bodies, trained_outfit
+from recon.garment.data import pose_set, posed_bodies
 from recon.garment.dress import Dresser
 from recon.garment.gltf import write_glb
 from recon.garment.integrate import IntegrateConfig, Preconditioner, integrate, minimise, settle, unpose
@@ -32,7 +32,7 @@ from recon.garment.ncs.data import (
 from recon.garment.ncs.eval import clip_motion, hem_vertices
 from recon.garment.ncs.losses import Contact, Fit, FreeMotion, Physics, StaticPoses, gram, principal_fields, project
 from recon.garment.ncs.train import train
-from recon.garment.pbns.model import PBNS, initial_weights, pose_features
+from recon.garment.pbns.model import PBNS, initial_weights, pose_features, trained_outfit
 from recon.garment.templates import Garment, GarmentSpec, Outfit, RestBody, make_outfit
 from recon.poses.mocap import MocapPoses
 

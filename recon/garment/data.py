@@ -1,5 +1,5 @@
 """What every garment family trains and evaluates on: balanced mocap pose sets and the posed
-bodies (and, from recon.garment.pbns.model, the template a trained PBNS file was made for)."""
+bodies (the template a trained PBNS file was made for: ``recon.garment.pbns.model.trained_outfit``)."""
 from __future__ import annotations
 
 import numpy as np
@@ -7,7 +7,6 @@ import roma
 import torch
 
 from recon.garment.mesh import vertex_normals
-from recon.garment.pbns.model import PBNS, trained_outfit  # noqa: F401 - trained_outfit: its home is pbns.model
 from recon.poses.mocap import MocapPoses
 
 MIN_POSE_DISTANCE = 0.5  # radians: every pair of a pose set differs this much in some joint (thesis 5.4.3)

@@ -93,6 +93,12 @@ class DrapeSolver:
         e = e + self.cfg.collision.weight * total
         return e + self.cfg.tether * ((x - carried) ** 2).sum(-1).mean()
 
+    @classmethod
+    def continuation(cls, outfit, iterations: int) -> DrapeSolver:
+        """A solver that continues a predicted cloth towards its drape: one contact search and at most
+        ``iterations`` L-BFGS iterations, the rest as the default (the Taylor database's) solver."""
+        return cls(outfit, DrapeSolverConfig(rounds=1, iterations=iterations))
+
     def __call__(self, rest: torch.Tensor, start: torch.Tensor, body_v: torch.Tensor, body_n: torch.Tensor,
                  carried: torch.Tensor | None = None) -> torch.Tensor:
         carried = start if carried is None else carried

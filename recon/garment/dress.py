@@ -38,7 +38,7 @@ from recon.errors import MissingFile, ReconError
 from recon.garment import store
 from recon.garment.collide import CollisionResolver
 from recon.garment.deepsd.model import animation_model
-from recon.garment.drape import DrapeSolver, DrapeSolverConfig
+from recon.garment.drape import DrapeSolver
 from recon.garment.mesh import vertex_normals
 from recon.garment.ncs.model import FPS, NCS
 from recon.garment.pbns.model import PBNS, pose_features, trained_outfit
@@ -198,15 +198,13 @@ class Dresser:
         -aligned frame (pose ``r``, no translation; the solver's gravity is -Y), then moved rigidly
         to the frame of ``transforms`` (1, 24, 3, 4) as the body's root moves between the two."""
         if self._solver is None:
-            outfit, _, _ = trained_outfit(body, self._pbns_path)
-            self._solver = DrapeSolver(outfit, DrapeSolverConfig(rounds=1, iterations=self.drape_iterations))
+            self._solver = DrapeSolver.continuation(trained_outfit(body, self._pbns_path)[0], self.drape_iterations)
         out = body(r, shape[None])
         bv, bn, bt = out.vertices, vertex_normals(out.vertices, body.faces), out.transforms
-        v = taylor.pose(r, bt, bv)
-        v = self._solver(taylor.graded, v[0], bv[0], bn[0], carried=self.model.skin(taylor.graded[None], bt)[0])
+        v = taylor.continued(taylor.pose(r, bt, bv), self._solver, bv, bn, bt)
         a, g = transforms[0, 0], bt[0, 0]
         rot = a[:, :3] @ g[:, :3].T
-        return (v @ rot.T + (a[:, 3] - rot @ g[:, 3]))[None]
+        return v @ rot.T + (a[:, 3] - rot @ g[:, 3])
 
     @property
     def dynamic(self) -> bool:

@@ -27,9 +27,9 @@ from recon.garment.author.model import (
     ShapeDescriptor,
     heading,
 )
-from recon.garment.data import trained_outfit
 from recon.garment.mesh import neighbour_mean
 from recon.garment.ncs.data import Motions, moving_part, part_outfit
+from recon.garment.pbns.model import trained_outfit
 
 
 @dataclass

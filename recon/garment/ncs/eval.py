@@ -37,11 +37,11 @@ from recon.body import default_body
 from recon.errors import MissingFile, ReconError
 from recon.garment import reference, store
 from recon.garment.collide import CollisionResolver
-from recon.garment.data import posed_bodies, trained_outfit
+from recon.garment.data import posed_bodies
 from recon.garment.mesh import boundary_loops, faces_within
 from recon.garment.metrics import physical_metrics
 from recon.garment.ncs.model import NCS, hanging_part, motion_inputs
-from recon.garment.pbns.model import PBNS
+from recon.garment.pbns.model import PBNS, trained_outfit
 from recon.garment.self_intersection import SkinSelfIntersection
 from recon.poses.mocap import SPLIT_SUBJECTS, MocapPoses
 from recon.timing import frames_per_second

@@ -29,7 +29,7 @@ import numpy as np
 import torch
 
 from recon.garment import store
-from recon.garment.data import MIN_POSE_DISTANCE, pose_set, trained_outfit
+from recon.garment.data import MIN_POSE_DISTANCE, pose_set
 from recon.garment.ncs.config import NCSTrainConfig
 from recon.garment.ncs.data import (
     Chunk,
@@ -53,7 +53,7 @@ from recon.garment.ncs.losses import (
     project,
 )
 from recon.garment.ncs.model import NCS, vertex_masses
-from recon.garment.pbns.model import PBNS
+from recon.garment.pbns.model import PBNS, trained_outfit
 from recon.training import Trainer, run_dir_for
 
 __all__ = ["NCSTrainConfig", "NCSTraining", "train"]

@@ -33,11 +33,11 @@ from recon.body import default_body
 from recon.errors import MissingFile, ReconError
 from recon.garment import reference, store
 from recon.garment.collide import CollisionResolver
-from recon.garment.data import pose_set, posed_bodies, trained_outfit
+from recon.garment.data import pose_set, posed_bodies
 from recon.garment.mesh import unique_edges
 from recon.garment.metrics import SELF_INTERSECTION_BINS, physical_metrics, rest_metrics
 from recon.garment.pbns.data import Conditions, sample_conditions
-from recon.garment.pbns.model import PBNS, remove_yaw
+from recon.garment.pbns.model import PBNS, remove_yaw, trained_outfit
 from recon.garment.resize import TIGHTNESS_PHENOTYPES, TIGHTNESS_RANGE, OutfitResizer
 from recon.garment.self_intersection import SkinSelfIntersection
 from recon.garment.templates import PRESETS, make_outfit

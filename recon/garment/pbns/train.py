@@ -22,10 +22,10 @@ import torch
 from recon import paths
 from recon.errors import ReconError
 from recon.garment import losses, store
-from recon.garment.data import MIN_POSE_DISTANCE, pose_set, posed_bodies, trained_outfit
+from recon.garment.data import MIN_POSE_DISTANCE, pose_set, posed_bodies
 from recon.garment.metrics import collision_pct, rest_metrics
 from recon.garment.pbns.data import Conditions, sample_conditions
-from recon.garment.pbns.model import PBNS, PBNSConfig, initial_weights
+from recon.garment.pbns.model import PBNS, PBNSConfig, initial_weights, trained_outfit
 from recon.garment.resize import TIGHTNESS_PHENOTYPES, TIGHTNESS_RANGE, ResizeConfig, Resizer, Transfer
 from recon.garment.self_intersection import SkinSelfIntersection
 from recon.garment.templates import RestBody, hangs_free, make_outfit, outfit_name

@@ -21,11 +21,11 @@ from recon import report
 from recon.body import default_body
 from recon.garment import reference, store
 from recon.garment.collide import CollisionResolver
-from recon.garment.data import pose_set, posed_bodies, trained_outfit
-from recon.garment.drape import DrapeSolver, DrapeSolverConfig
+from recon.garment.data import pose_set, posed_bodies
+from recon.garment.drape import DrapeSolver
 from recon.garment.dress import DRAPE_ITERATIONS
 from recon.garment.metrics import physical_metrics
-from recon.garment.pbns.model import PBNS, remove_yaw
+from recon.garment.pbns.model import PBNS, remove_yaw, trained_outfit
 from recon.garment.resize import OutfitResizer, Transfer
 from recon.garment.taylor.model import TaylorGarment
 from recon.garment.taylor.train import SHAPE_BOX, TaylorBuildConfig, cluster_anchors, drape_poses
@@ -85,11 +85,10 @@ class Methods:
         """Taylor's cloth (1, N, 3) continued by ``iterations`` of the drape solver, then the post-step
         (the Dresser's single-pose path): (N, 3) and its seconds."""
         if iterations not in self._solvers:
-            self._solvers[iterations] = DrapeSolver(self.outfit, DrapeSolverConfig(rounds=1, iterations=iterations))
+            self._solvers[iterations] = DrapeSolver.continuation(self.outfit, iterations)
         t = time.perf_counter()
-        g = self.taylor.graded
-        v = self._solvers[iterations](g, x[0], bv[0], bn[0], carried=self.pbns.skin(g[None], bt)[0])
-        v = self.resolver(v[None], bv, self.body.faces, rest=g[None])[0]
+        v = self.taylor.continued(x, self._solvers[iterations], bv, bn, bt)
+        v = self.resolver(v, bv, self.body.faces, rest=self.taylor.graded[None])[0]
         return v, time.perf_counter() - t
 
     @torch.no_grad()

@@ -267,6 +267,14 @@ class TaylorGarment:
         x = self.pbns.apply_blend(rest, t)
         return x if body_v is None else self.push_out(x, t, body_v)
 
+    def continued(self, x: torch.Tensor, solver, body_v: torch.Tensor, body_n: torch.Tensor,
+                  transforms: torch.Tensor) -> torch.Tensor:
+        """Cloth (1, N, 3) on the body of ``set_shape`` (posed: ``body_v``, ``body_n`` (1, V, 3),
+        ``transforms`` (1, 24, 3, 4)) continued by ``solver`` (``DrapeSolver.continuation``): its
+        rest the graded outfit, the tether's target that outfit skinned."""
+        g = self.graded
+        return solver(g, x[0], body_v[0], body_n[0], carried=self.pbns.skin(g[None], transforms)[0])[None]
+
     def push_out(self, x: torch.Tensor, rot: torch.Tensor, body_v: torch.Tensor) -> torch.Tensor:
         """Eq. 10: a cloth vertex closer to its bound body vertex (along that vertex's normal, posed
         by the cloth vertex's blended skinning rotation ``rot`` (B, N, 3, >= 3)) than its rest

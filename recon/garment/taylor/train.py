@@ -43,10 +43,10 @@ from tqdm import tqdm
 from recon import paths
 from recon.body import default_body, skeleton
 from recon.garment import store
-from recon.garment.data import posed_bodies, trained_outfit
+from recon.garment.data import posed_bodies
 from recon.garment.drape import DrapeSolver, DrapeSolverConfig
 from recon.garment.integrate import unpose
-from recon.garment.pbns.model import PBNS, remove_yaw
+from recon.garment.pbns.model import PBNS, remove_yaw, trained_outfit
 from recon.garment.resize import Transfer
 from recon.garment.taylor.model import (
     BlendConfig,
