@@ -18,7 +18,7 @@ import torch
 
 from recon.body import default_body
 from recon.garment import store
-from recon.garment.author.data import AuthorDataConfig, load_plan, sim_folder, teacher_config
+from recon.garment.author.data import AuthorDataConfig, plan, sim_folder, teacher_config
 from recon.garment.author.eval import interpolate, keyframes
 from recon.garment.author.model import PELVIS, AuthorModel, Session, clip_inputs
 from recon.garment.dress import Dresser
@@ -38,8 +38,8 @@ def main() -> None:
     a = ap.parse_args()
     torch.set_num_threads(1)
     body = default_body()
-    folder = sim_folder(AuthorDataConfig(outfit=a.outfit))
-    cfg, sims = load_plan(folder)
+    cfg = AuthorDataConfig(outfit=a.outfit)
+    folder, sims = sim_folder(cfg), plan(cfg)
     sim = [s for s in sims if s.split == "test"][a.sim]
     model, _ = AuthorModel.load(store.author_path(a.outfit))
     pbns, ck = PBNS.load(store.trained_pbns(a.outfit))

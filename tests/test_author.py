@@ -3,7 +3,7 @@ author.train; recon.garment.author.command): U-block mixing, the motion descript
 signature, motion invariance on a toy system, keyframes matched exactly after propagation, the
 latent interpolation, the descriptor's start as PCA, friction, and the command's files."""
 import json
-from dataclasses import replace
+from dataclasses import asdict, replace
 
 import numpy as np
 import pytest
@@ -15,7 +15,19 @@ from gltf_check import assert_valid, pose_meshes
 from recon.errors import ReconError
 from recon.garment import store
 from recon.garment.author.command import author, parse_key, read_keyframe
-from recon.garment.author.data import RANGES, Intrinsics, fabric, sample_intrinsics, teacher_config
+from recon.garment.author.data import (
+    RANGES,
+    AuthorDataConfig,
+    Intrinsics,
+    cycled_chunks,
+    fabric,
+    plan,
+    sample_intrinsics,
+    sim_folder,
+    teacher_config,
+    train_frames,
+)
+from recon.garment.author.eval import render
 from recon.garment.author.model import (
     AuthorConfig,
     AuthorModel,
@@ -33,11 +45,15 @@ from recon.garment.author.train import (
     AuthorTrainConfig,
     Frames,
     hanging_outfit,
+    in_chunks,
+    is_trained,
+    model_name,
     principal_basis,
     train_autoencoder,
     within_variance,
 )
 from recon.garment.integrate import contact_friction
+from recon.garment.ncs.data import chunks_of
 
 TINY = AuthorConfig(window=3, stride=1, joints=(), shape_dims=6, pca_dims=8, shape_hidden=(16,), motion_hidden=(16,),
                     subnets=3, latent=5, blocks=2)
@@ -245,3 +261,71 @@ def test_author_command_matches_its_keys_and_writes_a_valid_glb(body, tmp_path, 
     assert_valid(out["glb"])
     posed = pose_meshes(out["glb"], frame=4)["outfit"]
     assert np.abs(posed - v).max() < info["glb_max_error_mm"] / 1000 + 1e-3
+
+
+def test_the_train_data_only_grows_with_its_set_count():
+    small, big = AuthorDataConfig(train_sets=3), AuthorDataConfig(train_sets=5)
+    assert sim_folder(small) == sim_folder(big)  # the same simulations: the count adds, changes none
+    a, b = plan(small), plan(big)
+    assert b[:len(a)] == a and len(b) - len(a) == 2 * small.train_chunks
+    assert [s.split for s in a][:2] == ["val", "val"] and a[-1].split == "train"  # held-out data first
+    train = [s for s in b if s.split == "train"]
+    assert [s.set for s in train] == [k // big.train_chunks for k in range(len(train))]
+    assert len({s.params for s in train}) == 5 and len({s.name for s in train}) == len(train)
+    assert train_frames(big) == 5 * big.train_chunks * (big.chunk - big.lead)
+    assert sample_intrinsics(3, 0, extendable=True) == sample_intrinsics(5, 0, extendable=True)[:3]
+    assert sample_intrinsics(3, 0) != sample_intrinsics(5, 0)[:3]  # a Latin hypercube is redrawn whole
+    u = np.stack([p.vector() for p in sample_intrinsics(64, 0, extendable=True)])
+    assert u.min() >= 0 and u.max() <= 1 and (u.max(0) - u.min(0) > 0.9).all()
+
+
+def test_train_chunks_start_again_when_the_clips_run_out():
+    everything = chunks_of("val", 200, 10 ** 6, 0)
+    n = len(everything)
+    more = cycled_chunks("val", 200, 2 * n + 3, 0)
+    assert more[:n] == everything and len(more) == 2 * n + 3
+    assert sorted(more[n:2 * n]) == sorted(everything) and more[n:2 * n] != everything  # reshuffled
+    assert cycled_chunks("val", 200, n + 1, 0) == more[:n + 1]
+
+
+def test_models_of_a_set_count_are_named_and_kept_when_up_to_date(tmp_path, monkeypatch):
+    assert model_name("dress") == "dress" and model_name("dress", "concat") == "dress-concat"
+    assert model_name("dress", "ours", AuthorDataConfig.train_sets) == "dress"
+    assert model_name("dress", "ours", 143) == "dress-143sets"
+    monkeypatch.setattr(store, "author_path", lambda name: tmp_path / f"author_{name}.pt")
+    cfg = AuthorTrainConfig(data=AuthorDataConfig(train_sets=143, workers=2))
+    assert not is_trained(cfg)
+    meta = {"config": json.loads(json.dumps(asdict(cfg))), "data_folder": sim_folder(cfg.data).name}
+    tiny_model(torch.arange(20)).save(store.author_path("tshirt-skirt-143sets"), meta)
+    assert is_trained(cfg) and is_trained(replace(cfg, data=replace(cfg.data, workers=1)))
+    assert not is_trained(replace(cfg, steps=10))  # another recipe: trained again
+
+
+def test_the_report_states_the_claim_the_curve_and_old_ablations():
+    ratios = {r: {"ours": 10.0 + i, "interpolation: vertices": 20.0 - 4 * i} for i, r in
+              enumerate(("0.01", "0.02", "0.05", "0.1", "0.2"))}
+    inv = {"ours": {"descriptor_mm": 1.0, "same_motion_mm": 2.0, "cross_motion_mm": 3.0}}
+    r = {"outfit": "tshirt-skirt", "split": "test", "frames": {"train": 4480, "test": 2160},
+         "sets": {"train": 32, "test": 4}, "windows": 3, "lead": 20, "vertices": 10, "train_seconds": {},
+         "data_seconds": None, "speed": {"frames": 300, "threads": 1, "key_edit_fps": 900.0, "motion_edit_fps": 200.0},
+         "propagation": {"ratios": ratios, "keys": {r: 2 for r in ratios}, "material_from_other_clip_mm": None},
+         "curve": {"rows": [{"sets": 32, "frames": 4480, "ours_mm": {r: v["ours"] for r, v in ratios.items()}}],
+                   "absent": [143, 715]},
+         "invariance": inv, "previous_ablations": {"data": "old plan", "invariance": inv, "descriptor": []}}
+    text = render([r])
+    assert "ours 11.0 mm against 4.0 mm, not met" in text
+    assert "| 32 " in text and "Not trained yet: 143, 715 sets" in text
+    assert "Ablations not re-run on this data: old plan" in text
+    ratios["0.02"]["ours"] = 3.0
+    assert "ours 3.0 mm against 4.0 mm, met" in render([r])
+
+
+def test_principal_basis_of_many_frames_from_a_subset_and_in_half_precision():
+    torch.manual_seed(0)
+    x = (torch.randn(60, 3, dtype=torch.float64) @ torch.randn(3, 30, dtype=torch.float64) * 0.01).view(60, 10, 3)
+    mean, basis, scale = principal_basis(x.float(), 3)
+    m2, b2, s2 = principal_basis(x.half(), 3, max_frames=12)  # every 5th frame, the files' precision
+    assert torch.allclose(basis @ basis.T, b2 @ b2.T, atol=1e-3)  # the same subspace
+    assert abs(scale - s2) < 1e-3 * scale and torch.allclose(mean, m2, atol=3e-5)
+    c = in_chunks(lambda a: a.reshape(len(a), -1) @ basis, x.half(), size=7)  # rows in chunks, as float32
+    assert c.dtype == torch.float32 and torch.allclose(c, x.float().reshape(60, -1) @ basis, atol=1e-4)

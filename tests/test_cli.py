@@ -271,3 +271,22 @@ def test_every_action_runs_a_function_of_recon_cli_actions():
 def test_a_variant_of_another_model_is_refused(capsys):
     assert main(["garment", "train", "--model", "deepsd", "--variant", "no-normals"]) == 2
     assert "has no variant 'no-normals'" in capsys.readouterr().err
+
+
+def test_author_train_grows_the_data_count_by_count(monkeypatch, capsys):
+    """--train-sets: every outfit at a count before the next; models trained on the same data kept."""
+    seen = []
+    monkeypatch.setattr(cli_garment.author_train, "is_trained", lambda cfg: cfg.data.train_sets == 16)
+    monkeypatch.setattr(cli_garment.author_train, "train", lambda cfg: seen.append(
+        (cfg.data.outfit, cfg.data.train_sets)) or ("x.pt", {"frames": 1, "sets": 1, "seconds": {}}))
+    assert main(["garment", "train", "--model", "author", "--outfit", "tshirt-skirt", "dress",
+                 "--train-sets", "143", "16", "32"]) == 0
+    assert seen == [("tshirt-skirt", 32), ("dress", 32), ("tshirt-skirt", 143), ("dress", 143)]
+    assert capsys.readouterr().out.count("already trained") == 2
+    sims = []
+    monkeypatch.setattr(cli_garment, "generate_author", lambda data: sims.append(data.train_sets) or "folder")
+    assert main(["garment", "train", "--model", "author", "--outfit", "dress", "--train-sets", "8", "64",
+                 "--data-only"]) == 0
+    assert sims == [64] and len(seen) == 4
+    assert main(["garment", "train", "--model", "pbns", "--train-sets", "8"]) == 2
+    assert "--model author's" in capsys.readouterr().err

@@ -49,6 +49,12 @@ def add_garment(p: Parser) -> None:
     a.add_argument("--pose-examples", type=NON_NEGATIVE, default=None,
                    help=f"taylor: poses draped on PBNS's body alone to correct it, besides the anchors "
                         f"(default {known(taylor, 'pose_examples')}; 0: the anchors only)")
+    a.add_argument("--train-sets", type=COUNT, nargs="+", default=None,
+                   help="author: train parameter sets to simulate and train on, one model each (default "
+                        f"{known('recon.garment.author.data:AuthorDataConfig', 'train_sets')}; e.g. 32 143 715 for "
+                        "the learning curve: days of simulation, resumable, each count's data starts the next's)")
+    a.add_argument("--data-only", action="store_true",
+                   help="author: the simulations only (of the largest --train-sets), no training")
     a.add_argument("--epochs", type=COUNT, default=None,
                    help=f"PBNS: default {known(pbns, 'epochs')}")
     a.add_argument("--poses", type=COUNT, default=known(pbns, "poses"))
@@ -74,6 +80,9 @@ def add_garment(p: Parser) -> None:
                    help="--model ncs: keep the other outfits' rows of the existing table")
     a.add_argument("--val", action="store_true",
                    help="--model ncs / author: against the val performers' simulations (what recipes are tuned on)")
+    a.add_argument("--no-ablations", action="store_true",
+                   help="--model author: skip the ablation tables (7 more networks to train, ~1.5 h); the previous "
+                        "report's are kept, marked as such")
     a.add_argument("--n", type=COUNT, default=None,
                    help=f"held-out test poses (default {known('recon.garment.pbns.eval:evaluate_and_report.n_poses')}; "
                         f"taylor {known('recon.garment.taylor.eval:evaluate_and_report.poses')})")

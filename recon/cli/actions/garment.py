@@ -14,6 +14,7 @@ from recon.garment.author import eval as author_eval
 from recon.garment.author import train as author_train
 from recon.garment.author.command import author
 from recon.garment.author.data import AuthorDataConfig
+from recon.garment.author.data import generate as generate_author
 from recon.garment.deepsd import eval as deepsd_eval
 from recon.garment.deepsd import train as deepsd_train
 from recon.garment.deepsd.data import DeePSDDataConfig
@@ -61,7 +62,29 @@ def check_variant(args, variants: dict) -> None:
         raise ReconError(f"--model {args.model} has no variant {args.variant!r}: {', '.join(variants)} or all")
 
 
+def train_author(names: list[str], args) -> None:
+    """Simulations and models for each --train-sets count in turn, every outfit at a count before the
+    next count (the data of one count is the start of the next's; models already trained on the same
+    data are kept); --data-only: the simulations alone."""
+    counts = sorted(set(args.train_sets or [AuthorDataConfig.train_sets]))
+    for n in counts if not args.data_only else counts[-1:]:
+        for o in names:
+            data = AuthorDataConfig(outfit=o, train_sets=n, **({"workers": args.workers} if args.workers else {}))
+            if args.data_only:
+                print(json.dumps({"outfit": o, "sets": n, "simulations": str(generate_author(data))}))
+                continue
+            cfg = author_train.AuthorTrainConfig(data=data)
+            if author_train.is_trained(cfg):
+                print(json.dumps({"outfit": o, "sets": n, "weights": "already trained on these simulations"}))
+                continue
+            path, meta = author_train.train(cfg)
+            print(json.dumps({"outfit": o, "weights": str(path), "frames": meta["frames"], "sets": meta["sets"],
+                              "seconds": meta["seconds"]}))
+
+
 def train(args) -> None:
+    if (args.train_sets or args.data_only) and args.model != "author":
+        raise ReconError("--train-sets and --data-only are --model author's")
     if args.model in ("deepsd", "gcvae"):
         check_variant(args, deepsd_train.VARIANTS if args.model == "deepsd" else gcvae_train.VARIANTS)
     if args.model == "deepsd":
@@ -76,13 +99,9 @@ def train(args) -> None:
             print(json.dumps({"variant": name, "train_garments": meta["train_garments"],
                               "train_seconds": meta["train_seconds"], "last": meta["curve"][-1]}))
         return
+    if args.model == "author":
+        return train_author(outfits(args.outfit), args)
     for o in outfits(args.outfit):
-        if args.model == "author":
-            data = AuthorDataConfig(outfit=o, **({"workers": args.workers} if args.workers else {}))
-            path, meta = author_train.train(author_train.AuthorTrainConfig(data=data))
-            print(json.dumps({"outfit": o, "weights": str(path), "frames": meta["frames"], "sets": meta["sets"],
-                              "seconds": meta["seconds"]}))
-            continue
         if args.model == "taylor":
             more = {k: getattr(args, k) for k in ("anchors", "shapes", "pose_examples", "workers")
                     if getattr(args, k) is not None}
@@ -132,7 +151,8 @@ def evaluate(args) -> None:
         print(Path(gcvae_train.evaluate_and_report(Path(args.out))).read_text())
         return
     if args.model == "author":
-        print(Path(author_eval.evaluate_and_report(names, "val" if args.val else "test", Path(args.out))).read_text())
+        print(Path(author_eval.evaluate_and_report(names, "val" if args.val else "test", Path(args.out),
+                                                   ablations=not args.no_ablations)).read_text())
         return
     if args.model == "taylor":
         print(Path(taylor_eval.evaluate_and_report(names, args.n or default(taylor_eval.evaluate_and_report, "poses"),

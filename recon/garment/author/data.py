@@ -9,11 +9,16 @@ default fabric NCS learnt, so "NCS with default parameters" is a fair baseline. 
 the fabric's terms are rescaled (``fabric``); friction, which the teacher lacks, enters as a
 velocity filter at contacts (``integrate.contact_friction``).
 
-Splits: train parameter sets x chunks of the train performers' clips; held-out parameter sets
-(another Latin-hypercube draw) x windows of the val (tuning) and test performers' clips. Each
-simulation settles ``settle`` frames on its first pose; its first ``lead`` frames are not used
-(the swing builds up from rest there). Simulations run in ``workers`` processes, each kept in
-``<cache>/author-sims/`` as it is done (resumable).
+Splits: held-out parameter sets (a Latin-hypercube draw) x windows of the val (tuning) and test
+performers' clips; train parameter sets x chunks of the train performers' clips. The train part is
+a sequence that only grows: set ``s`` is the ``s``-th point of a scrambled Halton sequence and gets
+the train chunks ``s * train_chunks ...`` (the clips' chunks, reshuffled each time they run out),
+and the folder's key leaves ``train_sets`` out, so a dataset of N sets is the first N of any
+larger one: ``train_sets`` can be raised and the job continued (days of simulation) while models
+are trained on its prefixes (the learning curve). Each simulation settles ``settle`` frames on its
+first pose; its first ``lead`` frames are not used (the swing builds up from rest there).
+Simulations run in ``workers`` processes, val and test first, each kept in ``<cache>/author-sims/``
+as it is done (resumable).
 """
 from __future__ import annotations
 
@@ -72,10 +77,26 @@ def _from_unit(u: float, lo: float, hi: float, log: bool) -> float:
     return float(lo * (hi / lo) ** u if log else lo + u * (hi - lo))
 
 
-def sample_intrinsics(n: int, seed: int) -> list[Intrinsics]:
-    """``n`` parameter sets spread over the ranges (a Latin hypercube)."""
-    u = qmc.LatinHypercube(d=len(NAMES), seed=seed).random(n)
+def sample_intrinsics(n: int, seed: int, extendable: bool = False) -> list[Intrinsics]:
+    """``n`` parameter sets spread over the ranges: a Latin hypercube, or with ``extendable`` the
+    first ``n`` points of a scrambled Halton sequence (those of ``n`` + 1 start with these)."""
+    d = len(NAMES)
+    u = (qmc.Halton(d=d, seed=seed) if extendable else qmc.LatinHypercube(d=d, seed=seed)).random(n)
     return [Intrinsics(**{k: round(_from_unit(x, *RANGES[k]), 4) for k, x in zip(NAMES, row)}) for row in u]
+
+
+def cycled_chunks(split: str, frames: int, n: int, seed: int) -> list[Chunk]:
+    """``n`` chunks of a split's clips: all of them in a random order, again in another order when
+    they run out, and so on (the first ``n`` of ``n`` + 1 are the ``n``'s)."""
+    out: list[Chunk] = []
+    for epoch in range(n):
+        if len(out) >= n:
+            break
+        more = chunks_of(split, frames, n - len(out), seed + 7919 * epoch)
+        if not more:
+            raise ValueError(f"the {split} clips have no chunk of {frames} frames")
+        out += more
+    return out
 
 
 def fabric(cfg: NCSTrainConfig, p: Intrinsics) -> NCSTrainConfig:
@@ -117,18 +138,24 @@ class Sim(NamedTuple):
 
 
 def plan(cfg: AuthorDataConfig) -> list[Sim]:
-    """Every simulation of the dataset: the train sets' chunks first, then val, then test."""
+    """Every simulation of the dataset: val, then test, then the train sets in order."""
     sims = []
-    train_p = sample_intrinsics(cfg.train_sets, cfg.seed)
-    chunks = chunks_of("train", cfg.chunk, cfg.train_sets * cfg.train_chunks, cfg.seed)
-    for k, c in enumerate(chunks):
-        sims.append(Sim("train", k % cfg.train_sets, c, train_p[k % cfg.train_sets]))
     for split, n_sets, n_win, off in (("val", cfg.val_sets, cfg.val_windows, 1), ("test", cfg.test_sets,
                                                                                  cfg.test_windows, 2)):
         ps = sample_intrinsics(n_sets, cfg.seed + off)
         for c in chunks_of(split, cfg.window, n_win, cfg.seed + off):
             sims += [Sim(split, s, c, p) for s, p in enumerate(ps)]
+    train_p = sample_intrinsics(cfg.train_sets, cfg.seed, extendable=True)
+    chunks = cycled_chunks("train", cfg.chunk, cfg.train_sets * cfg.train_chunks, cfg.seed)
+    for k, c in enumerate(chunks):
+        s = k // cfg.train_chunks
+        sims.append(Sim("train", s, c, train_p[s]))
     return sims
+
+
+def train_frames(cfg: AuthorDataConfig) -> int:
+    """Training frames of the dataset (after each simulation's lead)."""
+    return cfg.train_sets * cfg.train_chunks * (cfg.chunk - cfg.lead)
 
 
 def teacher_config(outfit: str) -> NCSTrainConfig:
@@ -137,10 +164,12 @@ def teacher_config(outfit: str) -> NCSTrainConfig:
 
 
 def sim_folder(cfg: AuthorDataConfig) -> Path:
-    """``<cache>/author-sims/<outfit>-<hash of everything the simulations depend on>``."""
+    """``<cache>/author-sims/<outfit>-<hash of everything the simulations depend on>``: all but the
+    number of train sets, which only adds simulations."""
     base = teacher_config(cfg.outfit)
     key = json.dumps({"pbns": hashlib.sha256(store.trained_pbns(cfg.outfit).read_bytes()).hexdigest(),
-                      "data": {k: v for k, v in asdict(cfg).items() if k != "workers"}, "ranges": RANGES,
+                      "data": {k: v for k, v in asdict(cfg).items() if k not in ("workers", "train_sets")},
+                      "ranges": RANGES,
                       **{k: asdict(base)[k] for k in ("edge", "bend", "collision", "gravity", "pin", "inertia",
                                                       "integrate", "smooth_motion", "waist_hold")}},
                      sort_keys=True, default=str)
@@ -178,7 +207,9 @@ def generate(cfg: AuthorDataConfig, log=print) -> Path:
     sims = plan(cfg)
     meta = {"config": asdict(cfg), "sims": [{"name": s.name, "split": s.split, "set": s.set,
                                             "chunk": s.chunk._asdict(), "params": asdict(s.params)} for s in sims]}
-    paths.atomic_write(folder / "plan.json", lambda t: Path(t).write_text(json.dumps(meta, indent=1)))
+    old = folder / "plan.json"  # for people: the largest plan simulated into this folder
+    if not old.exists() or json.loads(old.read_text())["config"]["train_sets"] <= cfg.train_sets:
+        paths.atomic_write(old, lambda t: Path(t).write_text(json.dumps(meta, indent=1)))
     todo = [s for s in sims if not (folder / f"{s.name}.npy").exists()]
     t0 = time.time()
     if todo:
@@ -200,7 +231,7 @@ def _save_npy(path, array: np.ndarray) -> None:
         np.save(f, array)
 
 
-def load_plan(folder: Path) -> tuple[AuthorDataConfig, list[Sim]]:
-    meta = json.loads((Path(folder) / "plan.json").read_text())
-    sims = [Sim(m["split"], m["set"], Chunk(**m["chunk"]), Intrinsics(**m["params"])) for m in meta["sims"]]
-    return AuthorDataConfig(**meta["config"]), sims
+def missing(cfg: AuthorDataConfig, split: str | None = None) -> list[Sim]:
+    """The simulations of ``plan(cfg)`` (of ``split``) not yet in ``sim_folder(cfg)``."""
+    folder = sim_folder(cfg)
+    return [s for s in plan(cfg) if split in (None, s.split) and not (folder / f"{s.name}.npy").exists()]

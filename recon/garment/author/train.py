@@ -19,7 +19,15 @@ import torch
 
 from recon.body import default_body
 from recon.garment import store
-from recon.garment.author.data import AuthorDataConfig, Sim, generate, load_plan, sim_folder, teacher_config
+from recon.garment.author.data import (
+    AuthorDataConfig,
+    Sim,
+    generate,
+    missing,
+    plan,
+    sim_folder,
+    teacher_config,
+)
 from recon.garment.author.model import (
     AuthorConfig,
     AuthorModel,
@@ -84,28 +92,33 @@ def clip_motion(body, motions: Motions, sim: Sim, cfg: AuthorConfig):
     return rot, transl, yaw, joints, cfg.signature(joints, yaw)
 
 
-def load_frames(folder: Path, split: str, model: AuthorConfig, body=None, log=print) -> tuple[Frames, list[Sim], int]:
-    """Every frame after the lead of ``split``'s simulations in ``folder``; also the plan's sims of
-    that split and the lead."""
-    cfg, sims = load_plan(folder)
+def load_frames(cfg: AuthorDataConfig, split: str, model: AuthorConfig, body=None, log=print,
+                dtype: torch.dtype = torch.float32) -> tuple[Frames, list[Sim], int]:
+    """Every frame after the lead of ``split``'s simulations of ``plan(cfg)`` (the train split: of
+    its ``train_sets`` first sets), the offsets in ``dtype`` (float16: the files' own precision, half
+    the memory of 100k frames); also those sims and the lead."""
+    folder = sim_folder(cfg)
+    gone = missing(cfg, split)
+    if gone:
+        raise FileNotFoundError(f"{len(gone)} {split} simulations of {cfg.outfit} are not in {folder}: run `recon "
+                                f"garment train --model author --outfit {cfg.outfit} --train-sets {cfg.train_sets}`")
+    sims = [s for s in plan(cfg) if s.split == split]
     body = body or default_body()
     motions = Motions(body, hanging_outfit(body, cfg.outfit).shape[None], teacher_config(cfg.outfit).smooth_motion)
     parts = []
     for k, s in enumerate(sims):
-        if s.split != split or not (folder / f"{s.name}.npy").exists():
-            continue
         x = torch.from_numpy(np.load(folder / f"{s.name}.npy").astype(np.float32))
         _, _, yaw, _, sig = clip_motion(body, motions, s, model)
         keep = slice(cfg.lead, None)
-        off = torch.einsum("tji,tnj->tni", yaw[keep], x[keep])
+        off = torch.einsum("tji,tnj->tni", yaw[keep], x[keep]).to(dtype)
         n = len(off)
         gid = {"train": 0, "val": 1000, "test": 2000}[split] + s.set
         parts.append((off, sig[keep], torch.full((n,), gid), torch.from_numpy(s.params.vector()).float().expand(n, -1),
                       torch.full((n,), k), torch.arange(cfg.lead, cfg.lead + n)))
     if not parts:
-        raise ValueError(f"no {split} simulations in {folder}")
+        raise ValueError(f"the plan of {cfg.outfit} has no {split} simulation")
     log(f"{split}: {len(parts)} simulations, {sum(len(p[0]) for p in parts)} frames")
-    return Frames(*[torch.cat(c) for c in zip(*parts)]), [s for s in sims if s.split == split], cfg.lead
+    return Frames(*[torch.cat(c) for c in zip(*parts)]), sims, cfg.lead
 
 
 def laplacian(faces: np.ndarray, n: int) -> sp.csr_matrix:
@@ -113,17 +126,30 @@ def laplacian(faces: np.ndarray, n: int) -> sp.csr_matrix:
     return (sp.identity(n, format="csr") - neighbour_mean(faces, n)).tocsr()
 
 
-def principal_basis(offsets: torch.Tensor, dims: int) -> tuple[torch.Tensor, torch.Tensor, float]:
+PCA_FRAMES = 10000  # frames the principal directions are taken from at most (evenly spaced)
+CHUNK = 4096  # frames a matrix product takes at a time (memory, not results)
+
+
+def in_chunks(fn, x: torch.Tensor, size: int = CHUNK) -> torch.Tensor:
+    """``fn`` of ``x``'s rows ``size`` at a time in float32, concatenated."""
+    return torch.cat([fn(x[i:i + size].float()) for i in range(0, len(x), size)])
+
+
+def principal_basis(offsets: torch.Tensor, dims: int, max_frames: int = PCA_FRAMES
+                    ) -> tuple[torch.Tensor, torch.Tensor, float]:
     """Mean (3n,), the first ``dims`` principal directions (3n, dims) and the RMS of their
-    coefficients, of offsets (F, n, 3) (eigenvectors of the frames' Gram matrix)."""
-    x = offsets.reshape(len(offsets), -1).double()
-    mean = x.mean(0)
-    x = x - mean
+    coefficients, of offsets (F, n, 3) (eigenvectors of the frames' Gram matrix, of at most
+    ``max_frames`` evenly spaced frames about the mean of all: its memory grows with their square)."""
+    f, d = len(offsets), offsets[0].numel()
+    mean = sum(offsets[i:i + CHUNK].reshape(-1, d).double().sum(0) for i in range(0, f, CHUNK)) / f
+    x = offsets[::-(-f // max_frames)].reshape(-1, d).double() - mean
     evals, evecs = torch.linalg.eigh(x @ x.T)
     order = torch.argsort(evals, descending=True)[:dims]
     basis = x.T @ evecs[:, order] / evals[order].clamp(min=1e-12).sqrt()
-    coeff = x @ basis
-    return mean.float(), basis.float(), float(coeff.pow(2).mean().sqrt())
+    del x
+    squares = sum(float(((offsets[i:i + CHUNK].reshape(-1, d).double() - mean) @ basis).pow(2).sum())
+                  for i in range(0, f, CHUNK))
+    return mean.float(), basis.float(), (squares / (f * basis.shape[1])) ** 0.5
 
 
 def laplacian_form(basis: torch.Tensor, lap: sp.csr_matrix, coeffs: torch.Tensor) -> torch.Tensor:
@@ -149,7 +175,7 @@ def train_descriptor(train: torch.Tensor, faces: np.ndarray, cfg: AuthorTrainCon
     mean, basis, scale = principal_basis(train, m.pca_dims)
     desc = ShapeDescriptor(mean, basis, scale, dims or m.shape_dims, m.shape_hidden)
     with torch.no_grad():
-        c = desc.coefficients(train)
+        c = in_chunks(desc.coefficients, train)
     q = laplacian_form(basis, laplacian(faces, train.shape[1]), c)
     opt = torch.optim.Adam(desc.parameters(), lr=cfg.lr)
     steps = cfg.descriptor_epochs * max(1, len(c) // cfg.descriptor_batch)
@@ -235,8 +261,21 @@ def train_autoencoder(s: torch.Tensor, sig: torch.Tensor, frames: Frames, cfg: A
     return ae.eval()
 
 
-def model_name(outfit: str, variant: str = "ours") -> str:
-    return outfit if variant == "ours" else f"{outfit}-{variant}"
+def model_name(outfit: str, variant: str = "ours", train_sets: int | None = None) -> str:
+    """The model file's name: the outfit's, plus the variant and a train-set count not the default's."""
+    name = outfit if variant == "ours" else f"{outfit}-{variant}"
+    return name if train_sets in (None, AuthorDataConfig.train_sets) else f"{name}-{train_sets}sets"
+
+
+def is_trained(cfg: AuthorTrainConfig) -> bool:
+    """Whether ``cfg``'s model file holds a model of ``cfg`` on the simulations it would use now."""
+    path = store.author_path(model_name(cfg.data.outfit, cfg.variant, cfg.data.train_sets))
+    if not path.exists():
+        return False
+    meta = AuthorModel.load(path)[1]
+    now = json.loads(json.dumps(asdict(replace(cfg, data=replace(cfg.data, workers=0)))))
+    then = {**meta["config"], "data": {**meta["config"]["data"], "workers": 0}}  # workers change no result
+    return meta.get("data_folder") == sim_folder(cfg.data).name and then == now
 
 
 def train(cfg: AuthorTrainConfig, log=print, simulate: bool = True) -> tuple[Path, dict]:
@@ -249,14 +288,14 @@ def train(cfg: AuthorTrainConfig, log=print, simulate: bool = True) -> tuple[Pat
     torch.set_num_threads(max(1, torch.get_num_threads()))
     body = default_body()
     outfit = hanging_outfit(body, cfg.data.outfit)
-    frames, _, _ = load_frames(folder, "train", cfg.model, body, log)
+    frames, _, _ = load_frames(cfg.data, "train", cfg.model, body, log, torch.float16)
     t1 = time.time()
     if cfg.descriptor_from:  # the same data's descriptor, already trained
         desc = AuthorModel.load(Path(cfg.descriptor_from))[0].descriptor
     else:
         desc = train_descriptor(frames.offsets, outfit.faces, cfg, log=log)
     with torch.no_grad():
-        s = desc.encode(frames.offsets)
+        s = in_chunks(desc.encode, frames.offsets)
     t2 = time.time()
     ae = train_autoencoder(s, frames.sig, frames, cfg, log)
     t3 = time.time()
@@ -265,6 +304,6 @@ def train(cfg: AuthorTrainConfig, log=print, simulate: bool = True) -> tuple[Pat
             "sets": int(len(torch.unique(frames.set_id))), "seconds": {
                 "data": t_data and round(t_data, 1), "load": round(t1 - t0, 1), "descriptor": round(t2 - t1, 1),
                 "autoencoder": round(t3 - t2, 1)}}
-    path = model.save(store.author_path(model_name(cfg.data.outfit, cfg.variant)), meta)
+    path = model.save(store.author_path(model_name(cfg.data.outfit, cfg.variant, cfg.data.train_sets)), meta)
     log(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB): {meta['seconds']}")
     return path, meta
