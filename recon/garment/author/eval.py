@@ -37,6 +37,7 @@ from recon.garment.author.train import (
     AuthorTrainConfig,
     Frames,
     hanging_outfit,
+    is_trained,
     laplacian,
     load_frames,
     model_name,
@@ -203,8 +204,17 @@ def propagation(model: AuthorModel, sims, folder: Path, lead: int, body, pbns: P
 
 def speed(model: AuthorModel, body, pbns: PBNS, shape: torch.Tensor, frames: int = 300, repeats: int = 5) -> dict:
     """Frames a second of re-propagating a ``frames``-frame test clip with 2 keyframes after a
-    keyframe edit (the motion's inputs kept) and after a motion edit (signatures and PBNS redone)."""
+    keyframe edit (the motion's inputs kept) and after a motion edit (signatures and PBNS redone),
+    on one thread."""
+    threads = torch.get_num_threads()
     torch.set_num_threads(1)
+    try:
+        return _speed(model, body, pbns, shape, frames, repeats)
+    finally:
+        torch.set_num_threads(threads)
+
+
+def _speed(model: AuthorModel, body, pbns: PBNS, shape: torch.Tensor, frames: int, repeats: int) -> dict:
     m = Motions(body, shape[None], teacher_config(model.outfit).smooth_motion)
     clips = MocapPoses.load("test")
     c = int(max(np.unique(clips.clip), key=lambda k: (clips.clip == k).sum()))
@@ -228,11 +238,12 @@ def speed(model: AuthorModel, body, pbns: PBNS, shape: torch.Tensor, frames: int
 
 
 def ensure_variant(outfit: str, variant: str, log=print) -> AuthorModel:
-    path = store.author_path(model_name(outfit, variant))
-    if not path.exists():
+    """The ablation ``variant``'s model, trained first unless trained on the same simulations."""
+    cfg = AuthorTrainConfig(data=AuthorDataConfig(outfit=outfit), variant=variant)
+    if not is_trained(cfg):
         log(f"training the {variant} variant of {outfit}")
-        train(AuthorTrainConfig(data=AuthorDataConfig(outfit=outfit), variant=variant), log=log)
-    return AuthorModel.load(path)[0]
+        train(cfg, log=log)
+    return AuthorModel.load(store.author_path(model_name(outfit, variant)))[0]
 
 
 def learning_curve(outfit: str, split: str, done: dict, body, pbns: PBNS, shape: torch.Tensor, log=print) -> dict:
@@ -257,7 +268,7 @@ def learning_curve(outfit: str, split: str, done: dict, body, pbns: PBNS, shape:
 
 
 def evaluate(outfit: str = "tshirt-skirt", split: str = "test", ablations: bool = True, log=print) -> dict:
-    torch.set_num_threads(1)
+    """Every table of one outfit (the networks the ablations train use the threads torch has)."""
     body = default_body()
     model, meta = AuthorModel.load(store.author_path(outfit))
     dcfg = AuthorDataConfig(**meta["config"]["data"])
