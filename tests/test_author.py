@@ -295,7 +295,7 @@ def test_models_of_a_set_count_are_named_and_kept_when_up_to_date(tmp_path, monk
     monkeypatch.setattr(store, "author_path", lambda name: tmp_path / f"author_{name}.pt")
     cfg = AuthorTrainConfig(data=AuthorDataConfig(train_sets=143, workers=2))
     assert not is_trained(cfg)
-    meta = {"config": json.loads(json.dumps(asdict(cfg))), "data_folder": sim_folder(cfg.data).name}
+    meta = {"config": asdict(cfg), "data_folder": sim_folder(cfg.data).name}  # as train() saves it: tuples
     tiny_model(torch.arange(20)).save(store.author_path("tshirt-skirt-143sets"), meta)
     assert is_trained(cfg) and is_trained(replace(cfg, data=replace(cfg.data, workers=1)))
     assert not is_trained(replace(cfg, steps=10))  # another recipe: trained again

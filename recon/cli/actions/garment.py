@@ -67,13 +67,15 @@ def train_author(names: list[str], args) -> None:
     next count (the data of one count is the start of the next's; models already trained on the same
     data are kept); --data-only: the simulations alone."""
     counts = sorted(set(args.train_sets or [AuthorDataConfig.train_sets]))
-    for n in counts if not args.data_only else counts[-1:]:
+    more = {"workers": args.workers} if args.workers else {}
+    if args.data_only:  # the largest count's simulations hold every smaller count's
         for o in names:
-            data = AuthorDataConfig(outfit=o, train_sets=n, **({"workers": args.workers} if args.workers else {}))
-            if args.data_only:
-                print(json.dumps({"outfit": o, "sets": n, "simulations": str(generate_author(data))}))
-                continue
-            cfg = author_train.AuthorTrainConfig(data=data)
+            data = AuthorDataConfig(outfit=o, train_sets=counts[-1], **more)
+            print(json.dumps({"outfit": o, "sets": counts[-1], "simulations": str(generate_author(data))}))
+        return
+    for n in counts:
+        for o in names:
+            cfg = author_train.AuthorTrainConfig(data=AuthorDataConfig(outfit=o, train_sets=n, **more))
             if author_train.is_trained(cfg):
                 print(json.dumps({"outfit": o, "sets": n, "weights": "already trained on these simulations"}))
                 continue

@@ -210,7 +210,7 @@ def generate(cfg: AuthorDataConfig, log=print) -> Path:
     old = folder / "plan.json"  # for people: the largest plan simulated into this folder
     if not old.exists() or json.loads(old.read_text())["config"]["train_sets"] <= cfg.train_sets:
         paths.atomic_write(old, lambda t: Path(t).write_text(json.dumps(meta, indent=1)))
-    todo = [s for s in sims if not (folder / f"{s.name}.npy").exists()]
+    todo = missing(folder, sims)
     t0 = time.time()
     if todo:
         log(f"simulating {len(todo)} of {len(sims)} runs ({sum(s.chunk.frames + cfg.settle for s in todo)} frames) "
@@ -226,12 +226,11 @@ def generate(cfg: AuthorDataConfig, log=print) -> Path:
     return folder
 
 
+def missing(folder: Path, sims: list[Sim]) -> list[Sim]:
+    """Those of ``sims`` not yet simulated into ``folder``."""
+    return [s for s in sims if not (folder / f"{s.name}.npy").exists()]
+
+
 def _save_npy(path, array: np.ndarray) -> None:
     with open(path, "wb") as f:
         np.save(f, array)
-
-
-def missing(cfg: AuthorDataConfig, split: str | None = None) -> list[Sim]:
-    """The simulations of ``plan(cfg)`` (of ``split``) not yet in ``sim_folder(cfg)``."""
-    folder = sim_folder(cfg)
-    return [s for s in plan(cfg) if split in (None, s.split) and not (folder / f"{s.name}.npy").exists()]

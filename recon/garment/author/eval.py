@@ -40,7 +40,7 @@ from recon.garment.author.train import (
     is_trained,
     laplacian,
     load_frames,
-    model_name,
+    model_path,
     principal_basis,
     train,
     train_descriptor,
@@ -243,27 +243,27 @@ def ensure_variant(outfit: str, variant: str, log=print) -> AuthorModel:
     if not is_trained(cfg):
         log(f"training the {variant} variant of {outfit}")
         train(cfg, log=log)
-    return AuthorModel.load(store.author_path(model_name(outfit, variant)))[0]
+    return AuthorModel.load(model_path(cfg))[0]
 
 
-def learning_curve(outfit: str, split: str, done: dict, body, pbns: PBNS, shape: torch.Tensor, log=print) -> dict:
-    """The model's propagation errors per ratio for each train-set count of ``CURVE_SETS`` whose model
-    exists (``done``: {sets: errors} already measured); the missing counts listed."""
+def learning_curve(outfit: str, sims, folder: Path, lead: int, done: dict, body, pbns: PBNS, shape: torch.Tensor,
+                   log=print) -> dict:
+    """The model's propagation errors per ratio on the held-out ``sims`` for each train-set count of
+    ``CURVE_SETS`` whose model is trained on the current simulations (``done``: {sets: errors}
+    already measured); the other counts listed."""
     rows, absent = [], []
     for n in CURVE_SETS:
-        cfg = replace(AuthorDataConfig(outfit=outfit), train_sets=n)
-        path = store.author_path(model_name(outfit, "ours", n))
+        cfg = AuthorTrainConfig(data=replace(AuthorDataConfig(outfit=outfit), train_sets=n))
         if n in done:
             errors = done[n]
-        elif path.exists():
-            model = AuthorModel.load(path)[0]
-            _, sims, lead = load_frames(cfg, split, model.cfg, body, log)
-            p = propagation(model, sims, sim_folder(cfg), lead, body, pbns, shape, log, baselines=False)
+        elif is_trained(cfg):
+            model = AuthorModel.load(model_path(cfg))[0]
+            p = propagation(model, sims, folder, lead, body, pbns, shape, log, baselines=False)
             errors = {r: v["ours"] for r, v in p["ratios"].items()}
         else:
             absent.append(n)
             continue
-        rows.append({"sets": n, "frames": train_frames(cfg), "ours_mm": errors})
+        rows.append({"sets": n, "frames": train_frames(cfg.data), "ours_mm": errors})
     return {"rows": rows, "absent": absent}
 
 
@@ -286,7 +286,8 @@ def evaluate(outfit: str = "tshirt-skirt", split: str = "test", ablations: bool 
            else None}
     out["propagation"] = propagation(model, test_sims, folder, lead, body, pbns, hanging.shape, log)
     ours = {r: v["ours"] for r, v in out["propagation"]["ratios"].items()}
-    out["curve"] = learning_curve(outfit, split, {dcfg.train_sets: ours}, body, pbns, hanging.shape, log)
+    out["curve"] = learning_curve(outfit, test_sims, folder, lead, {dcfg.train_sets: ours}, body, pbns,
+                                  hanging.shape, log)
     out["speed"] = speed(model, body, pbns, hanging.shape)
     if ablations:
         out["descriptor"] = descriptor_table(train_f, test_f, hanging.faces, model, tcfg, log)
@@ -364,10 +365,11 @@ def evaluate_and_report(outfits: list[str], split: str = "test", out_dir: Path =
     for o in outfits:
         r = evaluate(o, split, ablations, log)
         prev = before.get(o, {})
-        if not ablations and (prev.get("descriptor") or prev.get("previous_ablations")):
-            r["previous_ablations"] = {
-                "data": f"{prev['frames']['train']} train frames of {prev['sets']['train']} sets of an earlier plan",
-                "invariance": prev["invariance"], "descriptor": prev["descriptor"]} if prev.get("descriptor") \
-                else prev["previous_ablations"]
+        old = prev.get("previous_ablations")
+        if prev.get("descriptor"):  # the previous report ran the ablations: those are the ones to keep
+            old = {"data": f"the previous report's ({prev['frames']['train']} train frames of {prev['sets']['train']} "
+                           "sets)", "invariance": prev["invariance"], "descriptor": prev["descriptor"]}
+        if not ablations and old:
+            r["previous_ablations"] = old
         data.append(r)
     return report.write(Path(out_dir) / name, {"outfits": data}, render(data))

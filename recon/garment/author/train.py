@@ -98,11 +98,11 @@ def load_frames(cfg: AuthorDataConfig, split: str, model: AuthorConfig, body=Non
     its ``train_sets`` first sets), the offsets in ``dtype`` (float16: the files' own precision, half
     the memory of 100k frames); also those sims and the lead."""
     folder = sim_folder(cfg)
-    gone = missing(cfg, split)
+    sims = [s for s in plan(cfg) if s.split == split]
+    gone = missing(folder, sims)
     if gone:
         raise FileNotFoundError(f"{len(gone)} {split} simulations of {cfg.outfit} are not in {folder}: run `recon "
                                 f"garment train --model author --outfit {cfg.outfit} --train-sets {cfg.train_sets}`")
-    sims = [s for s in plan(cfg) if s.split == split]
     body = body or default_body()
     motions = Motions(body, hanging_outfit(body, cfg.outfit).shape[None], teacher_config(cfg.outfit).smooth_motion)
     parts = []
@@ -267,15 +267,22 @@ def model_name(outfit: str, variant: str = "ours", train_sets: int | None = None
     return name if train_sets in (None, AuthorDataConfig.train_sets) else f"{name}-{train_sets}sets"
 
 
+def model_path(cfg: AuthorTrainConfig) -> Path:
+    """Where ``train(cfg)`` writes its model."""
+    return store.author_path(model_name(cfg.data.outfit, cfg.variant, cfg.data.train_sets))
+
+
 def is_trained(cfg: AuthorTrainConfig) -> bool:
     """Whether ``cfg``'s model file holds a model of ``cfg`` on the simulations it would use now."""
-    path = store.author_path(model_name(cfg.data.outfit, cfg.variant, cfg.data.train_sets))
+    path = model_path(cfg)
     if not path.exists():
         return False
     meta = AuthorModel.load(path)[1]
-    now = json.loads(json.dumps(asdict(replace(cfg, data=replace(cfg.data, workers=0)))))
-    then = {**meta["config"], "data": {**meta["config"]["data"], "workers": 0}}  # workers change no result
-    return meta.get("data_folder") == sim_folder(cfg.data).name and then == now
+
+    def plain(c: dict) -> dict:  # tuples as lists, as JSON has them; the workers change no result
+        return json.loads(json.dumps({**c, "data": {**c["data"], "workers": 0}}))
+
+    return meta.get("data_folder") == sim_folder(cfg.data).name and plain(meta["config"]) == plain(asdict(cfg))
 
 
 def train(cfg: AuthorTrainConfig, log=print, simulate: bool = True) -> tuple[Path, dict]:
@@ -304,6 +311,6 @@ def train(cfg: AuthorTrainConfig, log=print, simulate: bool = True) -> tuple[Pat
             "sets": int(len(torch.unique(frames.set_id))), "seconds": {
                 "data": t_data and round(t_data, 1), "load": round(t1 - t0, 1), "descriptor": round(t2 - t1, 1),
                 "autoencoder": round(t3 - t2, 1)}}
-    path = model.save(store.author_path(model_name(cfg.data.outfit, cfg.variant, cfg.data.train_sets)), meta)
+    path = model.save(model_path(cfg), meta)
     log(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB): {meta['seconds']}")
     return path, meta
