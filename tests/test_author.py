@@ -14,6 +14,7 @@ from gltf_check import assert_valid, pose_meshes
 
 from recon.errors import ReconError
 from recon.garment import store
+from recon.garment.author import eval as author_eval
 from recon.garment.author.command import author, parse_key, read_keyframe
 from recon.garment.author.data import (
     RANGES,
@@ -301,23 +302,45 @@ def test_models_of_a_set_count_are_named_and_kept_when_up_to_date(tmp_path, monk
     assert not is_trained(replace(cfg, steps=10))  # another recipe: trained again
 
 
-def test_the_report_states_the_claim_the_curve_and_old_ablations():
+def fake_report(outfit: str = "tshirt-skirt") -> dict:
+    """An outfit's results as ``author.eval.evaluate`` returns them, with made-up numbers."""
     ratios = {r: {"ours": 10.0 + i, "interpolation: vertices": 20.0 - 4 * i} for i, r in
               enumerate(("0.01", "0.02", "0.05", "0.1", "0.2"))}
     inv = {"ours": {"descriptor_mm": 1.0, "same_motion_mm": 2.0, "cross_motion_mm": 3.0}}
-    r = {"outfit": "tshirt-skirt", "split": "test", "frames": {"train": 4480, "test": 2160},
-         "sets": {"train": 32, "test": 4}, "windows": 3, "lead": 20, "vertices": 10, "train_seconds": {},
-         "data_seconds": None, "speed": {"frames": 300, "threads": 1, "key_edit_fps": 900.0, "motion_edit_fps": 200.0},
-         "propagation": {"ratios": ratios, "keys": {r: 2 for r in ratios}, "material_from_other_clip_mm": None},
-         "curve": {"rows": [{"sets": 32, "frames": 4480, "ours_mm": {r: v["ours"] for r, v in ratios.items()}}],
-                   "absent": [143, 715]},
-         "invariance": inv, "previous_ablations": {"data": "old plan", "invariance": inv, "descriptor": []}}
+    return {"outfit": outfit, "split": "test", "frames": {"train": 4480, "test": 2160},
+            "sets": {"train": 32, "test": 4}, "windows": 3, "lead": 20, "vertices": 10, "train_seconds": {},
+            "data_seconds": None,
+            "speed": {"frames": 300, "threads": 1, "key_edit_fps": 900.0, "motion_edit_fps": 200.0},
+            "propagation": {"ratios": ratios, "keys": {r: 2 for r in ratios}, "material_from_other_clip_mm": None},
+            "curve": {"rows": [{"sets": 32, "frames": 4480, "ours_mm": {r: v["ours"] for r, v in ratios.items()}}],
+                      "absent": [143, 715]},
+            "invariance": inv, "previous_ablations": {"data": "old plan", "invariance": inv, "descriptor": []}}
+
+
+def test_the_report_states_the_claim_the_curve_and_old_ablations():
+    r = fake_report()
+    ratios = r["propagation"]["ratios"]
     text = render([r])
     assert "ours 11.0 mm against 4.0 mm, not met" in text
     assert "| 32 " in text and "Not trained yet: 143, 715 sets" in text
     assert "Ablations not re-run on this data: old plan" in text
     ratios["0.02"]["ours"] = 3.0
     assert "ours 3.0 mm against 4.0 mm, met" in render([r])
+
+
+def test_update_keeps_the_other_outfits_tables(monkeypatch, tmp_path):
+    runs = []
+    monkeypatch.setattr(author_eval, "evaluate", lambda o, split, ablations, log: runs.append(o) or fake_report(o))
+    author_eval.evaluate_and_report(["tshirt-skirt", "dress"], out_dir=tmp_path, ablations=False)
+    path = tmp_path / "garment-author.json"
+    first = json.loads(path.read_text())["outfits"]
+    monkeypatch.setattr(author_eval, "evaluate", lambda o, split, ablations, log: {**fake_report(o), "windows": 9})
+    author_eval.evaluate_and_report(["dress"], out_dir=tmp_path, ablations=False, update=True)
+    kept = json.loads(path.read_text())["outfits"]
+    assert [r["outfit"] for r in kept] == ["tshirt-skirt", "dress"]
+    assert kept[0] == first[0] and kept[1]["windows"] == 9
+    author_eval.evaluate_and_report(["dress"], out_dir=tmp_path, ablations=False)
+    assert [r["outfit"] for r in json.loads(path.read_text())["outfits"]] == ["dress"]
 
 
 def test_principal_basis_of_many_frames_from_a_subset_and_in_half_precision():

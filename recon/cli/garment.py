@@ -77,7 +77,7 @@ def add_garment(p: Parser) -> None:
     a.add_argument("--ncs-weights", nargs="+", default=None,
                    help="--model ncs: NCS files to evaluate instead of the shipped ones (one per outfit)")
     a.add_argument("--update", action="store_true",
-                   help="--model ncs: keep the other outfits' rows of the existing table")
+                   help="--model ncs / author: keep the other outfits' tables of the existing report")
     a.add_argument("--val", action="store_true",
                    help="--model ncs / author: against the val performers' simulations (what recipes are tuned on)")
     a.add_argument("--no-ablations", action="store_true",

@@ -154,7 +154,8 @@ def evaluate(args) -> None:
         return
     if args.model == "author":
         print(Path(author_eval.evaluate_and_report(names, "val" if args.val else "test", Path(args.out),
-                                                   ablations=not args.no_ablations)).read_text())
+                                                   ablations=not args.no_ablations,
+                                                   update=args.update)).read_text())
         return
     if args.model == "taylor":
         print(Path(taylor_eval.evaluate_and_report(names, args.n or default(taylor_eval.evaluate_and_report, "poses"),

@@ -355,13 +355,14 @@ def _ablation_tables(inv: dict, descriptor: list[dict] | None) -> list[str]:
 
 
 def evaluate_and_report(outfits: list[str], split: str = "test", out_dir: Path = report.RESULTS,
-                        ablations: bool = True, log=print) -> Path:
+                        ablations: bool = True, update: bool = False, log=print) -> Path:
     """The tables of ``outfits``; ``ablations=False`` keeps the previous report's ablation tables of
-    each outfit, marked as made on that report's data."""
+    each outfit, marked as made on that report's data; ``update`` keeps the other outfits' tables
+    of the existing report (one outfit re-evaluated)."""
     name = "garment-author" if split == "test" else f"garment-author-{split}"
     path = Path(out_dir) / f"{name}.json"
     before = {r["outfit"]: r for r in json.loads(path.read_text())["outfits"]} if path.exists() else {}
-    data = []
+    mine = {}
     for o in outfits:
         r = evaluate(o, split, ablations, log)
         prev = before.get(o, {})
@@ -371,5 +372,8 @@ def evaluate_and_report(outfits: list[str], split: str = "test", out_dir: Path =
                            "sets)", "invariance": prev["invariance"], "descriptor": prev["descriptor"]}
         if not ablations and old:
             r["previous_ablations"] = old
-        data.append(r)
+        mine[o] = r
+    data = list(mine.values())
+    if update:  # the re-evaluated outfits where they were, the others as they were
+        data = [mine.get(o, r) for o, r in before.items()] + [r for o, r in mine.items() if o not in before]
     return report.write(Path(out_dir) / name, {"outfits": data}, render(data))
