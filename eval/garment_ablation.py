@@ -20,8 +20,9 @@ import torch
 
 from recon.body import default_body
 from recon.garment.pbns import train as T
-from recon.garment.pbns.eval import error_to_drapes, evaluate
+from recon.garment.pbns.eval import evaluate
 from recon.garment.pbns.model import PBNS
+from recon.garment.pbns.reference_eval import error_to_drapes
 
 
 def main() -> None:

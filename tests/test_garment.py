@@ -15,7 +15,7 @@ from recon.garment.data import pose_set, posed_bodies
 from recon.garment.dress import Dresser
 from recon.garment.gltf import write_glb
 from recon.garment.metrics import collision_pct, penetration, physical_metrics
-from recon.garment.pbns import eval as E
+from recon.garment.pbns import reference_eval as R
 from recon.garment.pbns import train as T
 from recon.garment.pbns.model import PBNS, PBNSConfig, initial_weights, pose_features, remove_yaw
 from recon.garment.templates import PRESETS, GarmentSpec, RestBody, hangs_free, make_outfit
@@ -380,14 +380,14 @@ def test_error_to_cached_drapes_lines_up_poses(body, tmp_path, monkeypatch):
     with torch.no_grad():
         v = model(rot, posed_bodies(body, rot, ck["shape"][None])[2])[0]
     v[..., 1] -= 0.01
-    monkeypatch.setattr(E, "drapes_path", lambda outfit: tmp_path / f"{outfit}.npz")
+    monkeypatch.setattr(R, "drapes_path", lambda outfit: tmp_path / f"{outfit}.npz")
     np.savez(tmp_path / "top-shorts.npz", vertices=v.numpy(), poses=idx, pool_size=20, min_pose_distance=0.5)
-    r = E.error_to_drapes(model, "top-shorts", ck["shape"], body)
+    r = R.error_to_drapes(model, "top-shorts", ck["shape"], body)
     assert r["poses"] == 2
     assert r["pbns_mm"] == pytest.approx(10.0, abs=0.01)
     assert r["pbns_height_mm"] == pytest.approx(10.0, abs=0.01)
     assert r["skinning_mm"] > 12.0
-    assert E.error_to_drapes(model, "dress", ck["shape"], body) is None  # no drapes cached
+    assert R.error_to_drapes(model, "dress", ck["shape"], body) is None  # no drapes cached
 
 
 def test_rescoring_against_cached_drapes_rewrites_the_pbns_rows_and_checks_the_start(body, tmp_path, monkeypatch):
@@ -397,19 +397,19 @@ def test_rescoring_against_cached_drapes_rewrites_the_pbns_rows_and_checks_the_s
 
     model, ck = PBNS.load(store.SHIPPED_DIR / "pbns_top-shorts.pt")
     idx = np.array([2])
-    rot = E.reference_poses(20, 0.5, idx)
+    rot = R.reference_poses(20, 0.5, idx)
     with torch.no_grad():
         bt = posed_bodies(body, rot, ck["shape"][None])[2]
         v, start = model(rot, bt)[0], model.skin(model.rest, bt)
     v[..., 1] -= 0.01  # a "drape" 10 mm under PBNS
-    monkeypatch.setattr(E, "drapes_path", lambda outfit: tmp_path / f"{outfit}.npz")
+    monkeypatch.setattr(R, "drapes_path", lambda outfit: tmp_path / f"{outfit}.npz")
     old_rows = {"newton VBD drape": {"seconds": 123.0}}
     (tmp_path / "garment-reference-top-shorts.json").write_text(json.dumps(
         {"outfit": "top-shorts", "poses": [{"pose": 2, "settled": False, "rows": old_rows}], "frames_cap": 60,
          "settled": 0, "config": {}}))
     np.savez(tmp_path / "top-shorts.npz", vertices=v.numpy(), start=start.numpy(), poses=idx, pool_size=20,
              min_pose_distance=0.5)
-    md = E.rescore_reference("top-shorts", tmp_path).read_text()
+    md = R.rescore_reference("top-shorts", tmp_path).read_text()
     r = json.loads((tmp_path / "garment-reference-top-shorts.json").read_text())
     assert r["mean"]["PBNS"]["error_mm"] == pytest.approx(10.0, abs=0.01)
     assert r["mean"]["newton VBD drape"]["error_mm"] == 0.0 and r["mean"]["newton VBD drape"]["seconds"] == 123.0
@@ -417,4 +417,4 @@ def test_rescoring_against_cached_drapes_rewrites_the_pbns_rows_and_checks_the_s
     np.savez(tmp_path / "top-shorts.npz", vertices=v.numpy(), start=start.numpy() + 0.005, poses=idx, pool_size=20,
              min_pose_distance=0.5)
     with pytest.raises(ReconError, match="start moved"):
-        E.rescore_reference("top-shorts", tmp_path)
+        R.rescore_reference("top-shorts", tmp_path)

@@ -11,6 +11,7 @@ from recon.bench import runner
 from recon.garment.deepsd import eval as deepsd_eval
 from recon.garment.ncs import eval as ncs_eval
 from recon.garment.pbns import eval as pbns_eval
+from recon.garment.pbns import reference_eval
 from recon.garment.taylor import eval as taylor_eval
 from recon.smplr import evaluate as smplr_eval
 
@@ -19,7 +20,7 @@ CHECKED = sorted(p for p in RESULTS.glob("*.json") if "check" in json.loads(p.re
 RENDERERS = {"synth-test": runner.render, "synth-wide-test": runner.render, "other-": runner.render,
              "smplr_anny": smplr_eval.render,
              "garment-pbns": pbns_eval.render_pbns,
-             "garment-resize-": pbns_eval.render_resize, "garment-reference-": pbns_eval.render_reference,
+             "garment-resize-": pbns_eval.render_resize, "garment-reference-": reference_eval.render_reference,
              "garment-ncs": ncs_eval.render, "garment-deepsd": deepsd_eval.render, "garment-taylor": taylor_eval.render}
 def differences(expected, actual, path="", rtol=report.CHECK_TOLERANCE["rtol"], atol=report.CHECK_TOLERANCE["atol"]):
     """Paths where two JSON-like values differ beyond the tolerance."""

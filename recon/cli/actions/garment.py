@@ -23,6 +23,7 @@ from recon.garment.gcvae.command import sample_command
 from recon.garment.ncs import eval as ncs_eval
 from recon.garment.ncs import train as ncs_train
 from recon.garment.pbns import eval as pbns_eval
+from recon.garment.pbns import reference_eval
 from recon.garment.pbns import train as pbns_train
 from recon.garment.resize import ResizeConfig
 from recon.garment.taylor import eval as taylor_eval
@@ -185,7 +186,7 @@ def reference(args) -> None:
     if not set(names) <= set(PRESETS):
         raise ReconError("reference drapes are for the preset outfits: " + ", ".join(PRESETS))
     for o in names:
-        md = (pbns_eval.rescore_reference(o, Path(args.out)) if args.rescore
-              else pbns_eval.reference_and_report(o, args.n, Path(args.out), args.frames, args.workers))
+        md = (reference_eval.rescore_reference(o, Path(args.out)) if args.rescore
+              else reference_eval.reference_and_report(o, args.n, Path(args.out), args.frames, args.workers))
         print(Path(md).read_text())
 
