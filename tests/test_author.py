@@ -3,6 +3,7 @@ author.train; recon.garment.author.command): U-block mixing, the motion descript
 signature, motion invariance on a toy system, keyframes matched exactly after propagation, the
 latent interpolation, the descriptor's start as PCA, friction, and the command's files."""
 import json
+from concurrent.futures import Future
 from dataclasses import asdict, replace
 
 import numpy as np
@@ -14,6 +15,7 @@ from gltf_check import assert_valid, pose_meshes
 
 from recon.errors import ReconError
 from recon.garment import store
+from recon.garment.author import data as author_data
 from recon.garment.author import eval as author_eval
 from recon.garment.author.command import author, parse_key, read_keyframe
 from recon.garment.author.data import (
@@ -323,9 +325,57 @@ def test_the_report_states_the_claim_the_curve_and_old_ablations():
     text = render([r])
     assert "ours 11.0 mm against 4.0 mm, not met" in text
     assert "| 32 " in text and "Not trained yet: 143, 715 sets" in text
-    assert "Ablations not re-run on this data: old plan" in text
+    assert "Ablations not re-run in this report: old plan" in text
     ratios["0.02"]["ours"] = 3.0
     assert "ours 3.0 mm against 4.0 mm, met" in render([r])
+
+
+class InProcessPool:
+    """ProcessPoolExecutor's part that ``generate`` uses, run in this process."""
+
+    def __init__(self, workers, mp_context=None, initializer=None, initargs=()):
+        pass
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
+
+    def submit(self, fn, sim):
+        fut = Future()
+        fut.set_result(np.zeros((sim.chunk.frames + 1, 2, 3), np.float16))
+        return fut
+
+
+def stopped_after(n: int):
+    """A tqdm that lets ``n`` runs finish, then the user presses Ctrl-C."""
+    def progress(it, **kw):
+        for i, x in enumerate(it):
+            if i == n:
+                raise KeyboardInterrupt
+            yield x
+    return progress
+
+
+def test_the_data_job_is_stopped_and_continued_keeping_its_runs_and_time(tmp_path, monkeypatch):
+    monkeypatch.setenv("RECON_CACHE_DIR", str(tmp_path))
+    monkeypatch.setattr(author_data, "ProcessPoolExecutor", InProcessPool)
+    cfg = AuthorDataConfig(train_sets=3, val_sets=1, val_windows=1, test_sets=1, test_windows=1, window=30)
+    folder, sims = sim_folder(cfg), plan(cfg)
+    monkeypatch.setattr(author_data, "tqdm", stopped_after(2))
+    with pytest.raises(KeyboardInterrupt):
+        author_data.generate(cfg, log=lambda *a: None)
+    assert len(author_data.missing(folder, sims)) == len(sims) - 2  # the finished runs are kept
+    spent = json.loads((folder / "timing.json").read_text())["seconds"]
+    assert spent > 0
+    monkeypatch.setattr(author_data, "tqdm", stopped_after(len(sims)))
+    assert author_data.generate(cfg, log=lambda *a: None) == folder
+    assert not author_data.missing(folder, sims)
+    after = json.loads((folder / "timing.json").read_text())["seconds"]
+    assert after > spent
+    author_data.generate(cfg, log=lambda *a: None)  # nothing left to do: no time added
+    assert json.loads((folder / "timing.json").read_text())["seconds"] == after
 
 
 def test_update_keeps_the_other_outfits_tables(monkeypatch, tmp_path):

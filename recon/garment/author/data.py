@@ -216,13 +216,15 @@ def generate(cfg: AuthorDataConfig, log=print) -> Path:
         log(f"simulating {len(todo)} of {len(sims)} runs ({sum(s.chunk.frames + cfg.settle for s in todo)} frames) "
             f"in {cfg.workers} processes -> {folder}")
         ctx = mp.get_context("spawn")
-        with ProcessPoolExecutor(cfg.workers, mp_context=ctx, initializer=_worker_init,
-                                 initargs=(cfg.outfit, cfg.settle)) as pool:
-            futures = {pool.submit(_worker_run, s): s for s in todo}
-            for fut in tqdm(as_completed(futures), total=len(futures), desc="simulations", unit="run"):
-                s, x = futures[fut], fut.result()
-                paths.atomic_write(folder / f"{s.name}.npy", lambda t, x=x: _save_npy(t, x))
-    add_seconds(folder / "timing.json", time.time() - t0, cfg.workers)
+        try:  # the time spent counts even when the job is stopped (the runs it finished are kept)
+            with ProcessPoolExecutor(cfg.workers, mp_context=ctx, initializer=_worker_init,
+                                     initargs=(cfg.outfit, cfg.settle)) as pool:
+                futures = {pool.submit(_worker_run, s): s for s in todo}
+                for fut in tqdm(as_completed(futures), total=len(futures), desc="simulations", unit="run"):
+                    s, x = futures[fut], fut.result()
+                    paths.atomic_write(folder / f"{s.name}.npy", lambda t, x=x: _save_npy(t, x))
+        finally:
+            add_seconds(folder / "timing.json", time.time() - t0, cfg.workers)
     return folder
 
 

@@ -9,8 +9,9 @@ model on held-out parameter sets and held-out clips (the test performers' window
    ablations (concatenated motion; embedding-loss training).
 3. Keyframe propagation: all frames of a window from 1, 2, 5, 10 and 20 % keyframes (at least 2),
    against NCS and PBNS (no keyframes), linear interpolation between the keyframes of the
-   character-space vertices, of the offsets from PBNS's drape, and of the shape descriptors; the
-   paper's claim (ours at 2 % against interpolation at 20 %).
+   character-space vertices, of the offsets from PBNS's drape and from NCS's cloth (a baseline
+   that knows the motion's dynamics for the default fabric), and of the shape descriptors; the
+   paper's claim (ours at 2 % against interpolation of the vertices at 20 %).
 4. Learning curve: the model trained on the first 8, 16, 32, 64, 143 and 715 train sets (1.1k to
    100k frames; ``recon garment train --model author --train-sets N``), those that exist.
 5. Speed: re-propagating a 300-frame clip after a keyframe edit, and after a motion edit.
@@ -177,7 +178,12 @@ def propagation(model: AuthorModel, sims, folder: Path, lead: int, body, pbns: P
             char = torch.einsum("kji,knj->kni", yaw[keys], truth[keys] - pelvis[keys])
             got["interpolation: vertices"] = torch.einsum("tij,tnj->tni", yaw, interpolate(char, keys, t)) + pelvis
             local = session.local(keys, truth[keys])
-            got["interpolation: offsets"] = static + torch.einsum("tij,tnj->tni", yaw, interpolate(local, keys, t))
+            got["interpolation: offsets from PBNS"] = static + torch.einsum("tij,tnj->tni", yaw,
+                                                                           interpolate(local, keys, t))
+            dynamic = got["NCS (default parameters)"]
+            ncs_local = torch.einsum("kji,knj->kni", yaw[keys], truth[keys] - dynamic[keys])
+            got["interpolation: offsets from NCS"] = dynamic + torch.einsum("tij,tnj->tni", yaw,
+                                                                            interpolate(ncs_local, keys, t))
             with torch.no_grad():
                 s_keys = model.descriptor.encode(local[:, idx])
                 dec = model.descriptor.decode(interpolate(s_keys, keys, t))
@@ -335,9 +341,12 @@ def render(results: list[dict]) -> str:
         lines += _ablation_tables(r["invariance"], r.get("descriptor"))
         old = r.get("previous_ablations")
         if old:
-            lines += [f"### Ablations not re-run on this data: {old['data']}", ""]
+            lines += [f"### Ablations not re-run in this report: {old['data']}", ""]
             lines += [line.replace("### ", "#### ") for line in _ablation_tables(old["invariance"], old["descriptor"])]
-        lines += [f"Simulation (s, workers): {r['data_seconds']}; training time (s): {r['train_seconds']}.", ""]
+        d = r["data_seconds"]
+        sim = f"{d['seconds'] / 60:.1f} min on {d['workers']} processes (all runs)" if d else "not recorded"
+        fit = ", ".join(f"{k} {v:.0f} s" for k, v in r["train_seconds"].items() if k != "data" and v is not None)
+        lines += [f"Simulation: {sim}; training: {fit or 'not recorded'}.", ""]
     return "\n".join(lines)
 
 
