@@ -39,6 +39,7 @@ from recon.garment.author.model import (
     Session,
     ShapeDescriptor,
     UBlock,
+    clip_inputs,
     heading,
     interpolate_latents,
     residual_weights,
@@ -57,6 +58,8 @@ from recon.garment.author.train import (
 )
 from recon.garment.integrate import contact_friction
 from recon.garment.ncs.data import chunks_of
+from recon.garment.ncs.model import NCS, motion_inputs
+from recon.garment.pbns.model import PBNS
 
 TINY = AuthorConfig(window=3, stride=1, joints=(), shape_dims=6, pca_dims=8, shape_hidden=(16,), motion_hidden=(16,),
                     subnets=3, latent=5, blocks=2)
@@ -149,6 +152,46 @@ def test_keyframes_are_matched_exactly_after_propagation(loop):
     assert torch.allclose(free[:, :5], static[:, :5]) and torch.allclose(out[2:6, :5], static[2:6, :5])
     with pytest.raises(ValueError, match="outside"):
         session.set_key(t, keys[0])
+
+
+def test_the_network_share_goes_from_interpolation_to_the_papers_propagation():
+    torch.manual_seed(2)
+    t, n = 16, 30
+    index = torch.arange(5, 25)
+    static = torch.randn(t, n, 3)
+    yaw = heading(roma.rotvec_to_rotmat(torch.randn(t, 3)))
+    keys = {2: torch.randn(n, 3), 13: torch.randn(n, 3)}
+    out = {}
+    for share in (0.0, 0.5, 1.0):
+        session = Session(tiny_model(index, replace(TINY, network_share=share)), static, yaw, torch.randn(t, 24, 3))
+        for f, v in keys.items():
+            session.set_key(f, v)
+        out[share] = session.propagate()
+        for f, v in keys.items():  # every share matches the keyframes
+            assert torch.allclose(out[share][f], v, atol=1e-5)
+    frames, offsets = session.key_offsets()
+    interp = static + torch.einsum("tij,tnj->tni", yaw, interpolate_latents(offsets.reshape(2, -1), frames, t)
+                                   .view(t, n, 3))
+    assert torch.allclose(out[0.0], interp, atol=1e-5)  # none of the network: the offsets interpolated
+    assert torch.allclose(out[0.5], (out[0.0] + out[1.0]) / 2, atol=1e-5)
+    assert not torch.allclose(out[1.0], interp, atol=1e-3)
+
+
+@pytest.mark.slow
+def test_the_ncs_base_is_ncs_on_the_whole_motion_in_chunks(body):
+    """clip_inputs' NCS cloth, posed 64 frames at a time, is NCS run on the whole sequence at
+    once, on the character's own (unresized) outfit; and it moves unlike PBNS's drape."""
+    pbns, ck = PBNS.load(store.trained_pbns("tshirt-skirt"))
+    ncs, _ = NCS.load(store.ncs_path("tshirt-skirt"))
+    torch.manual_seed(3)
+    t = 70
+    rot = roma.rotvec_to_rotmat(torch.randn(t, 24, 3) * 0.1 + torch.linspace(0, 1, t)[:, None, None])
+    transl = torch.linspace(0, 0.6, t)[:, None] * torch.tensor([[0.0, 0.0, 1.0]])
+    base, _, _ = clip_inputs(body, pbns, ck["shape"], rot, transl, ncs)
+    want, _ = ncs.animate(*motion_inputs(body, rot, ck["shape"], transl, 30.0))
+    assert base.shape == want.shape and torch.allclose(base, want, atol=1e-5)
+    static = clip_inputs(body, pbns, ck["shape"], rot, transl)[0]
+    assert (base - static).norm(dim=-1).mean() > 1e-3
 
 
 def test_descriptor_starts_as_pca_and_the_model_survives_save_load(tmp_path):

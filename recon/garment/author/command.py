@@ -86,7 +86,8 @@ class Authoring:
         return on_the_ground(Motion(rot, smooth_time(m.transl[None], sigma)[0], m.fps, m.name), self.body, self.shape)
 
     def _inputs(self):
-        return clip_inputs(self.body, self.pbns, self.shape, self.motion.rotmats, self.motion.transl)
+        ncs = self.dresser.ncs if self.model.cfg.base == "ncs" else None
+        return clip_inputs(self.body, self.pbns, self.shape, self.motion.rotmats, self.motion.transl, ncs)
 
     def __len__(self) -> int:
         return len(self.motion)

@@ -48,6 +48,7 @@ from recon.garment.author.train import (
 )
 from recon.garment.dress import Dresser
 from recon.garment.ncs.data import Chunk, Motions
+from recon.garment.ncs.model import NCS
 from recon.garment.pbns.model import PBNS
 from recon.poses.mocap import MocapPoses
 
@@ -118,6 +119,11 @@ def invariance(model: AuthorModel, f: Frames, lead: int) -> dict:
             "cross_motion_mm": float(np.mean(cross))}
 
 
+def base_ncs(model: AuthorModel) -> NCS | None:
+    """The outfit's NCS when the model's offsets are taken from NCS's cloth."""
+    return NCS.load(store.ncs_path(model.outfit))[0] if model.cfg.base == "ncs" else None
+
+
 def keyframes(t: int, lead: int, ratio: float) -> list[int]:
     """max(2, ratio x frames) keyframes evenly spread over the frames after the lead."""
     n = t - lead
@@ -138,6 +144,7 @@ def propagation(model: AuthorModel, sims, folder: Path, lead: int, body, pbns: P
     ``baselines=False``: the model's own row alone."""
     idx = model.index
     dresser = Dresser(model.outfit)
+    own_ncs = base_ncs(model)
     motions = Motions(body, shape[None], teacher_config(model.outfit).smooth_motion)
     errs: dict[str, dict[str, list[float]]] = {}
     carried: list[float] = []
@@ -149,17 +156,18 @@ def propagation(model: AuthorModel, sims, folder: Path, lead: int, body, pbns: P
         if key not in cache:
             rot, transl = motions.motion(s.chunk)
             static, yaw, joints = clip_inputs(body, pbns, shape, rot, transl)
+            base = clip_inputs(body, pbns, shape, rot, transl, own_ncs)[0] if own_ncs is not None else static
             ncs = torch.from_numpy(dresser.animate(body, rot, shape, transl, 30.0).vertices[:, idx]) if baselines \
                 else None
-            cache[key] = (static, yaw, joints, ncs)
-        static, yaw, joints, ncs = cache[key]
+            cache[key] = (static, base, yaw, joints, ncs)
+        static, base, yaw, joints, ncs = cache[key]
         t = len(x)
         truth = static.clone()
         truth[:, idx] += x
         ev = slice(lead, None)
         true_h = truth[ev][:, idx]
-        session = Session(model, static, yaw, joints)
-        runs.append((s, session, x))
+        session = Session(model, base, yaw, joints)
+        runs.append((s, session, truth))
         pelvis = joints[:, PELVIS:PELVIS + 1]
         for ratio in RATIOS:
             keys = keyframes(t, lead, ratio)
@@ -177,17 +185,17 @@ def propagation(model: AuthorModel, sims, folder: Path, lead: int, body, pbns: P
             got["NCS (default parameters)"][:, idx] = ncs
             char = torch.einsum("kji,knj->kni", yaw[keys], truth[keys] - pelvis[keys])
             got["interpolation: vertices"] = torch.einsum("tij,tnj->tni", yaw, interpolate(char, keys, t)) + pelvis
-            local = session.local(keys, truth[keys])
+            pbns_local = torch.einsum("kji,knj->kni", yaw[keys], truth[keys] - static[keys])
             got["interpolation: offsets from PBNS"] = static + torch.einsum("tij,tnj->tni", yaw,
-                                                                           interpolate(local, keys, t))
+                                                                           interpolate(pbns_local, keys, t))
             dynamic = got["NCS (default parameters)"]
             ncs_local = torch.einsum("kji,knj->kni", yaw[keys], truth[keys] - dynamic[keys])
             got["interpolation: offsets from NCS"] = dynamic + torch.einsum("tij,tnj->tni", yaw,
                                                                             interpolate(ncs_local, keys, t))
-            with torch.no_grad():
-                s_keys = model.descriptor.encode(local[:, idx])
+            with torch.no_grad():  # the descriptor's offsets are from the model's base cloth
+                s_keys = model.descriptor.encode(session.local(keys, truth[keys])[:, idx])
                 dec = model.descriptor.decode(interpolate(s_keys, keys, t))
-            desc = static.clone()
+            desc = base.clone()
             desc[:, idx] += torch.einsum("tij,tnj->tni", yaw, dec)
             got["interpolation: descriptors"] = desc
             for name, v in got.items():
@@ -196,13 +204,13 @@ def propagation(model: AuthorModel, sims, folder: Path, lead: int, body, pbns: P
                 latents[(s.set, s.chunk.clip)] = session.latents()
         log(f"propagated {s.name}: 2 keys ours {errs[f'{RATIOS[0]:g}']['ours'][-1]:.1f} mm")
     # the material carried: the 2 keyframes' z of another window of the same set, no residuals
-    for s, session, x in runs:
+    for s, session, truth in runs:
         other = [z for (st, c), z in latents.items() if st == s.set and c != s.chunk.clip]
         if not other:
             continue
         z = other[0].mean(0, keepdim=True).expand(len(session), -1)
         got = session.propagate(latents=z, residuals=False)
-        carried.append(vertex_error(got[lead:, idx], session.static[lead:, idx] + x[lead:]))
+        carried.append(vertex_error(got[lead:, idx], truth[lead:, idx]))
     out = {r: {m: float(np.mean(v)) for m, v in row.items()} for r, row in errs.items()}
     return {"ratios": out, "keys": {f"{r:g}": len(keyframes(len(static), lead, r)) for r in RATIOS},
             "material_from_other_clip_mm": float(np.mean(carried)) if carried else None}
@@ -210,8 +218,8 @@ def propagation(model: AuthorModel, sims, folder: Path, lead: int, body, pbns: P
 
 def speed(model: AuthorModel, body, pbns: PBNS, shape: torch.Tensor, frames: int = 300, repeats: int = 5) -> dict:
     """Frames a second of re-propagating a ``frames``-frame test clip with 2 keyframes after a
-    keyframe edit (the motion's inputs kept) and after a motion edit (signatures and PBNS redone),
-    on one thread."""
+    keyframe edit (the motion's inputs kept) and after a motion edit (signatures and the base cloth
+    redone), on one thread."""
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
     try:
@@ -225,7 +233,8 @@ def _speed(model: AuthorModel, body, pbns: PBNS, shape: torch.Tensor, frames: in
     clips = MocapPoses.load("test")
     c = int(max(np.unique(clips.clip), key=lambda k: (clips.clip == k).sum()))
     rot, transl = m.motion(Chunk("test", c, 0, frames))
-    static, yaw, joints = clip_inputs(body, pbns, shape, rot, transl)
+    ncs = base_ncs(model)
+    static, yaw, joints = clip_inputs(body, pbns, shape, rot, transl, ncs)
     session = Session(model, static, yaw, joints)
     for k in (frames // 4, 3 * frames // 4):
         session.set_key(k, static[k])
@@ -236,7 +245,7 @@ def _speed(model: AuthorModel, body, pbns: PBNS, shape: torch.Tensor, frames: in
         session.propagate()
         key_times.append(time.perf_counter() - t0)
         t0 = time.perf_counter()
-        session.set_motion(*clip_inputs(body, pbns, shape, rot, transl))
+        session.set_motion(*clip_inputs(body, pbns, shape, rot, transl, ncs))
         session.propagate()
         motion_times.append(time.perf_counter() - t0)
     return {"frames": frames, "threads": 1, "key_edit_fps": frames / float(np.median(key_times[1:])),

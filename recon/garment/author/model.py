@@ -17,7 +17,10 @@ A frame's cloth is a function of the body's motion (the current and past ``windo
 
 Authoring (``Session``): z is inferred at the keyframes, interpolated between them (held beyond the
 first and last; around the loop with ``loop``), decoded on every frame's motion, and the keyframes'
-residuals are blended in over the frames nearest them, so that each keyframe is matched exactly.
+residuals are blended in over the frames nearest them, so that each keyframe is matched exactly
+(``network_share`` < 1: the decoded cloth scaled down, the rest is the keyframes' offsets
+interpolated). Offsets are taken from PBNS's drape of the pose, or (``base`` "ncs") from NCS's
+cloth on the motion, so that the network learns the fabric's departure from NCS's dynamics.
 Frames: body frame, +Y up, metres; 30 frames a second (NCS's rate, the simulations').
 """
 from __future__ import annotations
@@ -54,6 +57,12 @@ class AuthorConfig:
     laplacian: float = 1.0  # omega: the Laplacian term against the L2 term (each per its data variance)
     lam: float = 0.1  # lambda: reconstruction against Var(z)
     architecture: str = "ublock"  # "ublock" (the paper's), "concat" (motion concatenated: the ablation)
+    # the cloth the offsets are taken from: "pbns" (the pose's quasi-static drape) or "ncs" (the
+    # outfit's NCS on the motion: its dynamics for the default fabric)
+    base: str = "pbns"
+    # share of the network's cloth between keyframes kept over the linear interpolation of the
+    # keyframes' offsets (1: the paper's propagation; 0: interpolation alone)
+    network_share: float = 1.0
 
     def signature(self, joints: torch.Tensor, yaw: torch.Tensor, loop: bool = False) -> torch.Tensor:
         """``signature`` with this model's window, stride and joints."""
@@ -85,17 +94,34 @@ def signature(joints: torch.Tensor, yaw: torch.Tensor, window: int, loop: bool =
 
 
 @torch.no_grad()
-def clip_inputs(body, pbns, shape: torch.Tensor, rotmats: torch.Tensor, transl: torch.Tensor,
+def ncs_cloth(body, ncs, shape: torch.Tensor, rotmats: torch.Tensor, transl: torch.Tensor, fps: float = 30.0,
+              chunk: int = 64) -> torch.Tensor:
+    """The outfit's NCS on a motion (T, 24, 3, 3), (T, 3) on the body of ``shape``, from rest: (T, N, 3)
+    (no collision post-step)."""
+    zs, zd = ncs.motion_codes(body, rotmats, shape.reshape(-1), transl, fps)
+    out = []
+    for s in range(0, len(rotmats), chunk):
+        r = rotmats[s:s + chunk]
+        o = body(r, shape.reshape(1, -1).expand(len(r), -1), transl=transl[s:s + chunk], points_only=True)
+        out.append(ncs.pose_codes(zs[s:s + chunk] + zd[s:s + chunk], o.transforms))
+    return torch.cat(out)
+
+
+@torch.no_grad()
+def clip_inputs(body, pbns, shape: torch.Tensor, rotmats: torch.Tensor, transl: torch.Tensor, ncs=None,
                 chunk: int = 64) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """What a ``Session`` needs of a motion (T, 24, 3, 3), (T, 3) on the body of ``shape``: PBNS's
-    drape of the whole outfit (T, N, 3), the heading (T, 3, 3) and the joints (T, 24, 3)."""
+    """What a ``Session`` needs of a motion (T, 24, 3, 3), (T, 3) on the body of ``shape``: the
+    cloth of the whole outfit the model's offsets are taken from (T, N, 3): PBNS's drape, or with
+    ``ncs`` NCS's cloth (a model of ``base`` "ncs"); the heading (T, 3, 3) and the joints (T, 24, 3)."""
     static, joints = [], []
     for s in range(0, len(rotmats), chunk):
         r = rotmats[s:s + chunk]
         o = body(r, shape.reshape(1, -1).expand(len(r), -1), transl=transl[s:s + chunk])
-        static.append(pbns.pose(r, o.transforms))
+        if ncs is None:
+            static.append(pbns.pose(r, o.transforms))
         joints.append(o.joints)
-    return torch.cat(static), heading(rotmats[:, 0]), torch.cat(joints)
+    base = ncs_cloth(body, ncs, shape, rotmats, transl) if ncs is not None else torch.cat(static)
+    return base, heading(rotmats[:, 0]), torch.cat(joints)
 
 
 def linear_block(i: int, o: int) -> nn.Sequential:
@@ -307,8 +333,9 @@ def residual_weights(frames: list[int], t: int, fade: int | None, loop: bool = F
 
 
 class Session:
-    """Authoring one clip: ``Session(model, static, yaw, joints)`` with PBNS's drape of the whole
-    outfit (T, N, 3), the character's heading (T, 3, 3) and the joints (T, 24, 3) per frame;
+    """Authoring one clip: ``Session(model, static, yaw, joints)`` with the cloth the model's
+    offsets are taken from (``clip_inputs``: PBNS's drape or NCS's cloth of the whole outfit, T x N x
+    3), the character's heading (T, 3, 3) and the joints (T, 24, 3) per frame;
     ``set_key(frame, vertices)`` with the outfit (N, 3) as wanted at that frame, then
     ``propagate()`` -> the outfit on every frame (T, N, 3); ``fps`` the last propagation's rate."""
 
@@ -364,6 +391,7 @@ class Session:
         local = torch.zeros_like(self.static)
         local[:, self.model.index] = self.model.offsets(z, self.sig)
         if residuals and frames:
+            local = local * self.model.cfg.network_share  # the rest: the keyframes' offsets interpolated
             res = keys - local[frames]
             w = residual_weights(frames, len(self), self.fade, self.loop)
             local = local + torch.einsum("tk,kni->tni", w, res)

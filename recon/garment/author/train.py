@@ -33,11 +33,13 @@ from recon.garment.author.model import (
     AuthorModel,
     IntrinsicAutoencoder,
     ShapeDescriptor,
+    clip_inputs,
     heading,
 )
 from recon.garment.mesh import neighbour_mean
 from recon.garment.ncs.data import Motions, moving_part, part_outfit
-from recon.garment.pbns.model import trained_outfit
+from recon.garment.ncs.model import NCS
+from recon.garment.pbns.model import PBNS, trained_outfit
 
 
 @dataclass
@@ -57,7 +59,7 @@ class AuthorTrainConfig:
 
 
 class Frames(NamedTuple):
-    """Simulated frames: hanging-part offsets from PBNS's drape in the heading frame (F, n, 3),
+    """Simulated frames: hanging-part offsets from the base cloth in the heading frame (F, n, 3),
     motion signatures (F, D), the parameter set's global id, its intrinsics in [0, 1] (F, 6), the
     simulation's index in the plan and the frame within the simulation."""
     offsets: torch.Tensor
@@ -92,11 +94,20 @@ def clip_motion(body, motions: Motions, sim: Sim, cfg: AuthorConfig):
     return rot, transl, yaw, joints, cfg.signature(joints, yaw)
 
 
+def base_models(outfit: str, model: AuthorConfig) -> tuple[PBNS, NCS] | None:
+    """The outfit's PBNS and NCS when the model's offsets are taken from NCS's cloth, else None."""
+    if model.base == "pbns":
+        return None
+    if model.base != "ncs":
+        raise ValueError(f"base {model.base!r}: 'pbns' or 'ncs'")
+    return PBNS.load(store.trained_pbns(outfit))[0], NCS.load(store.ncs_path(outfit))[0]
+
+
 def load_frames(cfg: AuthorDataConfig, split: str, model: AuthorConfig, body=None, log=print,
                 dtype: torch.dtype = torch.float32) -> tuple[Frames, list[Sim], int]:
     """Every frame after the lead of ``split``'s simulations of ``plan(cfg)`` (the train split: of
-    its ``train_sets`` first sets), the offsets in ``dtype`` (float16: the files' own precision, half
-    the memory of 100k frames); also those sims and the lead."""
+    its ``train_sets`` first sets), the offsets from ``model.base``'s cloth in ``dtype`` (float16: the
+    files' own precision, half the memory of 100k frames); also those sims and the lead."""
     folder = sim_folder(cfg)
     sims = [s for s in plan(cfg) if s.split == split]
     gone = missing(folder, sims)
@@ -104,12 +115,18 @@ def load_frames(cfg: AuthorDataConfig, split: str, model: AuthorConfig, body=Non
         raise FileNotFoundError(f"{len(gone)} {split} simulations of {cfg.outfit} are not in {folder}: run `recon "
                                 f"garment train --model author --outfit {cfg.outfit} --train-sets {cfg.train_sets}`")
     body = body or default_body()
-    motions = Motions(body, hanging_outfit(body, cfg.outfit).shape[None], teacher_config(cfg.outfit).smooth_motion)
+    outfit = hanging_outfit(body, cfg.outfit)
+    motions = Motions(body, outfit.shape[None], teacher_config(cfg.outfit).smooth_motion)
+    base = base_models(cfg.outfit, model)
     parts = []
     for k, s in enumerate(sims):
         x = torch.from_numpy(np.load(folder / f"{s.name}.npy").astype(np.float32))
-        _, _, yaw, _, sig = clip_motion(body, motions, s, model)
+        rot, transl, yaw, _, sig = clip_motion(body, motions, s, model)
         keep = slice(cfg.lead, None)
+        if base:  # the simulations are offsets from PBNS's drape: from NCS's cloth instead
+            pbns, ncs = base
+            static = clip_inputs(body, pbns, outfit.shape, rot, transl)[0][:, outfit.index]
+            x = x - (clip_inputs(body, pbns, outfit.shape, rot, transl, ncs)[0][:, outfit.index] - static)
         off = torch.einsum("tji,tnj->tni", yaw[keep], x[keep]).to(dtype)
         n = len(off)
         gid = {"train": 0, "val": 1000, "test": 2000}[split] + s.set
