@@ -218,6 +218,13 @@ def test_descriptor_starts_as_pca_and_the_model_survives_save_load(tmp_path):
     again, _ = AuthorModel.load(concat.save(tmp_path / "c.pt", {}))
     assert again.cfg.architecture == "concat"
     assert torch.allclose(again.latent(off, sig), concat.latent(off, sig), atol=2e-2, rtol=2e-2)
+    blob = torch.load(path, weights_only=True)
+    for k in ("base", "network_share"):  # a file from before these options: what it was made with
+        del blob["config"][k]
+    torch.save(blob, tmp_path / "old.pt")
+    assert (AuthorModel.load(tmp_path / "old.pt")[0].cfg.base, AuthorModel.load(tmp_path / "old.pt")[0].cfg
+            .network_share) == ("pbns", 1.0)
+    assert loaded.cfg.base == "ncs" and loaded.cfg.network_share == TINY.network_share
 
 
 def toy_cloth(theta: torch.Tensor, motion: torch.Tensor) -> torch.Tensor:

@@ -22,7 +22,7 @@ NCS_FLAGS = {
 def add_garment(p: Parser) -> None:
     taylor = "recon.garment.taylor.train:TaylorBuildConfig"
     pbns = "recon.garment.pbns.train:GarmentTrainConfig"
-    reference = "recon.garment.pbns.eval:reference_and_report"
+    reference = "recon.garment.pbns.reference_eval:reference_and_report"
     action = actions(p)
     help_outfit = ("preset names, 'all', or your own garment meshes (.obj, .ply, .glb, ...: body frame, metres, "
                    "+Y up; trained into ~/.cache/recon/garments)")

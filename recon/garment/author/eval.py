@@ -57,6 +57,7 @@ RATIOS = (0.01, 0.02, 0.05, 0.10, 0.20)
 CURVE_SETS = (8, 16, 32, 64, 143, 715)  # train sets of the learning curve: 1.1k to 100k frames
 CLAIM = ("0.02", "0.2")  # the paper's claim: ours with keyframes on 2 % of the frames, interpolation on 20 %
 VARIANTS = ("ours", "concat", "embedding")
+BASES = {"pbns": "PBNS's drape", "ncs": "NCS's cloth"}  # what a model's offsets are taken from
 
 
 def vertex_error(a: torch.Tensor, b: torch.Tensor) -> float:
@@ -296,7 +297,8 @@ def evaluate(outfit: str = "tshirt-skirt", split: str = "test", ablations: bool 
     out = {"outfit": outfit, "split": split, "frames": {"train": len(train_f.offsets), split: len(test_f.offsets)},
            "sets": {"train": int(len(torch.unique(train_f.set_id))), split: int(len(torch.unique(test_f.set_id)))},
            "windows": len({(s.chunk.clip, s.chunk.start) for s in test_sims}), "lead": lead,
-           "vertices": int(len(model.index)), "train_seconds": meta["seconds"],
+           "vertices": int(len(model.index)), "base": model.cfg.base, "network_share": model.cfg.network_share,
+           "train_seconds": meta["seconds"],
            "data_seconds": json.loads((folder / "timing.json").read_text()) if (folder / "timing.json").exists()
            else None}
     out["propagation"] = propagation(model, test_sims, folder, lead, body, pbns, hanging.shape, log)
@@ -322,6 +324,9 @@ def render(results: list[dict]) -> str:
         lines += [f"## {r['outfit']} ({r['split']}: {r['sets'][r['split']]} parameter sets x {r['windows']} windows, "
                   f"{r['frames'][r['split']]} frames; trained on {r['frames']['train']} frames of "
                   f"{r['sets']['train']} sets)", "", "### Keyframe propagation (mm)", ""]
+        if "base" in r:
+            lines += [f"Ours: offsets from {BASES[r['base']]}, the network's share between keyframes "
+                      f"{r['network_share']:g} (chosen on the val windows; 1 is the paper's propagation).", ""]
         ratios = list(p["ratios"])
         methods = list(p["ratios"][ratios[0]])
         heads = ["method"] + [f"{float(x) * 100:g} % ({p['keys'][x]} keys)" for x in ratios]
@@ -387,7 +392,8 @@ def evaluate_and_report(outfits: list[str], split: str = "test", out_dir: Path =
         old = prev.get("previous_ablations")
         if prev.get("descriptor"):  # the previous report ran the ablations: those are the ones to keep
             old = {"data": f"the previous report's ({prev['frames']['train']} train frames of {prev['sets']['train']} "
-                           "sets)", "invariance": prev["invariance"], "descriptor": prev["descriptor"]}
+                           f"sets, offsets from {BASES[prev.get('base', 'pbns')]})", "invariance": prev["invariance"],
+                   "descriptor": prev["descriptor"]}
         if not ablations and old:
             r["previous_ablations"] = old
         mine[o] = r

@@ -59,10 +59,10 @@ class AuthorConfig:
     architecture: str = "ublock"  # "ublock" (the paper's), "concat" (motion concatenated: the ablation)
     # the cloth the offsets are taken from: "pbns" (the pose's quasi-static drape) or "ncs" (the
     # outfit's NCS on the motion: its dynamics for the default fabric)
-    base: str = "pbns"
+    base: str = "ncs"
     # share of the network's cloth between keyframes kept over the linear interpolation of the
-    # keyframes' offsets (1: the paper's propagation; 0: interpolation alone)
-    network_share: float = 1.0
+    # keyframes' offsets (1: the paper's propagation; 0: interpolation alone; chosen on val)
+    network_share: float = 0.25
 
     def signature(self, joints: torch.Tensor, yaw: torch.Tensor, loop: bool = False) -> torch.Tensor:
         """``signature`` with this model's window, stride and joints."""
@@ -287,7 +287,8 @@ class AuthorModel(nn.Module):
     @classmethod
     def load(cls, path: Path) -> tuple[AuthorModel, dict]:
         blob = torch.load(path, map_location="cpu", weights_only=True)
-        cfg = AuthorConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in blob["config"].items()})
+        saved = {"base": "pbns", "network_share": 1.0} | blob["config"]  # files from before these options
+        cfg = AuthorConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in saved.items()})
         n, p = blob["n"], blob["pca"]
         desc = ShapeDescriptor(torch.zeros(3 * n), torch.zeros(3 * n, p), 1.0, cfg.shape_dims, cfg.shape_hidden)
         model = cls(torch.zeros(n, dtype=torch.long), desc, IntrinsicAutoencoder(blob["signature"], cfg),
