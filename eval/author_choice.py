@@ -75,7 +75,7 @@ def main() -> None:
 def render(r: dict) -> str:
     ratios = [f"{x:g}" for x in RATIOS]
     heads = ["offsets from", "network share"] + [f"{float(x) * 100:g} %" for x in ratios] + ["mean"]
-    table = report.table([[row["base"], row["network_share"]] + [row["mm"][x] for x in ratios] + [row["mean_mm"]]
+    table = report.table([[row["base"], f"{row['network_share']:g}"] + [row["mm"][x] for x in ratios] + [row["mean_mm"]]
                           for row in r["rows"]], heads)
     c = r["choice"]
     return "\n".join([
