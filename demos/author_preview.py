@@ -19,8 +19,8 @@ import torch
 from recon.body import default_body
 from recon.garment import store
 from recon.garment.author.data import AuthorDataConfig, plan, sim_folder, teacher_config
-from recon.garment.author.eval import base_ncs, interpolate, keyframes
-from recon.garment.author.model import PELVIS, AuthorModel, Session, clip_inputs
+from recon.garment.author.eval import interpolate, keyframes
+from recon.garment.author.model import PELVIS, AuthorModel, Session, base_ncs, clip_inputs
 from recon.garment.dress import Dresser
 from recon.garment.ncs.data import Motions
 from recon.garment.pbns.model import PBNS
@@ -46,7 +46,8 @@ def main() -> None:
     shape = ck["shape"]
     rot, transl = Motions(body, shape[None], teacher_config(a.outfit).smooth_motion).motion(sim.chunk)
     static, yaw, joints = clip_inputs(body, pbns, shape, rot, transl)
-    base = clip_inputs(body, pbns, shape, rot, transl, base_ncs(model))[0] if model.cfg.base == "ncs" else static
+    ncs = base_ncs(a.outfit, model.cfg)
+    base = clip_inputs(body, pbns, shape, rot, transl, ncs)[0] if ncs is not None else static
     truth = static.clone()
     truth[:, model.index] += torch.from_numpy(np.load(folder / f"{sim.name}.npy").astype(np.float32))
     t = len(truth)

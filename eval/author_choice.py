@@ -36,12 +36,7 @@ def base_model(outfit: str, base: str) -> Path:
     path = store.author_path(f"{outfit}-base-{base}")
     if not path.exists():
         cfg = AuthorTrainConfig(data=AuthorDataConfig(outfit=outfit), model=AuthorConfig(base=base))
-        real = store.author_path
-        store.author_path = lambda name: path  # train() writes where this script reads
-        try:
-            train(cfg, simulate=False)
-        finally:
-            store.author_path = real
+        train(cfg, simulate=False, path=path)
     return path
 
 

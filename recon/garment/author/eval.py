@@ -33,7 +33,14 @@ from recon import report
 from recon.body import default_body
 from recon.garment import store
 from recon.garment.author.data import AuthorDataConfig, sim_folder, teacher_config, train_frames
-from recon.garment.author.model import PELVIS, AuthorModel, Session, clip_inputs, interpolate_latents
+from recon.garment.author.model import (
+    PELVIS,
+    AuthorModel,
+    Session,
+    base_ncs,
+    clip_inputs,
+    interpolate_latents,
+)
 from recon.garment.author.train import (
     AuthorTrainConfig,
     Frames,
@@ -48,7 +55,6 @@ from recon.garment.author.train import (
 )
 from recon.garment.dress import Dresser
 from recon.garment.ncs.data import Chunk, Motions
-from recon.garment.ncs.model import NCS
 from recon.garment.pbns.model import PBNS
 from recon.poses.mocap import MocapPoses
 
@@ -120,11 +126,6 @@ def invariance(model: AuthorModel, f: Frames, lead: int) -> dict:
             "cross_motion_mm": float(np.mean(cross))}
 
 
-def base_ncs(model: AuthorModel) -> NCS | None:
-    """The outfit's NCS when the model's offsets are taken from NCS's cloth."""
-    return NCS.load(store.ncs_path(model.outfit))[0] if model.cfg.base == "ncs" else None
-
-
 def keyframes(t: int, lead: int, ratio: float) -> list[int]:
     """max(2, ratio x frames) keyframes evenly spread over the frames after the lead."""
     n = t - lead
@@ -145,7 +146,7 @@ def propagation(model: AuthorModel, sims, folder: Path, lead: int, body, pbns: P
     ``baselines=False``: the model's own row alone."""
     idx = model.index
     dresser = Dresser(model.outfit)
-    own_ncs = base_ncs(model)
+    own_ncs = base_ncs(model.outfit, model.cfg)
     motions = Motions(body, shape[None], teacher_config(model.outfit).smooth_motion)
     errs: dict[str, dict[str, list[float]]] = {}
     carried: list[float] = []
@@ -234,7 +235,7 @@ def _speed(model: AuthorModel, body, pbns: PBNS, shape: torch.Tensor, frames: in
     clips = MocapPoses.load("test")
     c = int(max(np.unique(clips.clip), key=lambda k: (clips.clip == k).sum()))
     rot, transl = m.motion(Chunk("test", c, 0, frames))
-    ncs = base_ncs(model)
+    ncs = base_ncs(model.outfit, model.cfg)
     static, yaw, joints = clip_inputs(body, pbns, shape, rot, transl, ncs)
     session = Session(model, static, yaw, joints)
     for k in (frames // 4, 3 * frames // 4):

@@ -34,6 +34,8 @@ from torch import nn
 
 from recon import paths
 from recon.body import skeleton
+from recon.garment import store
+from recon.garment.ncs.model import NCS
 
 PELVIS = skeleton.JOINT_NAMES.index("pelvis")
 # the joints that move a skirt: pelvis, hips, knees, ankles, spine, neck (what the signature keeps)
@@ -93,18 +95,11 @@ def signature(joints: torch.Tensor, yaw: torch.Tensor, window: int, loop: bool =
     return torch.einsum("tji,twkj->twki", yaw, rel).reshape(t, -1)
 
 
-@torch.no_grad()
-def ncs_cloth(body, ncs, shape: torch.Tensor, rotmats: torch.Tensor, transl: torch.Tensor, fps: float = 30.0,
-              chunk: int = 64) -> torch.Tensor:
-    """The outfit's NCS on a motion (T, 24, 3, 3), (T, 3) on the body of ``shape``, from rest: (T, N, 3)
-    (no collision post-step)."""
-    zs, zd = ncs.motion_codes(body, rotmats, shape.reshape(-1), transl, fps)
-    out = []
-    for s in range(0, len(rotmats), chunk):
-        r = rotmats[s:s + chunk]
-        o = body(r, shape.reshape(1, -1).expand(len(r), -1), transl=transl[s:s + chunk], points_only=True)
-        out.append(ncs.pose_codes(zs[s:s + chunk] + zd[s:s + chunk], o.transforms))
-    return torch.cat(out)
+def base_ncs(outfit: str, cfg: AuthorConfig) -> NCS | None:
+    """The outfit's NCS when a model of ``cfg`` takes its offsets from NCS's cloth, else None."""
+    if cfg.base not in ("pbns", "ncs"):
+        raise ValueError(f"base {cfg.base!r}: 'pbns' or 'ncs'")
+    return NCS.load(store.ncs_path(outfit))[0] if cfg.base == "ncs" else None
 
 
 @torch.no_grad()
@@ -112,16 +107,18 @@ def clip_inputs(body, pbns, shape: torch.Tensor, rotmats: torch.Tensor, transl: 
                 chunk: int = 64) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """What a ``Session`` needs of a motion (T, 24, 3, 3), (T, 3) on the body of ``shape``: the
     cloth of the whole outfit the model's offsets are taken from (T, N, 3): PBNS's drape, or with
-    ``ncs`` NCS's cloth (a model of ``base`` "ncs"); the heading (T, 3, 3) and the joints (T, 24, 3)."""
-    static, joints = [], []
+    ``ncs`` NCS's cloth from rest (no collision post-step; a model of ``base`` "ncs"); the heading
+    (T, 3, 3) and the joints (T, 24, 3)."""
+    if ncs is not None:  # NCS's codes follow the whole motion; the frames are posed a chunk at a time
+        zs, zd = ncs.motion_codes(body, rotmats, shape.reshape(-1), transl, 30.0)
+    cloth, joints = [], []
     for s in range(0, len(rotmats), chunk):
         r = rotmats[s:s + chunk]
         o = body(r, shape.reshape(1, -1).expand(len(r), -1), transl=transl[s:s + chunk])
-        if ncs is None:
-            static.append(pbns.pose(r, o.transforms))
+        cloth.append(pbns.pose(r, o.transforms) if ncs is None else
+                     ncs.pose_codes(zs[s:s + chunk] + zd[s:s + chunk], o.transforms))
         joints.append(o.joints)
-    base = ncs_cloth(body, ncs, shape, rotmats, transl) if ncs is not None else torch.cat(static)
-    return base, heading(rotmats[:, 0]), torch.cat(joints)
+    return torch.cat(cloth), heading(rotmats[:, 0]), torch.cat(joints)
 
 
 def linear_block(i: int, o: int) -> nn.Sequential:

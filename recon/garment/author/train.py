@@ -33,12 +33,12 @@ from recon.garment.author.model import (
     AuthorModel,
     IntrinsicAutoencoder,
     ShapeDescriptor,
+    base_ncs,
     clip_inputs,
     heading,
 )
 from recon.garment.mesh import neighbour_mean
 from recon.garment.ncs.data import Motions, moving_part, part_outfit
-from recon.garment.ncs.model import NCS
 from recon.garment.pbns.model import PBNS, trained_outfit
 
 
@@ -94,15 +94,6 @@ def clip_motion(body, motions: Motions, sim: Sim, cfg: AuthorConfig):
     return rot, transl, yaw, joints, cfg.signature(joints, yaw)
 
 
-def base_models(outfit: str, model: AuthorConfig) -> tuple[PBNS, NCS] | None:
-    """The outfit's PBNS and NCS when the model's offsets are taken from NCS's cloth, else None."""
-    if model.base == "pbns":
-        return None
-    if model.base != "ncs":
-        raise ValueError(f"base {model.base!r}: 'pbns' or 'ncs'")
-    return PBNS.load(store.trained_pbns(outfit))[0], NCS.load(store.ncs_path(outfit))[0]
-
-
 def load_frames(cfg: AuthorDataConfig, split: str, model: AuthorConfig, body=None, log=print,
                 dtype: torch.dtype = torch.float32) -> tuple[Frames, list[Sim], int]:
     """Every frame after the lead of ``split``'s simulations of ``plan(cfg)`` (the train split: of
@@ -117,14 +108,14 @@ def load_frames(cfg: AuthorDataConfig, split: str, model: AuthorConfig, body=Non
     body = body or default_body()
     outfit = hanging_outfit(body, cfg.outfit)
     motions = Motions(body, outfit.shape[None], teacher_config(cfg.outfit).smooth_motion)
-    base = base_models(cfg.outfit, model)
+    ncs = base_ncs(cfg.outfit, model)
+    pbns = PBNS.load(store.trained_pbns(cfg.outfit))[0] if ncs is not None else None
     parts = []
     for k, s in enumerate(sims):
         x = torch.from_numpy(np.load(folder / f"{s.name}.npy").astype(np.float32))
         rot, transl, yaw, _, sig = clip_motion(body, motions, s, model)
         keep = slice(cfg.lead, None)
-        if base:  # the simulations are offsets from PBNS's drape: from NCS's cloth instead
-            pbns, ncs = base
+        if ncs is not None:  # the simulations are offsets from PBNS's drape: from NCS's cloth instead
             static = clip_inputs(body, pbns, outfit.shape, rot, transl)[0][:, outfit.index]
             x = x - (clip_inputs(body, pbns, outfit.shape, rot, transl, ncs)[0][:, outfit.index] - static)
         off = torch.einsum("tji,tnj->tni", yaw[keep], x[keep]).to(dtype)
@@ -302,9 +293,9 @@ def is_trained(cfg: AuthorTrainConfig) -> bool:
     return meta.get("data_folder") == sim_folder(cfg.data).name and plain(meta["config"]) == plain(asdict(cfg))
 
 
-def train(cfg: AuthorTrainConfig, log=print, simulate: bool = True) -> tuple[Path, dict]:
+def train(cfg: AuthorTrainConfig, log=print, simulate: bool = True, path: Path | None = None) -> tuple[Path, dict]:
     """Generate the data if missing (``simulate``; else the train simulations must be there), fit
-    the networks, write ``store.author_path``; returns the path and the timings."""
+    the networks, write ``path`` (default ``model_path(cfg)``); returns the path and the timings."""
     t0 = time.time()
     folder = generate(cfg.data, log=log) if simulate else sim_folder(cfg.data)
     timing = folder / "timing.json"
@@ -328,6 +319,6 @@ def train(cfg: AuthorTrainConfig, log=print, simulate: bool = True) -> tuple[Pat
             "sets": int(len(torch.unique(frames.set_id))), "seconds": {
                 "data": t_data and round(t_data, 1), "load": round(t1 - t0, 1), "descriptor": round(t2 - t1, 1),
                 "autoencoder": round(t3 - t2, 1)}}
-    path = model.save(model_path(cfg), meta)
+    path = model.save(path or model_path(cfg), meta)
     log(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB): {meta['seconds']}")
     return path, meta
