@@ -37,7 +37,8 @@ STAGES = [
 GARMENT_FAMILIES = ("pbns", "ncs", "deepsd", "gcvae", "taylor", "author")
 ROOMS = {"model": "inference", "sample": "inference", "data": "training data", "config": "training settings",
          "losses": "training losses", "train": "training", "eval": "evaluation",
-         "reference_eval": "evaluation against the reference simulator", "command": "a CLI command"}
+         "reference_eval": "evaluation against the reference simulator", "command": "a CLI command",
+         "curves": "evaluation curves and checks beside a family's table"}
 # the drape solver (drape, on integrate's minimiser) runs at inference too: it continues the Taylor
 # model's cloth on a photo
 GARMENT_CORE_RUNTIME = ("templates", "outfits", "mesh", "store", "dress", "resize", "collide", "losses", "metrics",

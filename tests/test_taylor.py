@@ -28,8 +28,10 @@ from recon.garment.taylor.model import (
     shape_features,
 )
 from recon.garment.taylor.train import (
+    PoseFitConfig,
     cluster_anchors,
     database_shapes,
+    fit_pose_model,
     perturbed,
     region_sensitivity,
     sensitivity,
@@ -159,6 +161,51 @@ def test_pose_examples_correct_the_pose_model_with_weights_of_their_own(body, to
     d, codes = m.sequence_codes(motion)
     posed = model.skin(m.graded + (codes @ d).view(6, -1, 3), out.transforms)
     assert (posed - ref).norm(dim=-1).max() < 1e-4
+
+
+def test_a_fitted_pose_model_nears_the_drapes_and_the_database_keeps_meeting_them(body, top, tmp_path):
+    """fit_pose_model trains a copy of PBNS (network and blend shapes; not its skinning) towards the
+    examples' drapes; the database on either pose model meets the drapes at the examples; a fitted
+    pose model is saved with the database and loaded as a copy, leaving the outfit's PBNS alone."""
+    _, model = top
+    anchors, extra = poses(3), poses(5, seed=9)
+    examples = torch.cat([anchors, extra])
+    g = torch.Generator().manual_seed(2)
+    with torch.no_grad():  # toy drapes: PBNS's cloth plus a smooth pose-dependent sag
+        sag = 0.01 * torch.randn(1, model.rest.shape[0], 3, generator=g)
+        drapes = model.rest + model.deformation(examples) + sag * (1 + pose_vector(examples)[:, 3:4, None])
+    before = model.D.detach().clone()
+    fitted = fit_pose_model(model, examples, drapes, PoseFitConfig(steps=60, lr=1e-3, batch=4))
+    assert torch.equal(model.D, before) and torch.equal(fitted.weights, model.weights)
+    with torch.no_grad():
+        def miss(m):
+            return float((m.rest + m.deformation(examples) - drapes).norm(dim=-1).mean())
+        assert miss(fitted) < 0.5 * miss(model)
+        refit = fit_pose_model(model, examples, drapes, PoseFitConfig(method="ridge", ridge=1e-6))
+        assert miss(refit) < 0.5 * miss(model) and torch.equal(refit.mlp[0].weight, model.mlp[0].weight)
+    with pytest.raises(ValueError, match="adam or ridge"):
+        fit_pose_model(model, examples, drapes, PoseFitConfig(method="sgd"))
+    with torch.no_grad():
+        residual = drapes - model.rest - model.deformation(examples)
+    shapes = torch.cat([body.mean_shape[None], database_shapes(5, seed=1)])
+    m = toy_model(body, model, anchors, shapes, shifted_drape(model))
+    m.pose_examples, m.example_vec, m.pose_residual = examples, pose_vector(examples), residual
+    f = m.with_pose_model(fitted, fitted=True)
+    rot = extra[1:2]
+    _, _, bt = posed_bodies(body, rot, shapes[0][None])
+    f.set_shape(body, shapes[0])
+    m.set_shape(body, shapes[0])
+    want = model.skin(drapes[4], bt)  # the drape at this example on the pose model's body
+    assert (m.pose(rot, bt) - want).norm(dim=-1).max() < 1e-5
+    assert (f.pose(rot, bt) - want).norm(dim=-1).max() < 1e-5
+    f.save(tmp_path / "t.pt", "{}")
+    loaded = TaylorGarment.load(tmp_path / "t.pt", model)[0].set_shape(body, shapes[3])
+    assert loaded.fitted and loaded.pbns is not model and torch.equal(model.D, before)
+    assert (loaded.pbns.D - fitted.D).abs().max() < 1e-3 * fitted.D.abs().max()  # float16 storage
+    rot = poses(2, seed=4)
+    _, _, bt = posed_bodies(body, rot, shapes[3][None])
+    assert (loaded.pose(rot, bt) - f.set_shape(body, shapes[3]).pose(rot, bt)).norm(dim=-1).mean() < 5e-5
+    assert not TaylorGarment.load(tmp_path / "t.pt", model)[0].with_pose_model(model).fitted
 
 
 def test_separability_on_a_toy_function(body, top):

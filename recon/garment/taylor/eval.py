@@ -8,9 +8,7 @@ build time. Writes eval/results/garment-taylor.{json,md}.
 from __future__ import annotations
 
 import json
-import multiprocessing as mp
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -27,8 +25,10 @@ from recon.garment.dress import DRAPE_ITERATIONS
 from recon.garment.metrics import physical_metrics
 from recon.garment.pbns.model import PBNS, remove_yaw, trained_outfit
 from recon.garment.resize import OutfitResizer, Transfer
+from recon.garment.taylor.curves import example_subset, separability, subset
 from recon.garment.taylor.model import TaylorGarment
-from recon.garment.taylor.train import SHAPE_BOX, TaylorBuildConfig, cluster_anchors, drape_poses
+from recon.garment.taylor.reference_eval import newton_comparison
+from recon.garment.taylor.train import SHAPE_BOX, TaylorBuildConfig, drape_poses
 from recon.poses.sampler import ShapeSampler
 from recon.timing import compare
 
@@ -37,6 +37,8 @@ POSTED = "Taylor + post-step"
 REFINED = "Taylor + drape iterations + post-step"  # what the Dresser returns for a single pose
 VAL_ITERATIONS = (10, 20, 40)  # drape-solver iterations after the model, scored on val
 VAL_SEED = 2025  # val poses and bodies: other draws than the test's
+NEWTON_POSES = (3, 11)  # of the test poses: the drape solver against newton's (minutes each)
+CORRECTED_PBNS = "Taylor, PBNS corrected at the examples as pose model"
 
 
 def test_shapes(body, n_far: int = 6, n_near: int = 2, seed: int = 2024) -> tuple[torch.Tensor, np.ndarray]:
@@ -74,6 +76,8 @@ class Methods:
         self.pbns, ck = PBNS.load(store.pbns_path(outfit))
         self.shape0 = ck["shape"]
         self.taylor, self.tck = TaylorGarment.load(taylor_path, self.pbns)
+        # with a fitted pose model, the same database on PBNS as trained: what the fit adds
+        self.on_pbns = self.taylor.with_pose_model(self.pbns) if self.taylor.fitted else None
         self.transfer = Transfer(body, self.pbns.rest.numpy(), self.pbns.faces.numpy(), self.shape0)
         rp = store.resizer_path(outfit)
         self.resizer = OutfitResizer(body, rp, self.pbns.rest.numpy(), self.pbns.faces.numpy()) if rp.exists() else None
@@ -109,9 +113,16 @@ class Methods:
         out["Taylor"] = self.taylor.pose(rot[None], bt, bv)[0]
         out[POSTED] = self.resolver(out["Taylor"][None], bv, self.body.faces, rest=self.taylor.graded[None])[0]
         out[REFINED] = self.refined(out["Taylor"][None], DRAPE_ITERATIONS, bv, bn, bt)[0]
-        self.taylor.correct_pose = False
-        out["Taylor, PBNS uncorrected as pose model"] = self.taylor.pose(rot[None], bt, bv)[0]
-        self.taylor.correct_pose = True
+        on_pbns = self.on_pbns or self.taylor
+        if self.on_pbns is not None:
+            on_pbns.set_shape(self.body, shape)
+            out[CORRECTED_PBNS] = on_pbns.pose(rot[None], bt, bv)[0]
+            self.taylor.correct_pose = False
+            out["Taylor, fitted pose model without example corrections"] = self.taylor.pose(rot[None], bt, bv)[0]
+            self.taylor.correct_pose = True
+        on_pbns.correct_pose = False
+        out["Taylor, PBNS as pose model"] = on_pbns.pose(rot[None], bt, bv)[0]
+        on_pbns.correct_pose = True
         if sim_pose_model is not None:
             sim = sim_pose_model[None]
             out["Taylor, simulation as pose model"] = self.taylor.pose(rot[None], bt, bv, pose_model=sim)[0]
@@ -120,66 +131,6 @@ class Methods:
 
 def _mean(xs) -> float | None:
     return float(np.mean(xs)) if len(xs) else None
-
-
-def subset(model: TaylorGarment, joint_weights: torch.Tensor, n: int) -> TaylorGarment:
-    """The model with ``n`` of its anchors (clustered like the database's, the member nearest each
-    centre; its pose examples kept): the error-against-anchors curve without a database per count."""
-    idx = torch.from_numpy(cluster_anchors(model.anchors, joint_weights, n))
-    res = model.pose_residual
-    if res is not None and not model.separate_examples:
-        res = res[idx]
-    return TaylorGarment(model.pbns, model.anchors[idx], model.q, model.basis[idx], model.maps[idx], model.shape0,
-                         model.cfg, res, pose_examples=model.pose_examples)
-
-
-def example_subset(model: TaylorGarment, joint_weights: torch.Tensor, n: int) -> TaylorGarment:
-    """The model with ``n`` of its pose examples: its anchors alone when ``n`` is their number (the
-    database without examples of its own), else ``n`` clustered among all of them."""
-    a = len(model.anchors)
-    if n == a:
-        res, examples = model.pose_residual[:a], None
-    else:
-        idx = torch.from_numpy(cluster_anchors(model.pose_examples, joint_weights, n))
-        res, examples = model.pose_residual[idx], model.pose_examples[idx]
-    return TaylorGarment(model.pbns, model.anchors, model.q, model.basis, model.maps, model.shape0, model.cfg, res,
-                         pose_examples=examples)
-
-
-def separability(cfg: TaylorBuildConfig, m: Methods, anchors: list[int], radii: tuple[float, ...], samples: int,
-                 seed: int = 0) -> list[dict]:
-    """The paper's 4.2: bodies and poses at distance r from an anchor (a random direction over the
-    72 joint-rotation components, rad, and the 6 phenotypes); error of eq. 3 to the drape there,
-    practical (the pose model PBNS and the anchor's shape model) and theoretical (each term the
-    drape itself)."""
-    rng = np.random.default_rng(seed)
-    tasks = []
-    for a in anchors:
-        for r in radii:
-            for _ in range(samples):
-                u = rng.standard_normal(78)
-                u *= r / np.linalg.norm(u)
-                rot = m.taylor.anchors[a] @ roma.rotvec_to_rotmat(torch.from_numpy(u[:72]).float().view(24, 3))
-                shape = (m.shape0 + torch.from_numpy(u[72:]).float()).clamp(0.0, 1.0)
-                tasks.append((a, r, rot, shape))
-    poses = torch.stack([t[2] for t in tasks] + [m.taylor.anchors[t[0]] for t in tasks])
-    bodies = [t[3][None] for t in tasks] * 2
-    drapes = drape_poses(cfg, poses, bodies, desc="separability")
-    rows = []
-    n = len(tasks)
-    for i, (a, r, rot, shape) in enumerate(tasks):
-        at, anchor = drapes[i], drapes[n + i]
-        gt = torch.from_numpy(at["posed"][1])
-        bv, _, bt = posed_bodies(m.body, rot[None], shape[None])
-        du = torch.from_numpy(anchor["unposed"][1] - anchor["unposed"][0])
-        theory = m.pbns.skin(torch.from_numpy(at["unposed"][0]) + du, bt)[0]
-        m.taylor.set_shape(m.body, shape)
-        w = torch.zeros(1, m.taylor.q.shape[0], len(m.taylor.anchors))
-        w[..., a] = 1.0
-        practical = m.taylor.pose(rot[None], bt, weights=w)[0]
-        rows.append({"anchor": a, "r": r, "practical_mm": float((practical - gt).norm(dim=-1).mean()) * 1000,
-                     "theoretical_mm": float((theory - gt).norm(dim=-1).mean()) * 1000})
-    return rows
 
 
 @torch.no_grad()
@@ -249,6 +200,9 @@ def val_check(cfg: TaylorBuildConfig, m: Methods, body, poses: int, faces: np.nd
             x = m.taylor.pose(r[p][None], bt, bv)
             seconds = time.perf_counter() - t
             acc.setdefault("Taylor", []).append((*score(x[0], gt, faces, graded, bv, bn), seconds))
+            if m.on_pbns is not None:
+                y = m.on_pbns.set_shape(body, shapes[k]).pose(r[p][None], bt, bv)
+                acc.setdefault(CORRECTED_PBNS, []).append((*score(y[0], gt, faces, graded, bv, bn), seconds))
             t = time.perf_counter()
             v = m.resolver(x, bv, body.faces, rest=graded[None])[0]
             acc.setdefault(POSTED, []).append((*score(v, gt, faces, graded, bv, bn), seconds + time.perf_counter() - t))
@@ -276,8 +230,9 @@ def evaluate(outfit: str, poses: int = 20, workers: int = 2, anchor_counts=(8, 1
     joint_w = torch.tensor(meta["joint_weights"])
     subsets = {n: subset(m.taylor, joint_w, n) for n in anchor_counts if n < len(m.taylor.anchors)}
     n_examples = len(m.taylor.pose_examples) if m.taylor.separate_examples else len(m.taylor.anchors)
-    example_subsets = {n: example_subset(m.taylor, joint_w, n) for n in (len(m.taylor.anchors), *example_counts)
-                       if n < n_examples}
+    # on PBNS as trained: a fitted pose model has learned from every example
+    example_subsets = {n: example_subset(m.on_pbns or m.taylor, joint_w, n)
+                       for n in (len(m.taylor.anchors), *example_counts) if n < n_examples}
     acc: dict = {}
     curve = {n: {"far": [], "all": []} for n in subsets}
     example_curve = {n: {"far": [], "all": []} for n in example_subsets}
@@ -309,9 +264,10 @@ def evaluate(outfit: str, poses: int = 20, workers: int = 2, anchor_counts=(8, 1
                                                 "error_far_mm": rows["Taylor"]["error_far_mm"]}
     examples_curve = {str(n): {"error_mm": _mean(c["all"]), "error_far_mm": _mean(c["far"])}
                       for n, c in example_curve.items()}
-    examples_curve[str(n_examples)] = anchors_curve[str(len(m.taylor.anchors))]
+    full = rows[CORRECTED_PBNS if m.on_pbns is not None else "Taylor"]
+    examples_curve[str(n_examples)] = {"error_mm": full["error_mm"], "error_far_mm": full["error_far_mm"]}
     log("scored; separability")
-    sep = separability(cfg, m, [0, len(m.taylor.anchors) // 2], radii, separability_samples)
+    sep = separability(cfg, m.taylor, body, [0, len(m.taylor.anchors) // 2], radii, separability_samples)
     val = val_check(cfg, m, body, val_poses, faces) if val_poses else None
     return {"outfit": outfit, "poses": len(rot), "shapes": shapes.tolist(), "far": far.tolist(), "rows": rows,
             "drape_iterations": DRAPE_ITERATIONS,
@@ -324,39 +280,10 @@ def evaluate(outfit: str, poses: int = 20, workers: int = 2, anchor_counts=(8, 1
                 "explained_variance_pct": 100 * meta["explained_variance"]}}
 
 
-@torch.no_grad()
-def _newton_one(args) -> dict:
-    """One held-out pose on PBNS's body: newton's drape (reference.drape, its protocol) and ours, from
-    the same skinned start; the distance of ours, PBNS's and the skinned start to newton's."""
-    outfit, pose = args
-    torch.set_num_threads(1)
-    body = default_body()
-    pbns, ck = PBNS.load(store.pbns_path(outfit))
-    o, shape0, _ = trained_outfit(body, store.pbns_path(outfit))
-    rot = test_poses(20)[pose:pose + 1]
-    bv, bn, bt = posed_bodies(body, rot, shape0[None])
-    sk = pbns.skin(pbns.rest, bt)[0]
-    t = time.time()
-    ours = DrapeSolver(o, TaylorBuildConfig().drape)(pbns.rest, sk, bv[0], bn[0])
-    ours_s = time.time() - t
-    sim = reference.drape(bv[0].numpy(), body.faces.numpy(), pbns.rest.numpy(), sk.numpy(), pbns.faces.numpy(),
-                          o.pinned, reference.DrapeConfig())
-    newton = torch.from_numpy(sim["vertices"]).float()
-    err = lambda v: float((v - newton).norm(dim=-1).mean()) * 1000  # noqa: E731
-    return {"pose": pose, "ours_mm": err(ours), "pbns_mm": err(pbns.pose(rot, bt)[0]), "skinning_mm": err(sk),
-            "ours_s": ours_s, "newton_s": sim["seconds"], "newton_settled": sim["settled"]}
-
-
-def newton_comparison(outfit: str, poses=(3, 11), workers: int = 2) -> list[dict]:
-    """Our drape solver against newton's VBD drape (``recon garment reference``'s protocol) at held-out
-    poses on PBNS's body: is it closer to newton's than PBNS is? (needs the ``sim`` extra)."""
-    with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn")) as pool:
-        return list(pool.map(_newton_one, [(outfit, p) for p in poses]))
-
-
 ROW_ORDER = ("skinning only", "PBNS (graded)", "PBNS + resizer", "PBNS + resizer + collision resolution",
-             "Taylor, PBNS uncorrected as pose model", "Taylor, no penetration handling", "Taylor", POSTED, REFINED,
-             "Taylor, simulation as pose model", "drape (ground truth)")
+             "Taylor, PBNS as pose model", CORRECTED_PBNS, "Taylor, fitted pose model without example corrections",
+             "Taylor, no penetration handling", "Taylor", POSTED, REFINED, "Taylor, simulation as pose model",
+             "drape (ground truth)")
 
 
 def render(data: dict) -> str:
@@ -400,8 +327,11 @@ def render(data: dict) -> str:
                               sorted(curve.items(), key=lambda t: int(t[0]))],
                              ["anchors", "error mm", "far bodies mm"], ["", ".2f", ".2f"]), ""]
         if r.get("examples_curve"):
+            fitted = CORRECTED_PBNS in r["rows"]
             out += ["Error against the number of pose examples (the anchors alone, then subsets of all examples "
-                    "clustered alike; every anchor kept):", "",
+                    "clustered alike; every anchor kept" + ("; with PBNS as trained corrected at them as pose model, "
+                                                            "since the fitted one has learned from every example"
+                                                            if fitted else "") + "):", "",
                     report.table([[int(n), c["error_mm"], c["error_far_mm"]] for n, c in
                                   sorted(r["examples_curve"].items(), key=lambda t: int(t[0]))],
                                  ["pose examples", "error mm", "far bodies mm"], ["", ".2f", ".2f"]), ""]
@@ -409,8 +339,8 @@ def render(data: dict) -> str:
         for s in r["separability"]:
             sep.setdefault(s["r"], []).append(s)
         out += ["Separability (the paper's 4.2): error of eq. 3 at distance r from an anchor (a random direction over "
-                "the 72 joint-rotation components in rad and the 6 phenotypes), practical (the pose model, PBNS "
-                "corrected at its pose examples, and the anchor's shape model) and theoretical (every term a "
+                "the 72 joint-rotation components in rad and the 6 phenotypes), practical (the Taylor model's pose "
+                "model corrected at its pose examples, and the anchor's shape model) and theoretical (every term a "
                 "drape):", "",
                 report.table([[r_, len(v), _mean([x["practical_mm"] for x in v]),
                                _mean([x["theoretical_mm"] for x in v])] for r_, v in sorted(sep.items())],
@@ -448,7 +378,13 @@ def evaluate_and_report(outfits: list[str], poses: int = 20, workers: int = 2, o
     body = default_body()
     data = {"outfits": {o: evaluate(o, poses, workers, log=log) for o in outfits}, "speed": {}}
     if newton and reference.available():
-        data["newton"] = {o: newton_comparison(o, workers=workers) for o in outfits}
+        rot = test_poses(poses)
+        data["newton"] = {o: newton_comparison(o, {i: rot[i] for i in NEWTON_POSES}, workers) for o in outfits}
+    else:  # the comparison does not depend on the database: a previous run's stays
+        previous = Path(out_dir) / "garment-taylor.json"
+        kept = json.loads(previous.read_text()).get("newton", {}) if previous.exists() else {}
+        if kept:
+            data["newton"] = kept
     for o in speed_outfits or outfits:
         p = store.taylor_path(o)
         pbns, _ = PBNS.load(store.pbns_path(o))

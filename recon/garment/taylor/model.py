@@ -18,9 +18,11 @@ is that inverse followed by the skinning at theta. The shape term of every ancho
 weighted sum of those displacements added to the pose model's rest-pose output before its one
 skinning: the cost of the shape dimension is a blend, not one skinning per anchor.
 
-The pose model: PBNS, corrected at example poses like the paper's SOR pose model (example poses
-blended): each example's drape on PBNS's body minus PBNS's cloth there (``pose_residual``, unposed)
-is blended like the shape terms, so the model meets the drape at an example. The examples are the
+The pose model: PBNS, trained further on the examples' drapes when the database was built
+(``fitted``: its network and blend shapes stored with the database, its skinning PBNS's), and
+corrected at example poses like the paper's SOR pose model (example poses blended): each example's
+drape on PBNS's body minus the pose model's cloth there (``pose_residual``, unposed) is blended like
+the shape terms, so the model meets the drape at an example. The examples are the
 anchors and, when the database has them, more poses draped on PBNS's body alone
 (``pose_examples``; one drape a pose where an anchor costs a drape per body), blended with weights
 of their own (``correct_pose=False``: PBNS alone, the paper's formula with PBNS as f(beta0, .)).
@@ -34,6 +36,7 @@ pushed out along the normal of each cloth vertex's bound body vertex (eq. 10).
 """
 from __future__ import annotations
 
+import copy
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -129,8 +132,9 @@ class TaylorGarment:
     def __init__(self, pbns: PBNS, anchors: torch.Tensor, sensitivity_q: torch.Tensor, basis: torch.Tensor,
                  maps: torch.Tensor, shape0: torch.Tensor, cfg: BlendConfig | None = None,
                  pose_residual: torch.Tensor | None = None, correct_pose: bool = True,
-                 pose_examples: torch.Tensor | None = None):
-        self.pbns, self.cfg = pbns, cfg or BlendConfig()
+                 pose_examples: torch.Tensor | None = None, fitted: bool = False):
+        self.pbns, self.cfg = pbns, cfg or BlendConfig()  # the pose model (a PBNS)
+        self.fitted = fitted  # whether the pose model is PBNS trained further (stored with the database)
         self.anchors = anchors  # (A, 24, 3, 3) anchor poses
         self.anchor_vec = pose_vector(anchors)  # (A, 72)
         self.q = sensitivity_q  # (G, 72) per region, weight of each squared joint-angle difference
@@ -322,6 +326,18 @@ class TaylorGarment:
             codes.append(w[:, g, a])
         return torch.cat(rows), torch.cat(codes, 1)
 
+    @torch.no_grad()
+    def with_pose_model(self, pose_model: PBNS, fitted: bool = False) -> TaylorGarment:
+        """The same database on another pose model (e.g. PBNS as trained, for a fitted one): each
+        example's correction re-expressed against it, so the model still meets the drapes there."""
+        residual = self.pose_residual
+        if residual is not None:
+            examples = self.pose_examples if self.separate_examples else self.anchors
+            residual = (self.pbns.deformation(examples) + residual - pose_model.deformation(examples)
+                        + self.pbns.rest - pose_model.rest)
+        return TaylorGarment(pose_model, self.anchors, self.q, self.basis, self.maps, self.shape0, self.cfg, residual,
+                             self.correct_pose, self.pose_examples, fitted)
+
     # --- persistence ----------------------------------------------------------------------------
     def save(self, path: Path, meta_json: str) -> None:
         state = {"anchors": self.anchors, "q": self.q, "basis": self.basis.half(), "maps": self.maps,
@@ -330,14 +346,24 @@ class TaylorGarment:
             state["pose_residual"] = self.pose_residual.half()
         if self.pose_examples is not None:
             state["pose_examples"] = self.pose_examples
+        if self.fitted:
+            state["pose_model"] = {"mlp": self.pbns.mlp.state_dict(), "D": self.pbns.D.detach().half()}
         paths.atomic_write(Path(path), lambda t: torch.save(state, t))
 
     @classmethod
     def load(cls, path: Path, pbns: PBNS) -> tuple[TaylorGarment, dict]:
+        """The model of a database file on ``pbns`` (the outfit's PBNS; with a fitted pose model, a copy
+        of it with the stored network and blend shapes)."""
         ck = paths.load_checkpoint(path, "recon garment train --model taylor")
         if ck["basis"].shape[2] != pbns.rest.shape[0]:
             raise ValueError(f"{path} was built for another outfit ({ck['basis'].shape[2]} vertices)")
+        fitted = "pose_model" in ck
+        if fitted:
+            pbns = copy.deepcopy(pbns)
+            pbns.mlp.load_state_dict(ck["pose_model"]["mlp"])
+            pbns.D.data = ck["pose_model"]["D"].float()
+            pbns.requires_grad_(False)
         res = ck.get("pose_residual")
         m = cls(pbns, ck["anchors"], ck["q"], ck["basis"].float(), ck["maps"], ck["shape0"], BlendConfig(**ck["blend"]),
-                None if res is None else res.float(), pose_examples=ck.get("pose_examples"))
+                None if res is None else res.float(), pose_examples=ck.get("pose_examples"), fitted=fitted)
         return m, ck

@@ -19,12 +19,17 @@ section 3.6 on our outfits, bodies and mocap.
    pose model's body alone; each drape minus PBNS's cloth corrects the pose model there too (the
    pose model's error dominates the shape model's, and an example costs one drape, an anchor
    ``shapes + 1``).
+5. The pose model fitted (``fit_pose_model``): PBNS's network and blend shapes trained further on
+   the examples' drapes (anchors' first drapes and pose examples), so the pose model learns where
+   the drape solver's quasi-static state lies at any pose, not only at an example; the examples'
+   corrections are then its residuals there.
 
 Drapes run in ``workers`` processes, one anchor a task, each kept in ``<cache>/taylor-drapes/``
 (resumable: a rerun drapes only what is missing).
 """
 from __future__ import annotations
 
+import copy
 import hashlib
 import json
 import multiprocessing as mp
@@ -46,7 +51,7 @@ from recon.garment import store
 from recon.garment.data import posed_bodies
 from recon.garment.drape import DrapeSolver, DrapeSolverConfig
 from recon.garment.integrate import unpose
-from recon.garment.pbns.model import PBNS, remove_yaw, trained_outfit
+from recon.garment.pbns.model import PBNS, pose_features, remove_yaw, trained_outfit
 from recon.garment.resize import Transfer
 from recon.garment.taylor.model import (
     BlendConfig,
@@ -60,6 +65,19 @@ from recon.poses.mocap import MocapPoses
 
 # the phenotype box the database's bodies span (anny: gender, age, muscle, weight, height, proportions)
 SHAPE_BOX = ((0.0, 1.0), (0.3, 1.0), (0.1, 0.9), (0.05, 0.95), (0.05, 0.95), (0.2, 0.8))
+
+
+@dataclass
+class PoseFitConfig:
+    """PBNS trained further on the examples' unposed drapes, its blend weights (its skinning) kept:
+    "adam", its network and blend shapes by minibatch Adam on the mean vertex distance; "ridge",
+    its blend shapes alone, a least-squares fit on its codes pulled towards PBNS's by ``ridge``."""
+    method: str = "adam"
+    steps: int = 2000  # adam; 0: PBNS as trained is the pose model
+    lr: float = 3e-4
+    batch: int = 96
+    seed: int = 0
+    ridge: float = 1.0  # ridge: the L2 weight on the change of the blend shapes (per code, squared)
 
 
 @dataclass
@@ -80,6 +98,7 @@ class TaylorBuildConfig:
     workers: int = 2
     drape: DrapeSolverConfig = field(default_factory=DrapeSolverConfig)
     blend: BlendConfig = field(default_factory=BlendConfig)
+    pose_fit: PoseFitConfig = field(default_factory=PoseFitConfig)
 
 
 RIDGES = (0.1, 0.3, 1.0, 3.0, 10.0, 30.0)
@@ -95,6 +114,38 @@ def leave_one_out(shapes: torch.Tensor, u: torch.Tensor, components: int, ridge:
         pred = mean + torch.einsum("c,cnk->nk", m @ shape_features(shapes[k:k + 1])[0], basis)
         errs.append(float((pred - u[k]).norm(dim=-1).mean()))
     return float(np.mean(errs))
+
+
+def fit_pose_model(pbns: PBNS, poses: torch.Tensor, drapes: torch.Tensor, cfg: PoseFitConfig,
+                   checkpoint=None) -> PBNS:
+    """A copy of ``pbns`` trained so that its rest-pose cloth at ``poses`` (E, 24, 3, 3) nears the
+    unposed drapes there (E, N, 3); its blend weights kept. ``cfg.steps`` 0: an untrained copy.
+    ``checkpoint(step, model)``, when given, is called after every step (a choice of the steps
+    scores one run at several)."""
+    model = copy.deepcopy(pbns)
+    if cfg.method == "ridge":
+        with torch.no_grad():
+            x = model.mlp(pose_features(poses)).double()  # (E, C) codes
+            d0 = model.D.double()
+            r = (drapes - model.rest).reshape(len(poses), -1).double()
+            eye = torch.eye(x.shape[1], dtype=x.dtype)
+            model.D.data = (d0 + torch.linalg.solve(x.T @ x + cfg.ridge * eye, x.T @ (r - x @ d0))).float()
+        return model.requires_grad_(False).eval()
+    if cfg.method != "adam":
+        raise ValueError(f"PoseFitConfig.method: adam or ridge, not {cfg.method!r}")
+    model.weight_logits.requires_grad_(False)
+    opt = torch.optim.Adam([*model.mlp.parameters(), model.D], lr=cfg.lr)
+    g = torch.Generator().manual_seed(cfg.seed)
+    for step in range(1, cfg.steps + 1):
+        b = torch.randperm(len(poses), generator=g)[:cfg.batch]
+        loss = (model.rest + model.deformation(poses[b]) - drapes[b]).norm(dim=-1).mean()
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        if checkpoint is not None:
+            with torch.no_grad():
+                checkpoint(step, model)
+    return model.requires_grad_(False).eval()
 
 
 def database_shapes(n: int, seed: int = 0) -> torch.Tensor:
@@ -277,10 +328,8 @@ def build(cfg: TaylorBuildConfig, out: Path | None = None, log=print, progress: 
     t_drape = time.time()
     drapes = drape_poses(cfg, anchors, shapes, progress)
     t_drape = time.time() - t_drape
-    with torch.no_grad():  # the pose model's miss at each anchor, on its own body (unposed)
-        pbns_at = pbns.rest + pbns.deformation(anchors)
-    first = [torch.from_numpy(d["unposed"][0]).float() for d in drapes]
-    examples = None
+    first = [torch.from_numpy(d["unposed"][0]).float() for d in drapes]  # on the pose model's body
+    examples = anchors
     if cfg.pose_examples:
         extra = train[torch.from_numpy(cluster_anchors(train, joint_w, cfg.pose_examples, cfg.seed))]
         log(f"{len(extra)} pose examples on the pose model's body")
@@ -289,9 +338,16 @@ def build(cfg: TaylorBuildConfig, out: Path | None = None, log=print, progress: 
                   for d in drape_poses(cfg, extra, torch.zeros(0, len(shape0)), progress, desc="pose examples")]
         t_drape += time.time() - t
         examples = torch.cat([anchors, extra])
-        with torch.no_grad():
-            pbns_at = torch.cat([pbns_at, pbns.rest + pbns.deformation(extra)])
-    pose_residual = torch.stack(first) - pbns_at
+    first = torch.stack(first)
+    t = time.time()
+    fit = cfg.pose_fit.steps or cfg.pose_fit.method != "adam"
+    pose_model = fit_pose_model(pbns, examples, first, cfg.pose_fit) if fit else pbns
+    with torch.no_grad():  # the pose model's miss at each example (unposed)
+        pose_residual = first - pose_model.rest - pose_model.deformation(examples)
+        miss = float(pose_residual.norm(dim=-1).mean()) * 1000
+        pbns_miss = float((first - pbns.rest - pbns.deformation(examples)).norm(dim=-1).mean()) * 1000
+    log(f"pose model: mean miss at the {len(examples)} examples {miss:.1f} mm (PBNS as trained {pbns_miss:.1f}; "
+        f"fitted in {time.time() - t:.0f} s)")
     for d in drapes:
         d["unposed"] = torch.from_numpy(d["unposed"]).float() - graded
     loo = {}
@@ -311,8 +367,9 @@ def build(cfg: TaylorBuildConfig, out: Path | None = None, log=print, progress: 
         total = float((flat ** 2).sum())
         kept = float(((flat @ b.reshape(len(b), -1).T) ** 2).sum())
         explained.append(kept / max(total, 1e-12))
-    model = TaylorGarment(pbns, anchors, q, torch.stack(basis), torch.stack(maps), shape0, cfg.blend, pose_residual,
-                          pose_examples=examples)
+    model = TaylorGarment(pose_model, anchors, q, torch.stack(basis), torch.stack(maps), shape0, cfg.blend,
+                          pose_residual, pose_examples=examples if cfg.pose_examples else None,
+                          fitted=pose_model is not pbns)
     strain = np.stack([d["strain"] for d in drapes])
     meta = {"outfit": cfg.outfit, "config": asdict(cfg), "shapes": all_shapes.tolist(),
             "pbns_sha256": hashlib.sha256(store.pbns_path(cfg.outfit).read_bytes()).hexdigest(),
@@ -322,7 +379,7 @@ def build(cfg: TaylorBuildConfig, out: Path | None = None, log=print, progress: 
             "drape_seconds": (draping_seconds(cfg, shapes) or 0.0) + (draping_seconds(cfg, torch.zeros(0, len(shape0)))
                                                                       or 0.0) or None,
             "fit_seconds": time.time() - t0 - t_drape, "anchors": len(anchors),
-            "pose_examples": len(pose_residual)}
+            "pose_examples": len(pose_residual), "pose_model_miss_mm": miss, "pbns_miss_mm": pbns_miss}
     path = Path(out) if out else store.taylor_path(cfg.outfit)
     path.parent.mkdir(parents=True, exist_ok=True)
     model.save(path, json.dumps(meta))
