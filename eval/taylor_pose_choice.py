@@ -55,11 +55,8 @@ def main() -> None:
     pbns, ck = PBNS.load(store.pbns_path(a.outfit))
     shape0 = ck["shape"]
     built, _ = TaylorGarment.load(store.taylor_path(a.outfit), pbns)
-    on_pbns = built.with_pose_model(pbns)
-    on_pbns.set_shape(body, shape0)
-    examples = built.pose_examples if built.separate_examples else built.anchors
-    with torch.no_grad():  # the examples' unposed drapes, as the database keeps them
-        drapes = pbns.rest + pbns.deformation(examples) + on_pbns.pose_residual
+    on_pbns = built.with_pose_model(pbns).set_shape(body, shape0)
+    examples, drapes = built.example_poses, built.example_drapes()  # as the database keeps them
     rot = pose_set("val", a.poses, 0.5, SEED)
     rot[:, 0] = remove_yaw(rot[:, 0])
     val = drape_poses(TaylorBuildConfig(outfit=a.outfit), rot, torch.zeros(0, len(shape0)), desc="val drapes")

@@ -41,8 +41,8 @@ def separability(cfg: TaylorBuildConfig, taylor: TaylorGarment, body, anchors: l
                  samples: int, seed: int = 0) -> list[dict]:
     """The paper's 4.2: bodies and poses at distance r from an anchor (a random direction over the
     72 joint-rotation components, rad, and the 6 phenotypes); error of eq. 3 to the drape there,
-    practical (the pose model PBNS and the anchor's shape model) and theoretical (each term the
-    drape itself)."""
+    practical (the model's pose model with its example corrections and the anchor's shape model)
+    and theoretical (each term the drape itself)."""
     rng = np.random.default_rng(seed)
     tasks = []
     for a in anchors:

@@ -168,7 +168,7 @@ def speed(body, outfit: str, taylor: TaylorGarment | None) -> dict:
     ms = compare({"pbns": lambda: pbns.pose(r, tr), "taylor": lambda: taylor.pose(r, tr, bv),
                   "post": lambda: resolver(taylor.pose(r, tr, bv), bv, body.faces, rest=taylor.graded)}, rounds=7)
     return {"vertices": int(pbns.rest.shape[0]), "random_database": random_db, "anchors": len(taylor.anchors),
-            "pose_examples": len(taylor.pose_examples if taylor.separate_examples else taylor.anchors),
+            "pose_examples": len(taylor.example_poses),
             "pbns_fps": 1000.0 / ms["pbns"], "taylor_fps": 1000.0 / ms["taylor"],
             "taylor_post_fps": 1000.0 / ms["post"],
             "new_shape_ms": float(np.median(t_ms))}
@@ -229,7 +229,7 @@ def evaluate(outfit: str, poses: int = 20, workers: int = 2, anchor_counts=(8, 1
     faces = m.pbns.faces.numpy()
     joint_w = torch.tensor(meta["joint_weights"])
     subsets = {n: subset(m.taylor, joint_w, n) for n in anchor_counts if n < len(m.taylor.anchors)}
-    n_examples = len(m.taylor.pose_examples) if m.taylor.separate_examples else len(m.taylor.anchors)
+    n_examples = len(m.taylor.example_poses)
     # on PBNS as trained: a fitted pose model has learned from every example
     example_subsets = {n: example_subset(m.on_pbns or m.taylor, joint_w, n)
                        for n in (len(m.taylor.anchors), *example_counts) if n < n_examples}

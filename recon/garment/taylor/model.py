@@ -326,15 +326,24 @@ class TaylorGarment:
             codes.append(w[:, g, a])
         return torch.cat(rows), torch.cat(codes, 1)
 
+    @property
+    def example_poses(self) -> torch.Tensor:
+        """(E, 24, 3, 3) the poses ``pose_residual`` corrects at: the pose examples, else the anchors."""
+        return self.pose_examples if self.separate_examples else self.anchors
+
+    @torch.no_grad()
+    def example_drapes(self) -> torch.Tensor:
+        """(E, N, 3) the unposed drapes at ``example_poses`` on the pose model's body: its cloth there
+        plus its correction."""
+        return self.pbns.rest + self.pbns.deformation(self.example_poses) + self.pose_residual
+
     @torch.no_grad()
     def with_pose_model(self, pose_model: PBNS, fitted: bool = False) -> TaylorGarment:
         """The same database on another pose model (e.g. PBNS as trained, for a fitted one): each
         example's correction re-expressed against it, so the model still meets the drapes there."""
         residual = self.pose_residual
         if residual is not None:
-            examples = self.pose_examples if self.separate_examples else self.anchors
-            residual = (self.pbns.deformation(examples) + residual - pose_model.deformation(examples)
-                        + self.pbns.rest - pose_model.rest)
+            residual = self.example_drapes() - pose_model.rest - pose_model.deformation(self.example_poses)
         return TaylorGarment(pose_model, self.anchors, self.q, self.basis, self.maps, self.shape0, self.cfg, residual,
                              self.correct_pose, self.pose_examples, fitted)
 

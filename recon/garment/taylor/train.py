@@ -79,6 +79,11 @@ class PoseFitConfig:
     seed: int = 0
     ridge: float = 1.0  # ridge: the L2 weight on the change of the blend shapes (per code, squared)
 
+    @property
+    def trains(self) -> bool:
+        """Whether the pose model is fitted at all (else PBNS as trained)."""
+        return self.method != "adam" or self.steps > 0
+
 
 @dataclass
 class TaylorBuildConfig:
@@ -340,8 +345,7 @@ def build(cfg: TaylorBuildConfig, out: Path | None = None, log=print, progress: 
         examples = torch.cat([anchors, extra])
     first = torch.stack(first)
     t = time.time()
-    fit = cfg.pose_fit.steps or cfg.pose_fit.method != "adam"
-    pose_model = fit_pose_model(pbns, examples, first, cfg.pose_fit) if fit else pbns
+    pose_model = fit_pose_model(pbns, examples, first, cfg.pose_fit) if cfg.pose_fit.trains else pbns
     with torch.no_grad():  # the pose model's miss at each example (unposed)
         pose_residual = first - pose_model.rest - pose_model.deformation(examples)
         miss = float(pose_residual.norm(dim=-1).mean()) * 1000
