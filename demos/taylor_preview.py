@@ -16,8 +16,9 @@ import torch
 
 from recon.body import default_body
 from recon.garment.dress import Dresser
+from recon.garment.taylor.config import TaylorBuildConfig
+from recon.garment.taylor.data import drape_poses
 from recon.garment.taylor.eval import test_poses
-from recon.garment.taylor.train import TaylorBuildConfig, drape_poses
 from recon.viz import render_meshes
 
 BODY_RGBA, CLOTH_RGBA = (0.85, 0.72, 0.62, 1.0), (0.35, 0.45, 0.8, 1.0)

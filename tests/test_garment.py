@@ -17,7 +17,16 @@ from recon.garment.gltf import write_glb
 from recon.garment.metrics import collision_pct, penetration, physical_metrics
 from recon.garment.pbns import reference_eval as R
 from recon.garment.pbns import train as T
-from recon.garment.pbns.model import PBNS, PBNSConfig, initial_weights, pose_features, remove_yaw
+from recon.garment.pbns.model import (
+    PBNS,
+    PBNSConfig,
+    initial_weights,
+    mlp_of,
+    pose_features,
+    pose_mlp,
+    remove_yaw,
+    widened,
+)
 from recon.garment.templates import PRESETS, GarmentSpec, RestBody, hangs_free, make_outfit
 
 
@@ -85,6 +94,21 @@ def test_apply_blend_is_the_per_vertex_affine_map_and_differentiable():
     assert torch.allclose(P.BlendShapeGarment.apply_blend(xb, t), (t[..., :3] @ xb[..., None])[..., 0] + t[..., 3])
     assert torch.allclose(P.rotate(t, xb), (t[..., :3] @ xb[..., None])[..., 0])
     assert torch.autograd.gradcheck(P.BlendShapeGarment.apply_blend, (xb.requires_grad_(), t.requires_grad_()))
+
+
+def test_a_widened_network_computes_the_same_and_its_new_units_learn():
+    torch.manual_seed(0)
+    mlp = pose_mlp(8, 4, 16)
+    x = torch.randn(5, 216, dtype=torch.float64)
+    wide = widened(mlp.double(), 20)
+    assert [m.out_features for m in wide if isinstance(m, torch.nn.Linear)] == [20, 20, 20, 16]
+    assert torch.allclose(wide(x), mlp(x), atol=1e-12)
+    wide(x).sum().backward()
+    assert wide[2].weight.grad[:, 8:].abs().sum() > 0 or wide[6].weight.grad[:, 8:].abs().sum() > 0
+    back = mlp_of(wide.state_dict())
+    assert torch.equal(back.double()(x), wide(x).detach())
+    with pytest.raises(ValueError, match="fewer"):
+        widened(mlp, 4)
 
 
 def test_pbns_weight_cache_follows_changes():

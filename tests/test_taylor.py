@@ -18,6 +18,8 @@ from recon.garment.dress import Dresser
 from recon.garment.gltf import write_glb
 from recon.garment.pbns.model import PBNS, PBNSConfig, initial_weights, pose_features
 from recon.garment.resize import Transfer
+from recon.garment.taylor.config import PoseFitConfig
+from recon.garment.taylor.data import fit_only_poses, unposed
 from recon.garment.taylor.model import (
     BlendConfig,
     TaylorGarment,
@@ -28,14 +30,12 @@ from recon.garment.taylor.model import (
     shape_features,
 )
 from recon.garment.taylor.train import (
-    PoseFitConfig,
     cluster_anchors,
     database_shapes,
     fit_pose_model,
     perturbed,
     region_sensitivity,
     sensitivity,
-    unposed,
 )
 from recon.garment.templates import GarmentSpec, RestBody, make_outfit
 
@@ -163,6 +163,19 @@ def test_pose_examples_correct_the_pose_model_with_weights_of_their_own(body, to
     assert (posed - ref).norm(dim=-1).max() < 1e-4
 
 
+def test_fit_only_poses_are_train_poses_that_are_not_examples_and_grow_by_prefix():
+    train = poses(40, seed=3)
+    examples = train[[1, 5, 7, 20]]
+    more = fit_only_poses(train, examples, 12, seed=4)
+    assert more.shape == (12, 24, 3, 3)
+    key = lambda r: r.numpy().round(5).tobytes()  # noqa: E731
+    taken, drawn = {key(e) for e in examples}, [key(r) for r in more]
+    assert len(set(drawn)) == 12 and not taken & set(drawn) and set(drawn) <= {key(r) for r in train}
+    assert torch.equal(fit_only_poses(train, examples, 30, seed=4)[:12], more)  # a larger draw begins the same
+    with pytest.raises(ValueError, match="36 train poses"):
+        fit_only_poses(train, examples, 37)
+
+
 def test_a_fitted_pose_model_nears_the_drapes_and_the_database_keeps_meeting_them(body, top, tmp_path):
     """fit_pose_model trains a copy of PBNS (network and blend shapes; not its skinning) towards the
     examples' drapes; the database on either pose model meets the drapes at the examples; a fitted
@@ -175,8 +188,10 @@ def test_a_fitted_pose_model_nears_the_drapes_and_the_database_keeps_meeting_the
         sag = 0.01 * torch.randn(1, model.rest.shape[0], 3, generator=g)
         drapes = model.rest + model.deformation(examples) + sag * (1 + pose_vector(examples)[:, 3:4, None])
     before = model.D.detach().clone()
-    fitted = fit_pose_model(model, examples, drapes, PoseFitConfig(steps=60, lr=1e-3, batch=4))
+    width = model.mlp[0].out_features + 8  # the network widened as it is fitted: saved and loaded so
+    fitted = fit_pose_model(model, examples, drapes, PoseFitConfig(steps=60, lr=1e-3, batch=4, hidden=width))
     assert torch.equal(model.D, before) and torch.equal(fitted.weights, model.weights)
+    assert fitted.mlp[0].out_features == width
     with torch.no_grad():
         def miss(m):
             return float((m.rest + m.deformation(examples) - drapes).norm(dim=-1).mean())
@@ -206,6 +221,13 @@ def test_a_fitted_pose_model_nears_the_drapes_and_the_database_keeps_meeting_the
     _, _, bt = posed_bodies(body, rot, shapes[3][None])
     assert (loaded.pose(rot, bt) - f.set_shape(body, shapes[3]).pose(rot, bt)).norm(dim=-1).mean() < 5e-5
     assert not TaylorGarment.load(tmp_path / "t.pt", model)[0].with_pose_model(model).fitted
+    # without the examples' corrections, on the pose model's body: the fitted network's cloth; kept so
+    f.set_shape(body, shapes[0])
+    _, _, bt = posed_bodies(body, rot, shapes[0][None])
+    with f.corrections(False):
+        assert (f.pose(rot, bt) - fitted.pose(rot, bt)).norm(dim=-1).max() < 1e-6
+        f.save(tmp_path / "u.pt", "{}")
+    assert f.correct_pose and not TaylorGarment.load(tmp_path / "u.pt", model)[0].correct_pose
 
 
 def test_separability_on_a_toy_function(body, top):

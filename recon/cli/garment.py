@@ -20,7 +20,7 @@ NCS_FLAGS = {
 
 
 def add_garment(p: Parser) -> None:
-    taylor = "recon.garment.taylor.train:TaylorBuildConfig"
+    taylor = "recon.garment.taylor.config:TaylorBuildConfig"
     pbns = "recon.garment.pbns.train:GarmentTrainConfig"
     reference = "recon.garment.pbns.reference_eval:reference_and_report"
     action = actions(p)
@@ -49,6 +49,9 @@ def add_garment(p: Parser) -> None:
     a.add_argument("--pose-examples", type=NON_NEGATIVE, default=None,
                    help=f"taylor: poses draped on PBNS's body alone to correct it, besides the anchors "
                         f"(default {known(taylor, 'pose_examples')}; 0: the anchors only)")
+    a.add_argument("--fit-poses", type=NON_NEGATIVE, default=None,
+                   help=f"taylor: more poses draped on PBNS's body for its fit alone (not corrections; default "
+                        f"{known('recon.garment.taylor.config:PoseFitConfig.poses')})")
     a.add_argument("--train-sets", type=COUNT, nargs="+", default=None,
                    help="author: train parameter sets to simulate and train on, one model each (default "
                         f"{known('recon.garment.author.data:AuthorDataConfig', 'train_sets')}; e.g. 32 143 715 for "

@@ -28,6 +28,7 @@ from recon.garment.pbns import train as pbns_train
 from recon.garment.resize import ResizeConfig
 from recon.garment.taylor import eval as taylor_eval
 from recon.garment.taylor import train as taylor_build
+from recon.garment.taylor.config import PoseFitConfig, TaylorBuildConfig
 from recon.garment.templates import PRESETS
 
 
@@ -108,9 +109,12 @@ def train(args) -> None:
         if args.model == "taylor":
             more = {k: getattr(args, k) for k in ("anchors", "shapes", "pose_examples", "workers")
                     if getattr(args, k) is not None}
-            path = taylor_build.build(taylor_build.TaylorBuildConfig(outfit=o, **more))
+            if args.fit_poses is not None:
+                more["pose_fit"] = PoseFitConfig(poses=args.fit_poses)
+            path = taylor_build.build(TaylorBuildConfig(outfit=o, **more))
             meta = json.loads(taylor_build.read_meta(path))
-            keys = ("anchors", "pose_examples", "drape_seconds", "fit_seconds", "explained_variance", "ridge")
+            keys = ("anchors", "pose_examples", "fit_poses", "drape_seconds", "fit_seconds", "explained_variance",
+                    "ridge")
             print(json.dumps({"outfit": o, "weights": str(path), **{k: meta[k] for k in keys}}))
             continue
         if args.model == "ncs":

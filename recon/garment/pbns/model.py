@@ -54,6 +54,30 @@ def pose_mlp(hidden: int, layers: int, embedding: int) -> nn.Sequential:
     return nn.Sequential(*mods)
 
 
+def mlp_of(state: dict) -> nn.Sequential:
+    """The ``pose_mlp`` whose weights ``state`` (a state dict) holds, sized by them."""
+    w = [state[k] for k in sorted((k for k in state if k.endswith(".weight")), key=lambda k: int(k.split(".")[0]))]
+    mlp = pose_mlp(w[0].shape[0], len(w), w[-1].shape[0])
+    mlp.load_state_dict(state)
+    return mlp
+
+
+@torch.no_grad()
+def widened(mlp: nn.Sequential, hidden: int) -> nn.Sequential:
+    """A ``pose_mlp`` with ``hidden`` units per hidden layer computing what ``mlp`` does: its
+    weights copied, the new units' outgoing weights zero (their incoming ones as initialised)."""
+    old = [m for m in mlp if isinstance(m, nn.Linear)]
+    if hidden < old[0].out_features:
+        raise ValueError(f"widened: {hidden} hidden units, fewer than the network's {old[0].out_features}")
+    new = pose_mlp(hidden, len(old), old[-1].out_features).to(old[0].weight)
+    for a, b in zip(old, (m for m in new if isinstance(m, nn.Linear))):
+        o, i = a.weight.shape
+        b.weight[:o, :i] = a.weight
+        b.weight[:o, i:] = 0.0
+        b.bias[:o] = a.bias
+    return new
+
+
 def remove_yaw(r: torch.Tensor) -> torch.Tensor:
     """Left-multiply by the inverse heading so the body's forward axis (+Z) has no X component."""
     f = r[..., :, 2]  # body +Z in the parent (world) frame

@@ -1,16 +1,25 @@
 """Curves and checks of the Taylor model beside its table (``taylor.eval``): the model with fewer
-anchors or pose examples (subsets of its database, no rebuild), and the paper's separability
-check (section 4.2).
+anchors or pose examples (subsets of its database, no rebuild), the paper's separability check
+(section 4.2) and its speed.
 """
 from __future__ import annotations
+
+import copy
+import time
 
 import numpy as np
 import roma
 import torch
 
+from recon.garment import store
+from recon.garment.collide import CollisionResolver
 from recon.garment.data import posed_bodies
+from recon.garment.pbns.model import PBNS, widened
+from recon.garment.taylor.config import TaylorBuildConfig
+from recon.garment.taylor.data import drape_poses
 from recon.garment.taylor.model import TaylorGarment
-from recon.garment.taylor.train import TaylorBuildConfig, cluster_anchors, drape_poses
+from recon.garment.taylor.train import cluster_anchors
+from recon.timing import compare
 
 
 def subset(model: TaylorGarment, joint_weights: torch.Tensor, n: int) -> TaylorGarment:
@@ -71,3 +80,60 @@ def separability(cfg: TaylorBuildConfig, taylor: TaylorGarment, body, anchors: l
         rows.append({"anchor": a, "r": r, "practical_mm": float((practical - gt).norm(dim=-1).mean()) * 1000,
                      "theoretical_mm": float((theory - gt).norm(dim=-1).mean()) * 1000})
     return rows
+
+
+@torch.no_grad()
+def speed(body, outfit: str, taylor: TaylorGarment | None, poses: torch.Tensor) -> dict:
+    """Frames a second at batch 1 (1 thread, given the posed body) of PBNS, of the Taylor model
+    (with penetration handling) with and without its pose examples' corrections and of it as built
+    with the post-step, timed in interleaved rounds (the median over rounds), and the time of a new
+    body shape (ms). Without a built database
+    the Taylor model is timed on one of the default size with random contents (its cost does not
+    depend on the values), its pose model widened as a build's. ``poses`` (anchors + 8, 24, 3, 3):
+    the first is timed, the last ``anchors`` are a random database's."""
+    pbns, ck = PBNS.load(store.pbns_path(outfit))
+    rot = poses[:1]
+    shape = ck["shape"]
+    random_db = taylor is None
+    if random_db:
+        cfg = TaylorBuildConfig()
+        a, n, s = cfg.anchors, pbns.rest.shape[0], len(shape)
+        g = torch.Generator().manual_seed(0)
+        q = torch.rand(7, 72, generator=g)
+        e = a + cfg.pose_examples
+        anchors = poses[8:]
+        examples = torch.cat([anchors, roma.rotvec_to_rotmat(0.3 * torch.randn(e - a, 24, 3, generator=g))])
+        model = copy.deepcopy(pbns)
+        if cfg.pose_fit.hidden:
+            model.mlp = widened(model.mlp, cfg.pose_fit.hidden)
+        taylor = TaylorGarment(model, anchors, q / q.sum(1, keepdim=True),
+                               1e-3 * torch.randn(a, cfg.components, n, 3, generator=g),
+                               torch.randn(a, cfg.components, 2 * s + 1, generator=g), shape,
+                               pose_residual=1e-3 * torch.randn(e, n, 3, generator=g),
+                               correct_pose=cfg.pose_fit.corrections,
+                               pose_examples=examples if cfg.pose_examples else None, fitted=True)
+    out = body(rot[:1], shape[None])
+    t_ms = []
+    for k in range(5):
+        t = time.perf_counter()
+        taylor.set_shape(body, shape + 0.01 * k)
+        t_ms.append((time.perf_counter() - t) * 1000)
+    r, tr, bv = rot[:1], out.transforms, out.vertices
+    resolver = CollisionResolver(pbns.faces.numpy(), ck["layer"].numpy())
+
+    def uncorrected():
+        with taylor.corrections(False):
+            return taylor.pose(r, tr, bv)
+
+    def corrected():
+        with taylor.corrections(True):
+            return taylor.pose(r, tr, bv)
+
+    ms = compare({"pbns": lambda: pbns.pose(r, tr), "taylor": corrected, "uncorrected": uncorrected,
+                  "post": lambda: resolver(taylor.pose(r, tr, bv), bv, body.faces, rest=taylor.graded)}, rounds=7)
+    return {"vertices": int(pbns.rest.shape[0]), "random_database": random_db, "anchors": len(taylor.anchors),
+            "pose_examples": len(taylor.example_poses),
+            "pbns_fps": 1000.0 / ms["pbns"], "taylor_fps": 1000.0 / ms["taylor"],
+            "taylor_uncorrected_fps": 1000.0 / ms["uncorrected"], "corrections": taylor.correct_pose,
+            "taylor_post_fps": 1000.0 / ms["post"],
+            "new_shape_ms": float(np.median(t_ms))}

@@ -12,7 +12,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-import roma
 import torch
 
 from recon import report
@@ -25,12 +24,12 @@ from recon.garment.dress import DRAPE_ITERATIONS
 from recon.garment.metrics import physical_metrics
 from recon.garment.pbns.model import PBNS, remove_yaw, trained_outfit
 from recon.garment.resize import OutfitResizer, Transfer
-from recon.garment.taylor.curves import example_subset, separability, subset
+from recon.garment.taylor.config import SHAPE_BOX, TaylorBuildConfig
+from recon.garment.taylor.curves import example_subset, separability, speed, subset
+from recon.garment.taylor.data import drape_poses
 from recon.garment.taylor.model import TaylorGarment
 from recon.garment.taylor.reference_eval import newton_comparison
-from recon.garment.taylor.train import SHAPE_BOX, TaylorBuildConfig, drape_poses
 from recon.poses.sampler import ShapeSampler
-from recon.timing import compare
 
 PHENOTYPES = ("weight", "height")  # "far" bodies: top or bottom quintile of either in anny's prior
 POSTED = "Taylor + post-step"
@@ -39,6 +38,8 @@ VAL_ITERATIONS = (10, 20, 40)  # drape-solver iterations after the model, scored
 VAL_SEED = 2025  # val poses and bodies: other draws than the test's
 NEWTON_POSES = (3, 11)  # of the test poses: the drape solver against newton's (minutes each)
 CORRECTED_PBNS = "Taylor, PBNS corrected at the examples as pose model"
+CORRECTED = "Taylor, fitted pose model with example corrections"
+UNCORRECTED = "Taylor, fitted pose model without example corrections"
 
 
 def test_shapes(body, n_far: int = 6, n_near: int = 2, seed: int = 2024) -> tuple[torch.Tensor, np.ndarray]:
@@ -78,6 +79,8 @@ class Methods:
         self.taylor, self.tck = TaylorGarment.load(taylor_path, self.pbns)
         # with a fitted pose model, the same database on PBNS as trained: what the fit adds
         self.on_pbns = self.taylor.with_pose_model(self.pbns) if self.taylor.fitted else None
+        if self.on_pbns is not None:
+            self.on_pbns.correct_pose = True  # PBNS as trained is corrected at the examples
         self.transfer = Transfer(body, self.pbns.rest.numpy(), self.pbns.faces.numpy(), self.shape0)
         rp = store.resizer_path(outfit)
         self.resizer = OutfitResizer(body, rp, self.pbns.rest.numpy(), self.pbns.faces.numpy()) if rp.exists() else None
@@ -117,12 +120,11 @@ class Methods:
         if self.on_pbns is not None:
             on_pbns.set_shape(self.body, shape)
             out[CORRECTED_PBNS] = on_pbns.pose(rot[None], bt, bv)[0]
-            self.taylor.correct_pose = False
-            out["Taylor, fitted pose model without example corrections"] = self.taylor.pose(rot[None], bt, bv)[0]
-            self.taylor.correct_pose = True
-        on_pbns.correct_pose = False
-        out["Taylor, PBNS as pose model"] = on_pbns.pose(rot[None], bt, bv)[0]
-        on_pbns.correct_pose = True
+            for name, on in ((CORRECTED, True), (UNCORRECTED, False)):
+                with self.taylor.corrections(on):
+                    out[name] = self.taylor.pose(rot[None], bt, bv)[0]
+        with on_pbns.corrections(False):
+            out["Taylor, PBNS as pose model"] = on_pbns.pose(rot[None], bt, bv)[0]
         if sim_pose_model is not None:
             sim = sim_pose_model[None]
             out["Taylor, simulation as pose model"] = self.taylor.pose(rot[None], bt, bv, pose_model=sim)[0]
@@ -131,47 +133,6 @@ class Methods:
 
 def _mean(xs) -> float | None:
     return float(np.mean(xs)) if len(xs) else None
-
-
-@torch.no_grad()
-def speed(body, outfit: str, taylor: TaylorGarment | None) -> dict:
-    """Frames a second at batch 1 (1 thread, given the posed body) of PBNS, of the Taylor model
-    (with penetration handling) and of it with the post-step, timed in interleaved rounds (the
-    median over rounds), and the time of a new body shape (ms). Without a built database
-    the Taylor model is timed on one of the default size with random contents (its cost does not
-    depend on the values)."""
-    pbns, ck = PBNS.load(store.pbns_path(outfit))
-    rot = test_poses(8)
-    shape = ck["shape"]
-    random_db = taylor is None
-    if random_db:
-        cfg = TaylorBuildConfig()
-        a, n, s = cfg.anchors, pbns.rest.shape[0], len(shape)
-        g = torch.Generator().manual_seed(0)
-        q = torch.rand(7, 72, generator=g)
-        e = a + cfg.pose_examples
-        anchors = test_poses(a + 8)[8:]
-        examples = torch.cat([anchors, roma.rotvec_to_rotmat(0.3 * torch.randn(e - a, 24, 3, generator=g))])
-        taylor = TaylorGarment(pbns, anchors, q / q.sum(1, keepdim=True),
-                               1e-3 * torch.randn(a, cfg.components, n, 3, generator=g),
-                               torch.randn(a, cfg.components, 2 * s + 1, generator=g), shape,
-                               pose_residual=1e-3 * torch.randn(e, n, 3, generator=g),
-                               pose_examples=examples if cfg.pose_examples else None)
-    out = body(rot[:1], shape[None])
-    t_ms = []
-    for k in range(5):
-        t = time.perf_counter()
-        taylor.set_shape(body, shape + 0.01 * k)
-        t_ms.append((time.perf_counter() - t) * 1000)
-    r, tr, bv = rot[:1], out.transforms, out.vertices
-    resolver = CollisionResolver(pbns.faces.numpy(), ck["layer"].numpy())
-    ms = compare({"pbns": lambda: pbns.pose(r, tr), "taylor": lambda: taylor.pose(r, tr, bv),
-                  "post": lambda: resolver(taylor.pose(r, tr, bv), bv, body.faces, rest=taylor.graded)}, rounds=7)
-    return {"vertices": int(pbns.rest.shape[0]), "random_database": random_db, "anchors": len(taylor.anchors),
-            "pose_examples": len(taylor.example_poses),
-            "pbns_fps": 1000.0 / ms["pbns"], "taylor_fps": 1000.0 / ms["taylor"],
-            "taylor_post_fps": 1000.0 / ms["post"],
-            "new_shape_ms": float(np.median(t_ms))}
 
 
 def score(v: torch.Tensor, gt: torch.Tensor, faces: np.ndarray, graded, bv, bn) -> tuple[float, float, float]:
@@ -201,8 +162,14 @@ def val_check(cfg: TaylorBuildConfig, m: Methods, body, poses: int, faces: np.nd
             seconds = time.perf_counter() - t
             acc.setdefault("Taylor", []).append((*score(x[0], gt, faces, graded, bv, bn), seconds))
             if m.on_pbns is not None:
-                y = m.on_pbns.set_shape(body, shapes[k]).pose(r[p][None], bt, bv)
-                acc.setdefault(CORRECTED_PBNS, []).append((*score(y[0], gt, faces, graded, bv, bn), seconds))
+                m.on_pbns.set_shape(body, shapes[k])
+                for name, model, on in ((CORRECTED_PBNS, m.on_pbns, True), (CORRECTED, m.taylor, True),
+                                        (UNCORRECTED, m.taylor, False)):
+                    with model.corrections(on):
+                        t = time.perf_counter()
+                        y = model.pose(r[p][None], bt, bv)
+                        sec = time.perf_counter() - t  # before scoring
+                    acc.setdefault(name, []).append((*score(y[0], gt, faces, graded, bv, bn), sec))
             t = time.perf_counter()
             v = m.resolver(x, bv, body.faces, rest=graded[None])[0]
             acc.setdefault(POSTED, []).append((*score(v, gt, faces, graded, bv, bn), seconds + time.perf_counter() - t))
@@ -274,14 +241,14 @@ def evaluate(outfit: str, poses: int = 20, workers: int = 2, anchor_counts=(8, 1
             "val": val,
             "anchors_curve": anchors_curve, "examples_curve": examples_curve, "separability": sep, "database": {
                 "anchors": meta["anchors"], "bodies_per_anchor": len(meta["shapes"]),
-                "pose_examples": meta.get("pose_examples", meta["anchors"]),
+                "pose_examples": meta.get("pose_examples", meta["anchors"]), "fit_poses": meta.get("fit_poses", 0),
                 "size_mb": path.stat().st_size / 1e6,
                 "build_min": ((meta["drape_seconds"] or 0.0) + meta["fit_seconds"]) / 60, "ridge": meta["ridge"],
                 "explained_variance_pct": 100 * meta["explained_variance"]}}
 
 
 ROW_ORDER = ("skinning only", "PBNS (graded)", "PBNS + resizer", "PBNS + resizer + collision resolution",
-             "Taylor, PBNS as pose model", CORRECTED_PBNS, "Taylor, fitted pose model without example corrections",
+             "Taylor, PBNS as pose model", CORRECTED_PBNS, CORRECTED, UNCORRECTED,
              "Taylor, no penetration handling", "Taylor", POSTED, REFINED, "Taylor, simulation as pose model",
              "drape (ground truth)")
 
@@ -315,7 +282,8 @@ def render(data: dict) -> str:
                                  ["", ".2f", ".2f", ".2f", ".3f"]), ""]
         out += [f"Database: {db['anchors']} anchors x {db['bodies_per_anchor']} bodies and "
                 f"{db.get('pose_examples', db['anchors'])} pose examples (the anchors and poses draped on the pose "
-                f"model's body alone), {db['size_mb']:.1f} MB, "
+                f"model's body alone; the pose model fitted to their drapes and to {db.get('fit_poses', 0)} more "
+                f"poses' drapes), {db['size_mb']:.1f} MB, "
                 f"{db['build_min']:.0f} min of draping and fitting as its last build run recorded them (the model "
                 "card has the build times); the shape models' 5 PCA components keep "
                 f"{db['explained_variance_pct']:.1f} % of the variance of each anchor's drapes; ridge {db['ridge']:g} "
@@ -356,16 +324,17 @@ def render(data: dict) -> str:
     sp = data.get("speed", {})
     if sp:
         out += ["## Speed", "", "Batch 1, 1 thread, given the posed body (as PBNS's FPS in garment-pbns.md), the "
-                "three timed in 7 interleaved rounds (median); the Taylor model with its penetration handling, and "
-                "with the post-step after it (what the Dresser runs). New body: `set_shape` (shape terms of every "
-                "anchor and the penetration binding), median of 5.", ""]
+                "four timed in 7 interleaved rounds (median); the Taylor model with its penetration handling, with "
+                "and without its pose examples' corrections, and as built (see the table's rows) with the post-step "
+                "after it (what the Dresser runs). New body: "
+                "`set_shape` (shape terms of every anchor and the penetration binding), median of 5.", ""]
         out += [report.table([[o, s["vertices"], s["anchors"], s.get("pose_examples", s["anchors"]),
                                "random" if s["random_database"] else "built",
-                               s["pbns_fps"], s["taylor_fps"], s.get("taylor_post_fps"), s["new_shape_ms"]]
-                              for o, s in sp.items()],
-                             ["outfit", "vertices", "anchors", "pose examples", "database", "PBNS FPS", "Taylor FPS",
-                              "Taylor + post-step FPS", "new body ms"],
-                             ["", "", "", "", "", ".0f", ".0f", ".1f", ".1f"]), ""]
+                               s["pbns_fps"], s["taylor_fps"], s.get("taylor_uncorrected_fps"),
+                               s.get("taylor_post_fps"), s["new_shape_ms"]] for o, s in sp.items()],
+                             ["outfit", "vertices", "anchors", "pose examples", "database", "PBNS FPS",
+                              "Taylor with corrections FPS", "without FPS", "Taylor + post-step FPS", "new body ms"],
+                             ["", "", "", "", "", ".0f", ".0f", ".0f", ".1f", ".1f"]), ""]
         out += ["Databases marked random: an outfit whose database was not built here, timed with one of the default "
                 "size and random contents (the cost does not depend on the values).", ""]
     return "\n".join(out)
@@ -388,5 +357,6 @@ def evaluate_and_report(outfits: list[str], poses: int = 20, workers: int = 2, o
     for o in speed_outfits or outfits:
         p = store.taylor_path(o)
         pbns, _ = PBNS.load(store.pbns_path(o))
-        data["speed"][o] = speed(body, o, TaylorGarment.load(p, pbns)[0] if p.exists() else None)
+        data["speed"][o] = speed(body, o, TaylorGarment.load(p, pbns)[0] if p.exists() else None,
+                                 test_poses(TaylorBuildConfig().anchors + 8))
     return report.write(Path(out_dir) / "garment-taylor", data, render(data))

@@ -37,6 +37,7 @@ pushed out along the normal of each cloth vertex's bound body vertex (eq. 10).
 from __future__ import annotations
 
 import copy
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -48,7 +49,7 @@ from scipy.spatial import cKDTree
 from recon import paths
 from recon.body import skeleton
 from recon.garment.collide import CollisionResolver
-from recon.garment.pbns.model import PBNS, pose_features, remove_yaw, rotate
+from recon.garment.pbns.model import PBNS, mlp_of, pose_features, remove_yaw, rotate
 from recon.garment.resize import Transfer
 
 # bone groups of the clothing regions (the paper's N_g = 7)
@@ -172,6 +173,16 @@ class TaylorGarment:
     def separate_examples(self) -> bool:
         """Whether the pose model's corrections are blended over examples of their own."""
         return self.example_vec is not None and self.residual_t is not None
+
+    @contextmanager
+    def corrections(self, on: bool):
+        """Within the block the pose examples' corrections are on or off (``correct_pose``); after it
+        as before."""
+        before, self.correct_pose = self.correct_pose, on
+        try:
+            yield self
+        finally:
+            self.correct_pose = before
 
     # --- per body shape -------------------------------------------------------------------------
     @torch.no_grad()
@@ -355,6 +366,7 @@ class TaylorGarment:
             state["pose_residual"] = self.pose_residual.half()
         if self.pose_examples is not None:
             state["pose_examples"] = self.pose_examples
+        state["correct_pose"] = self.correct_pose
         if self.fitted:
             state["pose_model"] = {"mlp": self.pbns.mlp.state_dict(), "D": self.pbns.D.detach().half()}
         paths.atomic_write(Path(path), lambda t: torch.save(state, t))
@@ -369,10 +381,10 @@ class TaylorGarment:
         fitted = "pose_model" in ck
         if fitted:
             pbns = copy.deepcopy(pbns)
-            pbns.mlp.load_state_dict(ck["pose_model"]["mlp"])
+            pbns.mlp = mlp_of(ck["pose_model"]["mlp"])  # PBNS's network, maybe widened
             pbns.D.data = ck["pose_model"]["D"].float()
             pbns.requires_grad_(False)
         res = ck.get("pose_residual")
         m = cls(pbns, ck["anchors"], ck["q"], ck["basis"].float(), ck["maps"], ck["shape0"], BlendConfig(**ck["blend"]),
-                None if res is None else res.float(), pose_examples=ck.get("pose_examples"), fitted=fitted)
+                None if res is None else res.float(), ck.get("correct_pose", True), ck.get("pose_examples"), fitted)
         return m, ck

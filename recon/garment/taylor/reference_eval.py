@@ -15,7 +15,7 @@ from recon.garment import reference, store
 from recon.garment.data import posed_bodies
 from recon.garment.drape import DrapeSolver
 from recon.garment.pbns.model import PBNS, trained_outfit
-from recon.garment.taylor.train import TaylorBuildConfig
+from recon.garment.taylor.config import TaylorBuildConfig
 
 
 @torch.no_grad()
