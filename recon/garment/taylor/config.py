@@ -12,9 +12,10 @@ SHAPE_BOX = ((0.0, 1.0), (0.3, 1.0), (0.1, 0.9), (0.05, 0.95), (0.05, 0.95), (0.
 
 @dataclass
 class PoseFitConfig:
-    """PBNS trained further on the examples' unposed drapes, its blend weights (its skinning) kept:
-    "adam", its network and blend shapes by minibatch Adam on the mean vertex distance; "ridge",
-    its blend shapes alone, a least-squares fit on its codes pulled towards PBNS's by ``ridge``."""
+    """PBNS trained further on unposed drapes on its body (the examples' and ``poses`` more), its
+    blend weights (its skinning) kept: "adam", its network (widened to ``hidden``) and blend shapes
+    by minibatch Adam on the mean vertex distance; "ridge", its blend shapes alone, a least-squares
+    fit on its codes pulled towards PBNS's by ``ridge``."""
     method: str = "adam"
     steps: int = 2000  # adam; 0: PBNS as trained is the pose model
     lr: float = 3e-4
