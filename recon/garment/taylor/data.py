@@ -37,13 +37,17 @@ def sample_poses(step: int) -> torch.Tensor:
     return r
 
 
+def pose_key(pose: torch.Tensor) -> bytes:
+    """A pose's identity (24, 3, 3): its rotations rounded, as the drape cache keys it."""
+    return pose.numpy().round(5).tobytes()
+
+
 def fit_only_poses(train: torch.Tensor, examples: torch.Tensor, n: int, seed: int = 0) -> torch.Tensor:
     """(n, 24, 3, 3) poses drawn at random from ``train`` (M, 24, 3, 3), none of them one of
     ``examples``: more training data for the pose model, spread as the mocap is. The draws for
     ``n`` begin those for any larger ``n`` (a larger fit reuses the drapes of a smaller)."""
-    key = lambda r: r.numpy().round(5).tobytes()  # noqa: E731
-    taken = {key(e) for e in examples}
-    free = [i for i, r in enumerate(train) if key(r) not in taken]
+    taken = {pose_key(e) for e in examples}
+    free = [i for i, r in enumerate(train) if pose_key(r) not in taken]
     if n > len(free):
         raise ValueError(f"PoseFitConfig.poses: {n} asked, {len(free)} train poses are not examples")
     pick = np.random.default_rng(seed).permutation(free)[:n]
@@ -112,8 +116,8 @@ def drape_poses(cfg: TaylorBuildConfig, poses: torch.Tensor, shapes: torch.Tenso
     per_pose = list(shapes) if isinstance(shapes, list) else [shapes] * len(poses)
     folder = drape_folder(cfg, shapes if torch.is_tensor(shapes) else torch.cat(per_pose))
     folder.mkdir(parents=True, exist_ok=True)
-    keys = [hashlib.sha256(p.numpy().round(5).tobytes() + s.numpy().round(6).tobytes()).hexdigest()[:16]
-            if not torch.is_tensor(shapes) else hashlib.sha256(p.numpy().round(5).tobytes()).hexdigest()[:16]
+    keys = [hashlib.sha256(pose_key(p) + s.numpy().round(6).tobytes()).hexdigest()[:16]
+            if not torch.is_tensor(shapes) else hashlib.sha256(pose_key(p)).hexdigest()[:16]
             for p, s in zip(poses, per_pose)]
     files = [folder / f"{k}.npz" for k in keys]
     todo = [i for i, f in enumerate(files) if not f.exists()]
