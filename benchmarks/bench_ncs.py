@@ -26,8 +26,9 @@ import torch
 from recon import report
 from recon.body import default_body
 from recon.garment import store
-from recon.garment.ncs.eval import CHECK_CLIP, clip_motion
+from recon.garment.ncs.eval import CHECK_CLIP
 from recon.garment.ncs.model import FPS, NCS, SMOOTH, motion_inputs
+from recon.garment.ncs.reference_eval import clip_motion
 from recon.garment.pbns.model import PBNS
 from recon.poses.mocap import MocapPoses
 from recon.timing import compare

@@ -18,8 +18,9 @@ import torch
 from recon.animate import BODY_RGBA, OUTFIT_RGBA, write_video
 from recon.body import default_body
 from recon.garment import store
-from recon.garment.ncs.eval import MODELS, clip_motion, run_models
+from recon.garment.ncs.eval import MODELS, run_models
 from recon.garment.ncs.model import NCS
+from recon.garment.ncs.reference_eval import clip_motion
 from recon.garment.pbns.model import PBNS
 from recon.poses.mocap import MocapPoses
 from recon.viz import SequenceRenderer

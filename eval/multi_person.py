@@ -22,7 +22,8 @@ from tqdm import tqdm
 
 from recon import camera, paths, report
 from recon.io import load_image, scan_inputs
-from recon.keypoints.sources import MediaPipeSource, box_iou
+from recon.keypoints.sources import MediaPipeSource
+from recon.keypoints.views import box_iou
 from recon.pipeline import ReconstructorConfig
 from recon.synth.dataset import SynthDataset, bench_dir
 

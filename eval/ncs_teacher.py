@@ -27,6 +27,7 @@ from recon.body import default_body
 from recon.garment.integrate import IntegrateConfig, Preconditioner, integrate
 from recon.garment.losses import InertiaLoss
 from recon.garment.ncs import eval as E
+from recon.garment.ncs import reference_eval as R
 from recon.garment.ncs.config import NCSTrainConfig
 from recon.garment.ncs.data import Teacher
 
@@ -69,15 +70,15 @@ def run(outfit: str, quick: bool = False) -> dict:
     cfg = NCSTrainConfig(outfit=outfit)
     teacher = Teacher(body, outfit, cfg)
     idx, pbns, shape = teacher.idx, teacher.pbns, teacher.shape
-    hem = E.hem_vertices(pbns.rest.numpy(), pbns.faces.numpy())
+    hem = R.hem_vertices(pbns.rest.numpy(), pbns.faces.numpy())
     hanging = np.zeros(len(pbns.rest), bool)
     hanging[idx.numpy()] = True
     hem_sub = np.cumsum(hanging)[hem] - 1
     rows = []
-    for clip in E.VAL_CLIPS:
-        rot, tr = E._lead_in(clip)
+    for clip in R.VAL_CLIPS:
+        rot, tr = R.lead_in(clip)
         static, carried, bv, bn, _, _ = teacher.drapes(rot, tr)
-        sim = E.dynamic_reference(body, outfit, pbns, shape, clip)
+        sim = R.dynamic_reference(body, outfit, pbns, shape, clip)
         mine = np.cumsum(sim["subset"])[idx.numpy()] - 1  # the teacher's part of the simulated one
         ref = torch.from_numpy(sim["vertices"][:, mine]).float()
         skin_hem = E.run_models(pbns, None, body, shape, rot, tr)[E.MODELS[0]][:, hem].mean(1)

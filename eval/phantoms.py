@@ -33,8 +33,9 @@ from recon import camera, paths, report
 from recon.io import load_image, scan_inputs
 from recon.keypoints import guard
 from recon.keypoints.mediapipe import MODELS, MediaPipePose
-from recon.keypoints.sources import RETRIES, MediaPipeSource, pad_image, unview
+from recon.keypoints.sources import RETRIES, MediaPipeSource
 from recon.keypoints.train import rgb_rows
+from recon.keypoints.views import pad_image, unview
 from recon.synth.dataset import SynthDataset, bench_dir
 from recon.synth.scene import background, occlude
 

@@ -29,8 +29,8 @@ from recon.garment.ncs.data import (
     rest_joint_height,
     sound_chunks,
 )
-from recon.garment.ncs.eval import clip_motion, hem_vertices
 from recon.garment.ncs.losses import Contact, Fit, FreeMotion, Physics, StaticPoses, gram, principal_fields, project
+from recon.garment.ncs.reference_eval import clip_motion, hem_vertices
 from recon.garment.ncs.train import train
 from recon.garment.pbns.model import PBNS, initial_weights, pose_features, trained_outfit
 from recon.garment.templates import Garment, GarmentSpec, Outfit, RestBody, make_outfit

@@ -26,16 +26,8 @@ from recon.keypoints import guard as person_guard
 from recon.keypoints.adapter import KeypointAdapter
 from recon.keypoints.base import Keypoints
 from recon.keypoints.mediapipe import DEFAULT_MODEL, MediaPipePose
-from recon.keypoints.sources import (
-    TRUSTED_CONFIDENCE,
-    BackboneSource,
-    MediaPipeSource,
-    blank_person,
-    blend_backbone,
-    box_iou,
-    same_person,
-    windows,
-)
+from recon.keypoints.sources import TRUSTED_CONFIDENCE, BackboneSource, MediaPipeSource, blend_backbone
+from recon.keypoints.views import blank_person, box_iou, same_person, windows
 
 PROBE_MISSES, PROBE_EVERY = 3, 30
 SEARCH_EVERY = 3
