@@ -192,6 +192,9 @@ def test_a_fitted_pose_model_nears_the_drapes_and_the_database_keeps_meeting_the
     fitted = fit_pose_model(model, examples, drapes, PoseFitConfig(steps=60, lr=1e-3, batch=4, hidden=width))
     assert torch.equal(model.D, before) and torch.equal(fitted.weights, model.weights)
     assert fitted.mlp[0].out_features == width
+    torch.manual_seed(123)  # the widened units' start comes from the config's seed, not the global draws
+    again = fit_pose_model(model, examples, drapes, PoseFitConfig(steps=60, lr=1e-3, batch=4, hidden=width))
+    assert torch.equal(again.mlp[0].weight, fitted.mlp[0].weight) and torch.equal(again.D, fitted.D)
     with torch.no_grad():
         def miss(m):
             return float((m.rest + m.deformation(examples) - drapes).norm(dim=-1).mean())
@@ -437,3 +440,37 @@ def test_dresser_continues_a_taylor_pose_with_the_drape_solver_in_the_gravity_fr
     r, t = roma.rigid_points_registration(bv[0], body_cam)
     assert (body_cam - (bv[0] @ r.T + t)).norm(dim=-1).max() < 1e-4  # the two bodies: one rigid motion apart
     assert (moved - (got @ r.T + t)).norm(dim=-1).max() < 1e-4
+
+
+@pytest.mark.slow
+def test_build_end_to_end_resumes_from_its_kept_drapes(tmp_path, monkeypatch, body):
+    """``recon garment train --model taylor``'s build at a toy size: a database that loads and poses,
+    its drapes kept per pose, and a rerun after a lost drape makes only that one again."""
+    from recon.garment.taylor.config import TaylorBuildConfig
+    from recon.garment.taylor.train import build, read_meta
+
+    monkeypatch.setenv("RECON_CACHE_DIR", str(tmp_path / "cache"))
+    cfg = TaylorBuildConfig(anchors=2, shapes=2, pose_examples=2, components=2, sensitivity_poses=1, workers=1,
+                            drape=DrapeSolverConfig(rounds=1, iterations=2),
+                            pose_fit=PoseFitConfig(steps=3, batch=4, poses=2, hidden=64))
+    out = tmp_path / "taylor.pt"
+    build(cfg, out, log=lambda *_: None, progress=False)
+    meta = json.loads(read_meta(out))
+    assert (meta["anchors"], meta["pose_examples"], meta["fit_poses"]) == (2, 4, 2)
+    kept = sorted((tmp_path / "cache" / "taylor-drapes").glob("*/*.npz"))
+    assert len(kept) == 2 + 2 + 2  # anchors (on 3 bodies), pose examples and fit poses (PBNS's body)
+    pbns, ck = PBNS.load(store.pbns_path(cfg.outfit))
+    first, _ = TaylorGarment.load(out, pbns)
+    assert first.pbns.mlp[0].out_features == 64 and not first.correct_pose
+
+    lost, stamps = kept[-1], {p: p.stat().st_mtime_ns for p in kept[:-1]}
+    lost.unlink()
+    build(cfg, out, log=lambda *_: None, progress=False)
+    assert lost.exists() and all(p.stat().st_mtime_ns == t for p, t in stamps.items())
+    again, _ = TaylorGarment.load(out, pbns)
+    rot = poses(2)
+    shape = ck["shape"]
+    _, _, transforms = posed_bodies(body, rot, shape[None].expand(2, -1))
+    x = first.set_shape(body, shape).pose(rot, transforms)
+    assert x.shape == (2, len(pbns.rest), 3) and torch.isfinite(x).all()
+    torch.testing.assert_close(again.set_shape(body, shape).pose(rot, transforms), x)

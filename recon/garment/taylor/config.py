@@ -22,7 +22,7 @@ class PoseFitConfig:
     batch: int = 96
     seed: int = 0
     ridge: float = 1.0  # ridge: the L2 weight on the change of the blend shapes (per code, squared)
-    poses: int = 512  # more train poses draped on the pose model's body for the fit alone (not corrections)
+    poses: int = 1024  # more train poses draped on the pose model's body for the fit alone (not corrections)
     hidden: int = 512  # adam: units per hidden layer of the fitted network (0: PBNS's; more: PBNS's widened)
     corrections: bool = False  # the fitted model corrected at the examples (PBNS as trained always is)
 

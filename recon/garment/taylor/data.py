@@ -139,6 +139,14 @@ def drape_poses(cfg: TaylorBuildConfig, poses: torch.Tensor, shapes: torch.Tenso
     return [dict(np.load(f)) for f in files]
 
 
+def pose_model_drapes(cfg: TaylorBuildConfig, poses: torch.Tensor, phenotypes: int, progress: bool = True,
+                      desc: str = "draping") -> torch.Tensor:
+    """(P, N, 3) the unposed drapes at ``poses`` (P >= 1, 24, 3, 3) on the pose model's body alone
+    (``drape_poses`` with no other bodies; ``phenotypes``: the body model's shape size)."""
+    drapes = drape_poses(cfg, poses, torch.zeros(0, phenotypes), progress, desc)
+    return torch.stack([torch.from_numpy(d["unposed"][0]).float() for d in drapes])
+
+
 def draping_seconds(cfg: TaylorBuildConfig, shapes: torch.Tensor) -> float | None:
     """Wall seconds spent making the drapes of ``drape_folder`` (None: not recorded)."""
     timing = drape_folder(cfg, shapes) / "timing.json"

@@ -149,12 +149,14 @@ class TaylorGarment:
         self.pose_residual = pose_residual
         self.correct_pose = correct_pose
         self.regions = region_weights(pbns.weights.detach())  # (N, G)
+        self.regions_t = self.regions.T.contiguous()  # (G, N): blending makes vertex rows, no transposed copy
         self.shape: torch.Tensor | None = None  # (S,) the body of set_shape
         # per-anchor shape terms beyond the grading, and with pose_residual (PBNS corrected as pose
         # model), stored coordinate-major (A, 3, N): blending them per vertex runs on contiguous rows
         self.delta_t: torch.Tensor | None = None
         self.corrected_t: torch.Tensor | None = None
         self.graded: torch.Tensor | None = None  # (N, 3) the template graded to the body of set_shape
+        self.shift: torch.Tensor | None = None  # (N, 3) graded minus the pose model's rest
         self._transfer: Transfer | None = None
         self._body_inc = None  # the body's vertex-face incidence (its normals), made with _transfer
 
@@ -206,6 +208,7 @@ class TaylorGarment:
             self._transfer = Transfer(body, self.pbns.rest.numpy(), self.pbns.faces.numpy(), self.shape0)
             self._body_inc = CollisionResolver.incidence(np.asarray(body.faces), len(bv))
         self.graded = torch.from_numpy(self._transfer.resize(self.shape[None], bv[None])[0])
+        self.shift = self.graded - self.pbns.rest  # the grading's term, the same at every anchor
         self.delta_t = self.shape_terms(self.shape).transpose(1, 2).contiguous()
         self.corrected_t = self.delta_t if self.residual_t is None or self.separate_examples else (
             self.delta_t + self.residual_t)
@@ -246,11 +249,11 @@ class TaylorGarment:
         """(B, G, A) blend weights of terms (A, 3, N) -> (B, N, 3): each vertex blends with its
         regions' weights."""
         active = torch.nonzero(weights.sum((0, 1)) > 0)[:, 0]
-        # (a, B, 1, N): each active anchor's weight at every vertex, contiguous per anchor
-        c = (self.regions @ weights[:, :, active]).permute(2, 0, 1).contiguous()[:, :, None]
-        out = torch.zeros(c.shape[1], 3, c.shape[3], dtype=terms_t.dtype)
+        # (B, a, N): each active anchor's weight at every vertex, contiguous per anchor
+        c = weights[:, :, active].transpose(1, 2) @ self.regions_t
+        out = torch.zeros(c.shape[0], 3, c.shape[2], dtype=terms_t.dtype)
         for j, a in enumerate(active.tolist()):  # in place, no gathered copy of the active terms
-            out.addcmul_(c[j], terms_t[a])
+            out.addcmul_(c[:, j, None], terms_t[a])
         return out.transpose(1, 2)
 
     @torch.no_grad()
@@ -272,8 +275,7 @@ class TaylorGarment:
             examples and example_distance is None) else None  # once for both sets
         if weights is None:
             weights = blend_weights(self.distances(rotmats, vec=vec) if distance is None else distance, self.cfg)
-        shift = self.graded - self.pbns.rest  # the grading's term, the same at every anchor
-        rest = base + shift + self.correction(weights, pose_model is None)
+        rest = base + self.shift + self.correction(weights, pose_model is None)
         if examples:
             if example_distance is None:
                 example_distance = self.distances(rotmats, examples=True, vec=vec)
@@ -296,8 +298,8 @@ class TaylorGarment:
         clearance (at most ``cfg.margin``) moves out to it."""
         n = rotate(rot, self.bound_normal)
         n = n / n.norm(dim=-1, keepdim=True).clamp_min(1e-9)
-        h = ((x - body_v[:, self.bound]) * n).sum(-1)
-        return x + (self.clearance - h).clamp_min(0.0)[..., None] * n
+        h = torch.linalg.vecdot(x - body_v.index_select(1, self.bound), n)  # (index_select: a faster gather)
+        return x.addcmul((self.clearance - h).clamp_min(0.0)[..., None], n)
 
     def damped_distances(self, rotmats: torch.Tensor, examples: bool = False) -> torch.Tensor:
         """(T, G, A) distances of a motion (to the pose examples: (T, G, E)), each frame's blended

@@ -51,7 +51,7 @@ from recon.garment.data import posed_bodies
 from recon.garment.pbns.model import PBNS, pose_features, trained_outfit, widened
 from recon.garment.resize import Transfer
 from recon.garment.taylor.config import SHAPE_BOX, PoseFitConfig, TaylorBuildConfig
-from recon.garment.taylor.data import drape_poses, draping_seconds, fit_only_poses, sample_poses
+from recon.garment.taylor.data import drape_poses, draping_seconds, fit_only_poses, pose_model_drapes, sample_poses
 from recon.garment.taylor.model import (
     TaylorGarment,
     fit_shape_model,
@@ -92,8 +92,10 @@ def fit_pose_model(pbns: PBNS, poses: torch.Tensor, drapes: torch.Tensor, cfg: P
         return model.requires_grad_(False).eval()
     if cfg.method != "adam":
         raise ValueError(f"PoseFitConfig.method: adam or ridge, not {cfg.method!r}")
-    if cfg.hidden:
-        model.mlp = widened(model.mlp, cfg.hidden)
+    if cfg.hidden:  # the new units' initial weights drawn from cfg.seed: a rebuild makes the same model
+        with torch.random.fork_rng(devices=[]):
+            torch.manual_seed(cfg.seed)
+            model.mlp = widened(model.mlp, cfg.hidden)
     model.weight_logits.requires_grad_(False)
     opt = torch.optim.Adam([*model.mlp.parameters(), model.D], lr=cfg.lr)
     g = torch.Generator().manual_seed(cfg.seed)
@@ -189,26 +191,23 @@ def build(cfg: TaylorBuildConfig, out: Path | None = None, log=print, progress: 
     t_drape = time.time()
     drapes = drape_poses(cfg, anchors, shapes, progress)
     t_drape = time.time() - t_drape
-    first = [torch.from_numpy(d["unposed"][0]).float() for d in drapes]  # on the pose model's body
+    first = torch.stack([torch.from_numpy(d["unposed"][0]).float() for d in drapes])  # on the pose model's body
     examples = anchors
     if cfg.pose_examples:
         extra = train[torch.from_numpy(cluster_anchors(train, joint_w, cfg.pose_examples, cfg.seed))]
         log(f"{len(extra)} pose examples on the pose model's body")
         t = time.time()
-        first += [torch.from_numpy(d["unposed"][0]).float()
-                  for d in drape_poses(cfg, extra, torch.zeros(0, len(shape0)), progress, desc="pose examples")]
+        first = torch.cat([first, pose_model_drapes(cfg, extra, len(shape0), progress, "pose examples")])
         t_drape += time.time() - t
         examples = torch.cat([anchors, extra])
-    first = torch.stack(first)
     fit_poses, fit_drapes = examples, first
     if cfg.pose_fit.poses and cfg.pose_fit.trains:
         more = fit_only_poses(train, examples, cfg.pose_fit.poses, cfg.seed)
         log(f"{len(more)} more poses on the pose model's body for its fit")
         t = time.time()
-        more_drapes = [torch.from_numpy(d["unposed"][0]).float()
-                       for d in drape_poses(cfg, more, torch.zeros(0, len(shape0)), progress, desc="fit poses")]
+        more_drapes = pose_model_drapes(cfg, more, len(shape0), progress, "fit poses")
         t_drape += time.time() - t
-        fit_poses, fit_drapes = torch.cat([examples, more]), torch.cat([first, torch.stack(more_drapes)])
+        fit_poses, fit_drapes = torch.cat([examples, more]), torch.cat([first, more_drapes])
     t = time.time()
     pose_model = fit_pose_model(pbns, fit_poses, fit_drapes, cfg.pose_fit) if cfg.pose_fit.trains else pbns
     with torch.no_grad():  # the pose model's miss at each example (unposed)
