@@ -1,7 +1,8 @@
 """The Taylor model's pose model, chosen on val poses on PBNS's body.
 
-    .venv/bin/python eval/taylor_pose_choice.py [--outfit tshirt-skirt] [--poses 48] [--fit-poses 0 512 1024]
-        [--hidden 0 256 512]   (from the repository root; the defaults are the committed table's)
+    .venv/bin/python eval/taylor_pose_choice.py [--outfit tshirt-skirt] [--poses 48] [--fit-poses 512 1024]
+        [--hidden 256 512]   (from the repository root; the defaults are the committed table's; 0.22.0's
+        grid also had the examples alone and PBNS's width: --fit-poses 0 512 --hidden 0 256 512)
 
 The database's examples (its anchors' first drapes and its pose examples, all on PBNS's body),
 with or without more train poses draped there for the fit alone (``taylor.data.fit_only_poses``),
@@ -53,9 +54,9 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--outfit", default="tshirt-skirt")
     ap.add_argument("--poses", type=int, default=48)
-    ap.add_argument("--fit-poses", type=int, nargs="+", default=[0, 512, 1024],
+    ap.add_argument("--fit-poses", type=int, nargs="+", default=[512, 1024],
                     help="train poses draped for the fit alone, besides the database's examples (one run each)")
-    ap.add_argument("--hidden", type=int, nargs="+", default=[0, 256, 512],
+    ap.add_argument("--hidden", type=int, nargs="+", default=[256, 512],
                     help="units per hidden layer of the fitted network (0: PBNS's; one run each)")
     ap.add_argument("--learning-rates", type=float, nargs="+", default=list(LEARNING_RATES))
     ap.add_argument("--steps", type=int, nargs="+", default=list(STEPS))
