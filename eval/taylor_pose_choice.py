@@ -42,10 +42,10 @@ TIE_MM = 0.05  # rows this close to the least error count as ties
 @torch.no_grad()
 def errors(taylor: TaylorGarment, rot: torch.Tensor, transforms: torch.Tensor, gt: torch.Tensor) -> dict:
     """Mean vertex error (mm) of the pose model alone and with the examples' corrections."""
-    taylor.correct_pose = False
-    alone = taylor.pose(rot, transforms)
-    taylor.correct_pose = True
-    corrected = taylor.pose(rot, transforms)
+    with taylor.corrections(False):
+        alone = taylor.pose(rot, transforms)
+    with taylor.corrections(True):
+        corrected = taylor.pose(rot, transforms)
     mm = lambda x: float((x - gt).norm(dim=-1).mean()) * 1000  # noqa: E731
     return {"alone_mm": mm(alone), "corrected_mm": mm(corrected)}
 

@@ -19,7 +19,7 @@ from recon.garment.gltf import write_glb
 from recon.garment.pbns.model import PBNS, PBNSConfig, initial_weights, pose_features
 from recon.garment.resize import Transfer
 from recon.garment.taylor.config import PoseFitConfig
-from recon.garment.taylor.data import fit_only_poses, unposed
+from recon.garment.taylor.data import fit_only_poses, pose_key, unposed
 from recon.garment.taylor.model import (
     BlendConfig,
     TaylorGarment,
@@ -168,9 +168,8 @@ def test_fit_only_poses_are_train_poses_that_are_not_examples_and_grow_by_prefix
     examples = train[[1, 5, 7, 20]]
     more = fit_only_poses(train, examples, 12, seed=4)
     assert more.shape == (12, 24, 3, 3)
-    key = lambda r: r.numpy().round(5).tobytes()  # noqa: E731
-    taken, drawn = {key(e) for e in examples}, [key(r) for r in more]
-    assert len(set(drawn)) == 12 and not taken & set(drawn) and set(drawn) <= {key(r) for r in train}
+    taken, drawn = {pose_key(e) for e in examples}, [pose_key(r) for r in more]
+    assert len(set(drawn)) == 12 and not taken & set(drawn) and set(drawn) <= {pose_key(r) for r in train}
     assert torch.equal(fit_only_poses(train, examples, 30, seed=4)[:12], more)  # a larger draw begins the same
     with pytest.raises(ValueError, match="36 train poses"):
         fit_only_poses(train, examples, 37)
