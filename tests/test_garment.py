@@ -53,6 +53,21 @@ def test_cut_is_exact_and_connected():
     assert set(np.unique(tri_count)) <= {1, 2}
 
 
+@pytest.mark.parametrize("batch", [1, 3])
+def test_take_is_advanced_indexing_with_its_gradient(batch):
+    """``mesh.take(v, idx)`` equals ``v[:, idx]`` (B, *idx.shape, C) in value and gradient, for a
+    single sample (its 2-D path) and a batch; float64, so the gradients agree to rounding."""
+    g = torch.Generator().manual_seed(0)
+    v = torch.randn(batch, 7, 3, generator=g, dtype=torch.float64, requires_grad=True)
+    idx = torch.randint(0, 7, (5, 2), generator=g)
+    out = mesh.take(v, idx)
+    assert out.shape == (batch, 5, 2, 3) and torch.equal(out, v[:, idx])
+    w = torch.randn(out.shape, generator=g, dtype=torch.float64)
+    got, = torch.autograd.grad((out * w).sum(), v)
+    want, = torch.autograd.grad((v[:, idx] * w).sum(), v)
+    assert torch.allclose(got, want, atol=1e-12)
+
+
 def test_remove_yaw_keeps_tilt():
 
     tilt = roma.rotvec_to_rotmat(torch.tensor([0.3, 0.0, 0.0]))

@@ -336,6 +336,27 @@ def test_minimise_solves_a_quadratic_and_stops():
     assert (u.reshape(-1)[free] - expected[free]).abs().max() < 1e-3 * expected.abs().max()
 
 
+def test_minimise_takes_the_gradient_at_accepted_steps_only():
+    """A line-search trial that is rejected costs the energy alone: on an energy whose full steps
+    overshoot (a stiff quartic the preconditioner does not know), the gradient is taken once at the
+    start and once per iteration, fewer times than the energy is evaluated."""
+    o, rest, crit, inertia, _ = _strip_energies()
+    pre = Preconditioner(crit, inertia, o.pinned).at(rest)
+    free = torch.from_numpy(~o.pinned).double()[:, None]
+    calls = {"energy": 0, "gradient": 0}
+
+    def energy(u):
+        calls["energy"] += 1
+        f = 1e4 * ((u * free - 0.01) ** 4).sum() + (u * free).sum()
+        f.register_hook(lambda g: calls.__setitem__("gradient", calls["gradient"] + 1))
+        return f
+
+    cfg = IntegrateConfig(iterations=10, step_tol=0.0)
+    minimise(energy, torch.zeros(len(rest), 3, dtype=torch.float64), pre, cfg)
+    assert calls["gradient"] == cfg.iterations + 1
+    assert calls["energy"] > calls["gradient"]
+
+
 def test_integration_keeps_momentum_damps_relative_motion_and_settles_under_gravity():
     """No force but inertia: cloth carried at a constant velocity stays with the carrier, and cloth
     at rest stays. Under gravity a held strip settles where the energies' forces balance."""

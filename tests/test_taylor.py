@@ -37,7 +37,7 @@ from recon.garment.taylor.train import (
     region_sensitivity,
     sensitivity,
 )
-from recon.garment.templates import GarmentSpec, RestBody, make_outfit
+from recon.garment.templates import PRESETS, GarmentSpec, RestBody, make_outfit
 
 
 @pytest.fixture(scope="module")
@@ -442,6 +442,27 @@ def test_dresser_continues_a_taylor_pose_with_the_drape_solver_in_the_gravity_fr
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("outfit", [o for o in PRESETS if o != "tshirt-skirt"])
+def test_build_makes_a_database_for_every_preset(outfit, tmp_path, monkeypatch, body):
+    """The one build command works for each preset (layers, pins, sizes of their own; tshirt-skirt
+    is the test below): a toy database that loads and poses every vertex of its outfit."""
+    from recon.garment.taylor.config import TaylorBuildConfig
+    from recon.garment.taylor.train import build
+
+    monkeypatch.setenv("RECON_CACHE_DIR", str(tmp_path / "cache"))
+    cfg = TaylorBuildConfig(outfit=outfit, anchors=2, shapes=2, pose_examples=2, components=2, sensitivity_poses=1,
+                            workers=1, drape=DrapeSolverConfig(rounds=1, iterations=2),
+                            pose_fit=PoseFitConfig(steps=3, batch=4, poses=2, hidden=64))
+    out = build(cfg, tmp_path / "taylor.pt", log=lambda *_: None, progress=False)
+    pbns, ck = PBNS.load(store.pbns_path(outfit))
+    model, _ = TaylorGarment.load(out, pbns)
+    rot = poses(2)
+    _, _, transforms = posed_bodies(body, rot, ck["shape"][None].expand(2, -1))
+    x = model.set_shape(body, ck["shape"]).pose(rot, transforms)
+    assert x.shape == (2, len(pbns.rest), 3) and torch.isfinite(x).all()
+
+
+@pytest.mark.slow
 def test_build_end_to_end_resumes_from_its_kept_drapes(tmp_path, monkeypatch, body):
     """``recon garment train --model taylor``'s build at a toy size: a database that loads and poses,
     its drapes kept per pose, and a rerun after a lost drape makes only that one again."""
@@ -473,3 +494,20 @@ def test_build_end_to_end_resumes_from_its_kept_drapes(tmp_path, monkeypatch, bo
     x = first.set_shape(body, shape).pose(rot, transforms)
     assert x.shape == (2, len(pbns.rest), 3) and torch.isfinite(x).all()
     torch.testing.assert_close(again.set_shape(body, shape).pose(rot, transforms), x)
+
+
+def test_an_evaluation_keeps_the_tables_of_outfits_it_did_not_evaluate(tmp_path, monkeypatch):
+    """``recon garment eval --model taylor --outfit B`` adds B's table beside A's from an earlier
+    run (and replaces B's own), the newton comparison of A kept too."""
+    from recon.garment.taylor import eval as taylor_eval
+
+    a, b = "tshirt-skirt", "top-shorts"
+    (tmp_path / "garment-taylor.json").write_text(json.dumps(
+        {"outfits": {a: {"run": 1}, b: {"run": 1}}, "speed": {}, "newton": {a: [{"pose": 0}]}}))
+    monkeypatch.setattr(taylor_eval, "evaluate", lambda o, *args, **kw: {"run": 2})
+    monkeypatch.setattr(taylor_eval, "speed", lambda *args, **kw: {"timed": True})
+    monkeypatch.setattr(taylor_eval, "render", lambda data: json.dumps(data))
+    taylor_eval.evaluate_and_report([b], out_dir=tmp_path, newton=False)
+    data = json.loads((tmp_path / "garment-taylor.json").read_text())
+    assert data["outfits"] == {a: {"run": 1}, b: {"run": 2}} and data["newton"] == {a: [{"pose": 0}]}
+    assert data["speed"] == {b: {"timed": True}}

@@ -27,7 +27,7 @@ def add_garment(p: Parser) -> None:
     help_outfit = ("preset names, 'all', or your own garment meshes (.obj, .ply, .glb, ...: body frame, metres, "
                    "+Y up; trained into ~/.cache/recon/garments)")
     help_model = ("pbns: quasi-static (ch. 5); ncs: dynamic (ch. 6), trained from the outfit's PBNS; taylor: the "
-                  "example-based model's database (drapes on many bodies at anchor poses; ~1.5 h on 2 cores); "
+                  "example-based model's database (drapes on many bodies at anchor poses; about an hour on 2 cores); "
                   "author: keyframe authoring (simulations with random fabrics, then the intrinsic-space networks; "
                   "~1.5 h); "
                   "deepsd: one model for any outfit (drapes of generated outfits, then the network; --outfit "

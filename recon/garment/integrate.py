@@ -109,14 +109,18 @@ class Preconditioner:
 
 def minimise(energy, u: torch.Tensor, precond: Preconditioner, cfg: IntegrateConfig) -> torch.Tensor:
     """L-BFGS from ``u`` (n, 3) on ``energy(u) -> scalar`` with the initial inverse Hessian
-    ``precond.solve``; Armijo backtracking from the full step."""
-    def fg(x):
+    ``precond.solve``; Armijo backtracking from the full step. A trial step the line search
+    rejects costs the energy alone: the gradient is taken at accepted steps only."""
+    def f_of(x):
         x = x.detach().requires_grad_(True)
-        f = energy(x)
-        g, = torch.autograd.grad(f, x)
-        return f.detach(), g
+        return energy(x), x
 
-    f, g = fg(u)
+    def grad(f, x):
+        g, = torch.autograd.grad(f, x)
+        return g
+
+    f, x = f_of(u)
+    g, f = grad(f, x), f.detach()
     s_hist: list[torch.Tensor] = []
     y_hist: list[torch.Tensor] = []
     for _ in range(cfg.iterations):
@@ -137,10 +141,11 @@ def minimise(energy, u: torch.Tensor, precond: Preconditioner, cfg: IntegrateCon
         t = 1.0
         while True:
             un = u + t * d
-            fn, gn = fg(un)
+            fn, xn = f_of(un)
             if fn <= f + 1e-4 * t * slope or t < 1e-4:
                 break
             t *= 0.5
+        gn, fn = grad(fn, xn), fn.detach()
         s, y = un - u, gn - g
         if (s * y).sum() > 1e-12:
             s_hist.append(s)

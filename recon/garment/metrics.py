@@ -37,7 +37,7 @@ def collision_pct(v: torch.Tensor, body_v: torch.Tensor, body_n: torch.Tensor,
 def strain(v: torch.Tensor, edges: torch.Tensor, rest_len: torch.Tensor) -> torch.Tensor:
     """Signed edge-length error (B, E), metres: posed lengths of ``edges`` minus ``rest_len``
     ((E,) or one rest garment per sample (B, E))."""
-    return (v[:, edges[:, 0]] - v[:, edges[:, 1]]).norm(dim=-1) - rest_len
+    return (mesh.take(v, edges[:, 0]) - mesh.take(v, edges[:, 1])).norm(dim=-1) - rest_len
 
 
 def bending(v: torch.Tensor, faces: torch.Tensor, adjacency: torch.Tensor, weights: torch.Tensor | None = None
@@ -45,7 +45,7 @@ def bending(v: torch.Tensor, faces: torch.Tensor, adjacency: torch.Tensor, weigh
     """(B,) mean over adjacent face pairs (A, 2) of ||n_i - n_j||^2 (optionally weighted): 0 for a
     flat sheet, crumpling otherwise."""
     n = mesh.face_normals(v, faces)
-    d = ((n[:, adjacency[:, 0]] - n[:, adjacency[:, 1]]) ** 2).sum(-1)
+    d = ((mesh.take(n, adjacency[:, 0]) - mesh.take(n, adjacency[:, 1])) ** 2).sum(-1)
     return (d if weights is None else weights * d).mean(1)
 
 

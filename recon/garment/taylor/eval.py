@@ -343,17 +343,21 @@ def render(data: dict) -> str:
 def evaluate_and_report(outfits: list[str], poses: int = 20, workers: int = 2, out_dir: Path = report.RESULTS,
                         speed_outfits: list[str] | None = None, newton: bool = True, log=print) -> Path:
     """The table of ``outfits`` (their databases must be built), the speed of ``speed_outfits`` and,
-    with ``newton`` (the ``sim`` extra; minutes a pose), the drape solver against newton's."""
+    with ``newton`` (the ``sim`` extra; minutes a pose), the drape solver against newton's. The
+    tables of outfits evaluated before and not now stay (an outfit's database built later adds its
+    table to the others')."""
     body = default_body()
-    data = {"outfits": {o: evaluate(o, poses, workers, log=log) for o in outfits}, "speed": {}}
+    previous = Path(out_dir) / "garment-taylor.json"
+    before = json.loads(previous.read_text()) if previous.exists() else {}
+    evaluated = {o: evaluate(o, poses, workers, log=log) for o in outfits}
+    data = {"outfits": {**{o: r for o, r in before.get("outfits", {}).items() if o not in evaluated}, **evaluated},
+            "speed": {}}
+    compared = {}  # the comparison does not depend on the database: a previous run's stays
     if newton and reference.available():
         rot = test_poses(poses)
-        data["newton"] = {o: newton_comparison(o, {i: rot[i] for i in NEWTON_POSES}, workers) for o in outfits}
-    else:  # the comparison does not depend on the database: a previous run's stays
-        previous = Path(out_dir) / "garment-taylor.json"
-        kept = json.loads(previous.read_text()).get("newton", {}) if previous.exists() else {}
-        if kept:
-            data["newton"] = kept
+        compared = {o: newton_comparison(o, {i: rot[i] for i in NEWTON_POSES}, workers) for o in outfits}
+    if before.get("newton") or compared:
+        data["newton"] = {**before.get("newton", {}), **compared}
     for o in speed_outfits or outfits:
         p = store.taylor_path(o)
         pbns, _ = PBNS.load(store.pbns_path(o))
