@@ -665,8 +665,9 @@ def test_training_writes_a_model_whose_new_rows_move_the_hanging_part(body, tmp_
     """``train`` on the shipped tshirt-skirt with a tiny budget: chunks integrated in two worker
     processes, kept for a rerun; the saved model decodes PBNS's D on PBNS's rows, its new rows
     move the skirt's free vertices and nothing else (the physics steps train them, there only),
-    and the fitting (with the contact term on) beat coding nothing on the val chunks; the physics
-    steps score the static poses and the free windows."""
+    and the checkpoint the fitting keeps (with the contact term on; its best on the val chunks: a
+    tiny model on two chunks over-fits, so where its last step lands depends on the CPU's last bits)
+    beats coding nothing there; the physics steps score the static poses and the free windows."""
     cfg = NCSTrainConfig(chunk=12, settle=2, lead=2, chunks=2, val_chunks=1, integrate=IntegrateConfig(iterations=3),
                          steps=24, model=ncs.NCSConfig(hidden=32, joint_features=8, dynamic=4),
                          contact_weight=100.0, physics_steps=8, static_poses=8, static_batch=2, free_windows=1,
@@ -682,7 +683,8 @@ def test_training_writes_a_model_whose_new_rows_move_the_hanging_part(body, tmp_
     assert not moved[~hanging].any() and moved[hanging & ~held].all()  # held (pinned) vertices follow skinning
     assert meta["field_change_mm"] > 0  # the physics steps trained the fields, on the hanging part only
     last = meta["curve"][-1]
-    assert last["val_teacher_mm"] < last["val_zero_mm"] and 0 <= last["val_contact_pct"] <= 100
+    assert meta["best"] == min(c["val_teacher_mm"] for c in meta["curve"])
+    assert meta["best"] < last["val_zero_mm"] and 0 <= last["val_contact_pct"] <= 100
     physics = meta["physics_curve"][-1]
     assert 0 <= physics["val_static_collision_pct"] <= 100 and 0 <= physics["free_collision_pct"] <= 100
     assert not (tmp_path / ".n.run").exists()
