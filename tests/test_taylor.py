@@ -18,7 +18,8 @@ from recon.garment.dress import Dresser
 from recon.garment.gltf import write_glb
 from recon.garment.pbns.model import PBNS, PBNSConfig, initial_weights, pose_features
 from recon.garment.resize import Transfer
-from recon.garment.taylor.config import PoseFitConfig
+from recon.garment.taylor import eval as taylor_eval
+from recon.garment.taylor.config import PoseFitConfig, TaylorBuildConfig
 from recon.garment.taylor.data import fit_only_poses, pose_key, unposed
 from recon.garment.taylor.model import (
     BlendConfig,
@@ -30,10 +31,12 @@ from recon.garment.taylor.model import (
     shape_features,
 )
 from recon.garment.taylor.train import (
+    build,
     cluster_anchors,
     database_shapes,
     fit_pose_model,
     perturbed,
+    read_meta,
     region_sensitivity,
     sensitivity,
 )
@@ -446,9 +449,6 @@ def test_dresser_continues_a_taylor_pose_with_the_drape_solver_in_the_gravity_fr
 def test_build_makes_a_database_for_every_preset(outfit, tmp_path, monkeypatch, body):
     """The one build command works for each preset (layers, pins, sizes of their own; tshirt-skirt
     is the test below): a toy database that loads and poses every vertex of its outfit."""
-    from recon.garment.taylor.config import TaylorBuildConfig
-    from recon.garment.taylor.train import build
-
     monkeypatch.setenv("RECON_CACHE_DIR", str(tmp_path / "cache"))
     cfg = TaylorBuildConfig(outfit=outfit, anchors=2, shapes=2, pose_examples=2, components=2, sensitivity_poses=1,
                             workers=1, drape=DrapeSolverConfig(rounds=1, iterations=2),
@@ -466,9 +466,6 @@ def test_build_makes_a_database_for_every_preset(outfit, tmp_path, monkeypatch, 
 def test_build_end_to_end_resumes_from_its_kept_drapes(tmp_path, monkeypatch, body):
     """``recon garment train --model taylor``'s build at a toy size: a database that loads and poses,
     its drapes kept per pose, and a rerun after a lost drape makes only that one again."""
-    from recon.garment.taylor.config import TaylorBuildConfig
-    from recon.garment.taylor.train import build, read_meta
-
     monkeypatch.setenv("RECON_CACHE_DIR", str(tmp_path / "cache"))
     cfg = TaylorBuildConfig(anchors=2, shapes=2, pose_examples=2, components=2, sensitivity_poses=1, workers=1,
                             drape=DrapeSolverConfig(rounds=1, iterations=2),
@@ -499,8 +496,6 @@ def test_build_end_to_end_resumes_from_its_kept_drapes(tmp_path, monkeypatch, bo
 def test_an_evaluation_keeps_the_tables_of_outfits_it_did_not_evaluate(tmp_path, monkeypatch):
     """``recon garment eval --model taylor --outfit B`` adds B's table beside A's from an earlier
     run (and replaces B's own), the newton comparison of A kept too."""
-    from recon.garment.taylor import eval as taylor_eval
-
     a, b = "tshirt-skirt", "top-shorts"
     (tmp_path / "garment-taylor.json").write_text(json.dumps(
         {"outfits": {a: {"run": 1}, b: {"run": 1}}, "speed": {}, "newton": {a: [{"pose": 0}]}}))
