@@ -51,49 +51,29 @@ OUT = Path(__file__).resolve().parent.parent / "eval" / "results"
 CLIP, CLIP_START = "03_03", 975  # a test performer's turn (one of NCS's simulated clips)
 
 
+class _Precomputed(torch.autograd.Function):
+    """``f`` whose gradient with respect to ``x`` is the given ``g`` (no graph behind it)."""
+
+    @staticmethod
+    def forward(ctx, x, f, g):
+        ctx.save_for_backward(g)
+        return f.clone()
+
+    @staticmethod
+    def backward(ctx, out):
+        g, = ctx.saved_tensors
+        return out * g, None, None
+
+
 def minimise_gradient_every_trial(energy, u, precond, cfg):
-    """``integrate.minimise`` as it was before 0.24.0: the gradient taken at every line-search trial."""
-    def fg(x):
-        x = x.detach().requires_grad_(True)
+    """``integrate.minimise`` as it was before 0.24.0: the energy's gradient taken at every
+    line-search trial (here with the energy, so the minimiser's own gradient costs nothing)."""
+    def eager(x):
         f = energy(x)
         g, = torch.autograd.grad(f, x)
-        return f.detach(), g
+        return _Precomputed.apply(x, f.detach(), g)
 
-    f, g = fg(u)
-    s_hist, y_hist = [], []
-    for _ in range(cfg.iterations):
-        q, alphas = g.clone(), []
-        for s, y in zip(reversed(s_hist), reversed(y_hist)):
-            a = (s * q).sum() / (y * s).sum()
-            q -= a * y
-            alphas.append(a)
-        r = precond.solve(q)
-        for (s, y), a in zip(zip(s_hist, y_hist), reversed(alphas)):
-            r += s * (a - (y * r).sum() / (y * s).sum())
-        d = -r
-        slope = (g * d).sum()
-        if slope >= 0:
-            s_hist, y_hist = [], []
-            d = -precond.solve(g)
-            slope = (g * d).sum()
-        t = 1.0
-        while True:
-            un = u + t * d
-            fn, gn = fg(un)
-            if fn <= f + 1e-4 * t * slope or t < 1e-4:
-                break
-            t *= 0.5
-        s, y = un - u, gn - g
-        if (s * y).sum() > 1e-12:
-            s_hist.append(s)
-            y_hist.append(y)
-            if len(s_hist) > cfg.history:
-                s_hist.pop(0)
-                y_hist.pop(0)
-        u, f, g = un, fn, gn
-        if s.abs().max() < cfg.step_tol:
-            break
-    return u.detach()
+    return minimise(eager, u, precond, cfg)
 
 
 def face_normals_indexed(v: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
