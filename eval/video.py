@@ -37,6 +37,7 @@ from the file when it was made on the same clips.
 from __future__ import annotations
 
 import argparse
+import json
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -51,6 +52,7 @@ from recon.body import default_body, skeleton
 from recon.pipeline import Reconstructor, ReconstructorConfig
 from recon.synth.video import SIZE, VIDEO_BENCHMARKS, VIDEO_GENERATOR, ClipRenderer, ClipTruth, write_clip
 from recon.video import smooth
+from recon.video.camera_motion import turned_degrees
 from recon.video.frames import FrameSource
 from recon.video.run import VideoOptions, video
 
@@ -91,10 +93,10 @@ def predict_per_frame(path: Path, truth: ClipTruth, rec: Reconstructor) -> list[
 
 def predict_video(path: Path, truth: ClipTruth, smoothing: smooth.SmoothConfig, work: Path, body,
                   force: bool = True, static_camera: bool = False, keypoint_model: str | None = None
-                  ) -> list[list[tuple]]:
+                  ) -> tuple[list[list[tuple]], dict]:
     """``recon video``'s people per frame [(track id, joints, vertices in the frame's camera, joints
-    in the track's world frame)], with the track optimisation ``smoothing``; without ``force`` the
-    per-frame detections stored in ``work`` are read back."""
+    in the track's world frame)], with the track optimisation ``smoothing``, and what video.json says
+    of the camera; without ``force`` the per-frame detections stored in ``work`` are read back."""
     people = truth.joints.shape[0]
     cfg = ReconstructorConfig(focal_factor=float(truth.K[0, 0]) / max(SIZE))
     cfg = cfg if keypoint_model is None else replace(cfg, keypoint_model=keypoint_model)
@@ -102,6 +104,8 @@ def predict_video(path: Path, truth: ClipTruth, smoothing: smooth.SmoothConfig, 
     (work / "video.json").unlink(missing_ok=True)  # a finished folder would be left as it is, with no tracks
     res = video(path, work, opts, cfg, progress=False, log=lambda m: None)
     out: list[list[tuple]] = [[] for _ in range(len(res.frames.index))]
+    summary = json.loads((work / "video.json").read_text())
+    cam = {k: summary.get(k) for k in ("static_camera", "camera_turned_degrees", "camera_turn_measured")}
     for m in res.tracks:
         with torch.no_grad():
             o = body(torch.tensor(m.rotmats, dtype=torch.float32),
@@ -110,7 +114,12 @@ def predict_video(path: Path, truth: ClipTruth, smoothing: smooth.SmoothConfig, 
         j, v = o.joints.numpy().astype(np.float64), o.vertices.numpy().astype(np.float64)
         for f in range(len(m.rotmats)):
             out[m.first + f].append((m.id, m.to_camera(j[f], f), m.to_camera(v[f], f), j[f]))
-    return out
+    return out, cam
+
+
+def true_turn(truth: ClipTruth) -> float:
+    """The largest angle (degrees) between the clip's first camera and any later one's."""
+    return turned_degrees(np.einsum("fij,kj->fik", truth.R, truth.R[0]))
 
 
 def match(truth: ClipTruth, pred: list[list[tuple]]) -> np.ndarray:
@@ -267,7 +276,19 @@ def markdown(bench: str, rows: dict, data: dict, machine: dict) -> str:
         "World-grounded (each track's world frame against the scene's; the per-frame row has only the camera's; "
         f"chunks of 100 frames; RTE on runs of at least {RTE_MIN_PATH:g} m walked):", "",
         report.table(world, world_head, ["", ".1f", ".1f", ".1f", "", ".2f", "", ".1f", ""]), "",
+        *camera_table(rows.get("video", {}).get("cameras")),
         f"Machine: {report.describe(machine)}.", ""])
+
+
+def camera_table(cameras: dict | None) -> list[str]:
+    """The camera's turn per clip as `recon video` measured it (video.json) against the truth."""
+    if not cameras:
+        return []
+    body = [[name, c["true_turn_degrees"], c["camera_turned_degrees"], f"{100 * c['camera_turn_measured']:.0f} %",
+             "still" if c["static_camera"] else "taken out"] for name, c in cameras.items()]
+    head = ["clip", "true turn (deg)", "measured turn (deg)", "frames measured", "recon video"]
+    return ["The camera's turn per clip (`recon video`; no measured turn: too little of the turn measured, taken "
+            "as still):", "", report.table(body, head, ["", ".2f", ".2f", "", ""]), ""]
 
 
 def main() -> None:
@@ -285,7 +306,7 @@ def main() -> None:
     methods = args.methods.split(",") if args.methods else [
         m for m in METHODS if ("moving" in args.bench or m != "video-static") and m not in ON_REQUEST]
     for method in methods:
-        sums = new_sums()
+        sums, cameras = new_sums(), {}
         seconds, frames = 0.0, 0
         rec = None
         for name, path, truth in tqdm(data, desc=method):
@@ -297,13 +318,14 @@ def main() -> None:
             else:
                 steps = 0 if method == "video-raw" else smooth.SmoothConfig.steps
                 model = method.removeprefix("video-") if method in ON_REQUEST else None
-                pred = predict_video(path, truth, smooth.SmoothConfig(steps=steps), work / (name + (model or "")),
-                                     body, force=method != "video-static", static_camera=method == "video-static",
-                                     keypoint_model=model)
+                pred, cam = predict_video(path, truth, smooth.SmoothConfig(steps=steps), work / (name + (model or "")),
+                                          body, force=method != "video-static", static_camera=method == "video-static",
+                                          keypoint_model=model)
+                cameras[name] = cam | {"true_turn_degrees": true_turn(truth)}
             seconds += time.perf_counter() - t0
             frames += truth.visible.shape[1]
             score(truth, pred, sums, name)
-        rows[method] = summarise(sums, seconds, frames)
+        rows[method] = summarise(sums, seconds, frames) | ({"cameras": cameras} if cameras else {})
         print(method, {k: (round(v, 2) if isinstance(v, float) else v) for k, v in rows[method].items()})
     info = {"clips": len(data), "frames": int(sum(t.visible.shape[1] for _, _, t in data))}
     out = Path(args.out) if args.out else report.RESULTS / args.bench

@@ -152,7 +152,8 @@ def test_a_turning_camera_is_taken_out_of_the_people_s_motion(body, pan_clip, tm
         res = video(src, out, opts, reconstructor=rec, progress=False, log=lambda m: None)
         summary = json.loads((out / "video.json").read_text())
         assert summary["camera_turned_degrees"] == pytest.approx(turn, abs=1.0)
-        assert summary["static_camera"] is static
+        assert summary["static_camera"] is static and summary["camera_turn_measured"] > 0.9
+        assert ("--static-camera" in summary["camera"]) is static and summary["camera"].startswith("turned")
         m = res.tracks[0]
         with torch.no_grad():
             j = body(torch.tensor(m.rotmats, dtype=torch.float32), torch.tensor(m.shape[None], dtype=torch.float32),
@@ -173,6 +174,49 @@ def test_a_turning_camera_is_taken_out_of_the_people_s_motion(body, pan_clip, tm
     err = {s: float(metrics.root_trajectory_error(torch.tensor(runs[s][1][:, 0]), true_path)) for s in runs}
     assert err[False] < 0.1 and err[True] > 2 * err[False], err
     assert "world_to_camera_per_frame" not in runs[True][2]["camera"]
+
+
+def _filled_portrait(truth, crop=(195, 435)):
+    """A still portrait clip whose person fills the frame (issue 87's shape): a textured wall, the
+    truth's person as a block of moving texture over its box, an arm swinging beyond the box's grown
+    edge, fresh sensor noise; and the truth seen through the crop. (frames, truth)"""
+    rng = np.random.default_rng(0)
+    wall = cv2.GaussianBlur(rng.random((480, 640)).astype(np.float32), (0, 0), 3)
+    wall = cv2.normalize(wall, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)[..., None].repeat(3, 2)
+    k = truth.K.copy()
+    k[0, 2] -= crop[0]
+    frames = []
+    for f in range(truth.points.shape[1]):
+        img = wall[:, crop[0]:crop[1]].copy()
+        uv = camera.project(truth.points[0, f], k)
+        (x0, y0), (x1, y1) = np.maximum(uv.min(0), 0).astype(int), np.minimum(uv.max(0), img.shape[1::-1]).astype(int)
+        img[y0:y1, x0:x1] = np.roll(wall[y0:y1, x0:x1], 7 * f, axis=1) // 2 + 60
+        x = int(x1 + 0.1 * max(x1 - x0, y1 - y0)) + 1
+        y = int(y0 + 0.4 * (y1 - y0) + 30 * np.sin(f / 3))
+        img[y:y + 40, x:x + 8] = wall[2 * f:2 * f + 40, 100:108][:, :max(0, img.shape[1] - x)] // 3 + 120
+        frames.append(np.clip(img + rng.normal(0, 2.0, img.shape), 0, 255).astype(np.uint8))
+    return frames, replace(truth, K=k)
+
+
+def test_a_still_camera_filled_by_its_person_keeps_the_static_camera_s_motion(body, tmp_path):
+    """A few noisy columns of background are not a camera turn: video.json says still (and how much
+    of the turn was measured), and the motion is the one ``--static-camera`` gives."""
+    spec = ClipSpec("test-close", (Actor("14_12", 150),), FRAMES, seed=7, distance=1.7, yaw=0.0)
+    frames, truth = _filled_portrait(ClipRenderer(body).render(spec)[1])
+    src = _folder(frames, tmp_path / "frames")
+    runs = {}
+    for static in (False, True):
+        rec = TruthReconstructor(body, truth)
+        rec.config = replace(rec.config, focal_factor=float(truth.K[0, 0]) / 480)
+        opts = VideoOptions(batch=10, overlay=False, static_camera=static, smooth=SmoothConfig(steps=60))
+        res = video(src, tmp_path / f"out-{static}", opts, reconstructor=rec, progress=False, log=lambda m: None)
+        runs[static] = (res.tracks[0], json.loads((tmp_path / f"out-{static}" / "video.json").read_text()))
+    (m, summary), (still, _) = runs[False], runs[True]
+    assert summary["static_camera"] and 0.0 <= summary["camera_turn_measured"] <= 1.0
+    assert summary["camera_turned_degrees"] is None or summary["camera_turned_degrees"] < 1.0
+    assert summary["camera"].startswith(("still", "taken as still"))
+    assert np.abs(m.translation - still.translation).max() < 0.005  # metres
+    assert np.abs(m.rotmats - still.rotmats).max() < 0.01
 
 
 def test_a_killed_run_continues_from_its_last_finished_batch(body, clip, tmp_path):

@@ -33,7 +33,8 @@ def add_video(p: Parser) -> None:
     p.add_argument("--static-camera", action="store_true",
                    help="take the camera as still even where it turned (default: a turn of more than "
                         f"{known('recon.video.camera_motion:MOVING_DEGREES')} degrees, measured on the background, "
-                        "is taken out of the people's motion)")
+                        "is taken out of the people's motion; a turn measured on under "
+                        f"{round(100 * known('recon.video.camera_motion:MIN_MEASURED'))} %% of the frames is not)")
     p.add_argument("--smooth-steps", type=STEPS, default=known("recon.video:SmoothConfig.steps"),
                    help="iterations of the track optimisation (0: the per-frame estimates, gaps interpolated)")
     p.add_argument("--outfit", default=None, help="dress the animated bodies: a trained outfit (presets: "

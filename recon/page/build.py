@@ -156,7 +156,7 @@ def run_page(out: Path, page: Page | None = None, prefix: str = "") -> Page:
 def video_page(out: Path) -> Page:
     v = _json(out / "video.json") or {}
     page = Page("video", f"recon video: {Path(v.get('source', out)).name}", out)
-    page.summary = [[k, v.get(k)] for k in ("frames", "fps", "people_found_in", "frames_per_second",
+    page.summary = [[k, v.get(k)] for k in ("frames", "fps", "people_found_in", "frames_per_second", "camera",
                                              "camera_turned_degrees") if v.get(k) is not None]
     page.summary.append(["tracks", len(v.get("tracks", []))])
     if v.get("skipped"):

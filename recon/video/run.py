@@ -8,7 +8,8 @@ an overlay video of the clip.
 3. Per track (``recon.video.smooth``): one body shape (the median over its frames) and one
    optimisation of the pose and position of every frame; gaps bridged; the ground from the
    planted feet. A camera that turned (``recon.video.camera_motion``, measured on the background
-   during the per-frame pass) is taken out: the motion is in the first frame's camera.
+   during the per-frame pass) is taken out: the motion is in the first frame's camera. A turn that
+   could not be measured on most of the clip (too little background in view) is not taken out.
 4. Outputs (``recon.video.outputs``): ``<out>/track_<id>/`` motion.bvh, animated.glb, motion.json;
    ``<out>/overlay.mp4``; ``<out>/video.json`` last (frames, skipped frames, tracks, timings): it is
    removed before the others are written, so it stands only beside a complete set.
@@ -39,7 +40,7 @@ from recon.page import try_write_page
 from recon.pipeline import Reconstructor, ReconstructorConfig
 from recon.run import check_writable
 from recon.version import __version__
-from recon.video.camera_motion import MOVING_DEGREES, CameraRotations, turned_degrees
+from recon.video.camera_motion import MOVING_DEGREES, CameraRotations, TurnEstimate
 from recon.video.frames import FrameRange, FrameSource
 from recon.video.outputs import OverlayFrames, WorldMotion, write_track
 from recon.video.perframe import Detections, FrameLog, PerFrame, same_work, stamp
@@ -136,11 +137,12 @@ def video(path: str | Path, out: str | Path, options: VideoOptions | None = None
         work.mkdir(parents=True)
         paths.write_text(work / "made_from.json", json.dumps(per_frame_from, indent=1))
     k = camera.default_intrinsics(*src.size, config.focal_factor)
+    fps = _output_fps(src, options.frames)
     seconds, t0 = {}, time.perf_counter()
     rec = reconstructor or video_reconstructor(config, options.max_people)
     bar = tqdm(total=_expected(src), desc="recon video", unit="frame", disable=not progress)
     resumed = []
-    turn = CameraRotations(k)  # how the camera turned, from the frames as the per-frame pass reads them
+    turn = CameraRotations(k, fps)  # how the camera turned, from the frames as the per-frame pass reads them
 
     def on_batch(batch, was_stored, boxes):
         bar.update(len(batch))
@@ -161,14 +163,12 @@ def video(path: str | Path, out: str | Path, options: VideoOptions | None = None
     if resumed:
         log(f"resumed: {sum(resumed)} frames read back from {work}")
     seconds["per_frame"] = time.perf_counter() - t0
-    fps = _output_fps(src, options.frames)
-    rotations = turn.result()[0]
-    turned = turned_degrees(rotations)
-    moving = turned > MOVING_DEGREES and not options.static_camera
-    if turned > MOVING_DEGREES:
-        log(f"the camera turned {turned:.1f} degrees in this clip: " + (
-            "its turn is taken out of the people's motion" if moving else
-            "--static-camera: its turn stays in the people's motion") + " (docs/video.md)")
+    estimate = turn.result()
+    rotations = estimate.rotations
+    moving = estimate.turned and not options.static_camera
+    note = camera_note(estimate, options.static_camera)
+    if estimate.turned or not estimate.known:
+        log(f"camera: {note} (docs/video.md)")
     t0 = time.perf_counter()
     tracks = track(_detections(dets, len(frames.index)), replace(options.tracker, max_people=options.max_people))
     motions = [_world_motion(rec.body, t, dets, k, src.size, options.smooth, rotations if moving else None)
@@ -198,7 +198,9 @@ def video(path: str | Path, out: str | Path, options: VideoOptions | None = None
                     "seen": int(m.seen.sum()), "files": track_files[m.id]} for m in motions],
         "seconds": {k_: round(v, 2) for k_, v in seconds.items()},
         "frames_per_second": round(len(frames.index) / max(sum(seconds.values()), 1e-9), 2),
-        "static_camera": not moving, "camera_turned_degrees": round(turned, 2),
+        "static_camera": not moving, "camera": note,
+        "camera_turned_degrees": round(estimate.degrees, 2) if estimate.known else None,
+        "camera_turn_measured": round(estimate.measured_share, 3),
         "made_from": made_from,
     }
     paths.write_text(out / "video.json", json.dumps(summary, indent=1))
@@ -206,6 +208,18 @@ def video(path: str | Path, out: str | Path, options: VideoOptions | None = None
         try_write_page(out, log, kind="video")
     log(f"{len(frames.index)} frames, {len(motions)} track(s), {summary['frames_per_second']} frames/s -> {out}")
     return VideoResult(out, motions, frames, dets, fps, seconds)
+
+
+def camera_note(estimate: TurnEstimate, static_camera: bool = False) -> str:
+    """What ``recon video`` made of the camera's turn, in words (the log, video.json, the page)."""
+    measured = f"measured on {estimate.measured_share:.0%} of the frames"
+    if not estimate.known:
+        return f"taken as still: its turn was {measured} only (too little background in view)"
+    if not estimate.turned:
+        return f"still (turned {estimate.degrees:.1f} degrees at most, under {MOVING_DEGREES:g}; {measured})"
+    if static_camera:
+        return f"turned {estimate.degrees:.1f} degrees ({measured}); --static-camera: the turn stays in the motion"
+    return f"turned {estimate.degrees:.1f} degrees ({measured}): the turn is taken out of the people's motion"
 
 
 def video_reconstructor(config: ReconstructorConfig, max_people: int) -> Reconstructor:
