@@ -70,12 +70,11 @@ class TurnEstimate:
 
 @dataclass
 class _Key:
-    """A frame the next ones are measured against: its image, background and corners, the last
+    """A frame the next ones are measured against: its image and background corners, the last
     frame linked to it and that frame's rotation from it, the inliers of its first match."""
 
     index: int
     gray: np.ndarray
-    mask: np.ndarray
     corners: np.ndarray | None
     last: int
     last_rotation: np.ndarray
@@ -180,7 +179,7 @@ class CameraRotations:
         return TurnEstimate(np.stack(rotations), points, np.concatenate([[False], ok]))
 
     def _new_key(self, t: int, gray: np.ndarray, mask: np.ndarray) -> _Key:
-        return _Key(t, gray, mask, _corners(gray, mask, self.corners), t, np.eye(3))
+        return _Key(t, gray, _corners(gray, mask, self.corners), t, np.eye(3))
 
     def _spikes(self, rates: np.ndarray, ok: np.ndarray) -> np.ndarray:
         """(S,) measured steps that no real camera makes: away from the median rate of the measured
