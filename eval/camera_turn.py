@@ -78,8 +78,7 @@ def true_boxes(truth: ClipTruth) -> list[np.ndarray]:
 
 def errors(found: TurnEstimate, truth: ClipTruth) -> np.ndarray:
     """(T,) degrees between each frame's found turn and the true one."""
-    true = np.einsum("fij,kj->fik", truth.R, truth.R[0])
-    cos = (np.einsum("fij,fij->f", found.rotations, true) - 1) / 2
+    cos = (np.einsum("fij,fij->f", found.rotations, video_eval.true_turns(truth)) - 1) / 2
     return np.degrees(np.arccos(np.clip(cos, -1, 1)))
 
 

@@ -117,9 +117,14 @@ def predict_video(path: Path, truth: ClipTruth, smoothing: smooth.SmoothConfig, 
     return out, cam
 
 
+def true_turns(truth: ClipTruth) -> np.ndarray:
+    """(F, 3, 3): each frame's true camera turned from the first one's (``x_t = R_t x_0``)."""
+    return np.einsum("fij,kj->fik", truth.R, truth.R[0])
+
+
 def true_turn(truth: ClipTruth) -> float:
     """The largest angle (degrees) between the clip's first camera and any later one's."""
-    return turned_degrees(np.einsum("fij,kj->fik", truth.R, truth.R[0]))
+    return turned_degrees(true_turns(truth))
 
 
 def match(truth: ClipTruth, pred: list[list[tuple]]) -> np.ndarray:
