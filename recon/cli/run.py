@@ -69,6 +69,12 @@ def add_run(p: Parser) -> None:
     p.add_argument("--shape-head", action=argparse.BooleanOptionalAction, default=known(cfg, "shape_head"),
                    help="gender and build read from the person's mask (recon.shape) rather than guessed from the "
                         "keypoints by SMPLR")
+    p.add_argument("--detect", action=argparse.BooleanOptionalAction, default=known(cfg, "detect"),
+                   help="find every person with the person detector (NanoDet, whole image and zoomed tiles) and read "
+                        "each on its box; MediaPipe's face-anchored detector only where it finds nobody")
+    p.add_argument("--movenet", type=number(float, 0.0, 4.0), default=known(cfg, "movenet"),
+                   help="with --detect: weight of MoveNet Thunder's 2D keypoints fused into MediaPipe's on each "
+                        "person (0: MediaPipe's alone)")
     p.add_argument("--search", action=argparse.BooleanOptionalAction, default=known(cfg, "search"),
                    help="MediaPipe: where its face-anchored detector finds nobody, look for a person without a face "
                         "(back views, people cut by a border, small people)")

@@ -21,12 +21,14 @@ from recon.keypoints import guard as person_guard
 from recon.keypoints.adapter import KeypointAdapter
 from recon.keypoints.base import Keypoints
 from recon.keypoints.mediapipe import DEFAULT_MODEL, MediaPipePose, MPPose
+from recon.keypoints.on_boxes import LandmarksOnBoxes
 from recon.keypoints.proposals import MIN_SCORE, PersonSearch
 from recon.keypoints.views import (
     GRAY_SMALL,
     blank_person,
     is_grayscale,
     pad_image,
+    same_answer,
     same_person,
     scaled,
     shifted,
@@ -34,6 +36,7 @@ from recon.keypoints.views import (
     unview,
     windows,
 )
+from recon.people.detector import PersonDetector
 
 # When MediaPipe finds nobody, it is asked again on these views of the image, in order (view,
 # zero-padding factor, detection threshold): its detector misses people behind occluders or cut by
@@ -78,7 +81,7 @@ class MediaPipeSource:
 
     def __init__(self, adapter_path=None, flip: bool = True, retry: bool = True, guard: bool = True,
                  model: str = DEFAULT_MODEL, fallback: bool = False, backbone_weight: float = 0.0,
-                 search: bool = False):
+                 search: bool = False, detect: bool = False, movenet: float = 0.0):
         self.mp = MediaPipePose(model)
         self.model = self.mp.model  # the model that runs (full when the file asked for is missing)
         self.adapter = KeypointAdapter.load(adapter_path, self.model)
@@ -90,6 +93,26 @@ class MediaPipeSource:
         self._backbone: BackboneSource | None = None
         self.search = search
         self._searcher: PersonSearch | None = None
+        self.detect, self.movenet = detect, movenet
+        self._boxes: PersonDetector | None = None
+        self._on_boxes: LandmarksOnBoxes | None = None
+
+    def detected(self, rgb: np.ndarray, k: np.ndarray, max_people: int) -> list[Keypoints]:
+        """Up to ``max_people`` people from the people stage's boxes (``recon.people``), best box
+        first, each read by the landmark model on its box (``LandmarksOnBoxes``)."""
+        if self._boxes is None:
+            self._boxes = PersonDetector()
+            self._on_boxes = LandmarksOnBoxes(self.adapter, self.model, self.flip, self.guard, movenet=self.movenet)
+        found: list[Keypoints] = []
+        for det in self._boxes(rgb):
+            kp = self._on_boxes(rgb, k, det.box, det.score)
+            if kp is not None and not any(same_answer(kp, f) for f in found):
+                kp.found_by = f"{self.name}-{det.view}"
+                found.append(self._with_backbone(rgb, k, kp))
+                self.last_view = "detector"
+                if len(found) >= max_people:
+                    break
+        return found
 
     @property
     def searcher(self) -> PersonSearch:
@@ -184,6 +207,8 @@ class MediaPipeSource:
         return None
 
     def __call__(self, rgb: np.ndarray, k: np.ndarray) -> Keypoints | None:
+        if self.detect and (found := self.detected(rgb, k, 1)):
+            return found[0]
         kp = self._find(rgb, k, self.retry, strict=False, search=self.search)
         return self._fallback(rgb, k) if kp is None else self._with_backbone(rgb, k, kp)
 
@@ -266,7 +291,9 @@ class MediaPipeSource:
         at 224 px, where the people of a wide group photo are too small), until it finds nobody
         new. Only the first person may come from the retries or the ``fallback``; window answers need
         the guard's retry evidence."""
-        found: list[Keypoints] = []
+        if self.detect and (found := self.detected(rgb, k, max_people)):
+            return found
+        found = []
         work = rgb
         views = [(0, 0, rgb.shape[1], rgb.shape[0])] + windows(*rgb.shape[:2])
         for n_view, (x0, y0, x1, y1) in enumerate(views):

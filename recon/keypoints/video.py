@@ -15,8 +15,8 @@ is: its cost would buy nothing).
 
 ``PeopleVideoSource`` (several people): each person found in the last frame is looked for on a
 crop around where they were (there MediaPipe sees them large, and one at a time); the whole frame,
-with the people followed painted out, is searched for newcomers (``MediaPipeSource.people``) when
-someone was lost and every ``search_every`` frames.
+with the people followed painted out, is searched for newcomers (``MediaPipeSource.people``, with
+the people stage's detector where ``detect``) when someone was lost and every ``search_every`` frames.
 """
 from __future__ import annotations
 
@@ -96,9 +96,9 @@ class PeopleVideoSource:
     name = "mediapipe-people-video"
 
     def __init__(self, model: str = DEFAULT_MODEL, guard: bool = True, backbone_weight: float = 0.0,
-                 search_every: int = 10, margin: float = 0.4, keep_lost: int = 15):
+                 search_every: int = 10, margin: float = 0.4, keep_lost: int = 15, detect: bool = False):
         self.source = MediaPipeSource(flip=False, retry=True, guard=guard, model=model,
-                                      backbone_weight=backbone_weight)
+                                      backbone_weight=backbone_weight, detect=detect)
         self.model = self.source.model
         self.search_every, self.margin, self.keep_lost = search_every, margin, keep_lost
         # where each person was last seen: [box (4,), velocity (4,) a frame, frames since seen]

@@ -114,6 +114,16 @@ def same_person(new: Keypoints, old: Keypoints) -> bool:
     return bool(inside.mean() > 0.5 or box_overlap(new.box, old.box) > 0.5)
 
 
+def same_answer(new: Keypoints, old: Keypoints, near: float = 0.15, iou: float = 0.7) -> bool:
+    """Two answers on different boxes that read the same person: their keypoints lie within
+    ``near`` of the person's size of each other (median), or their boxes overlap by ``iou``. Unlike
+    ``same_person``, a person standing behind another is someone else."""
+    b = old.box
+    size = max(b[2] - b[0], b[3] - b[1], 1.0)
+    d = np.median(np.linalg.norm(new.points2d - old.points2d, axis=1))
+    return bool(d < near * size or box_iou(new.box, old.box) > iou)
+
+
 def scaled(kp: Keypoints, factor: float, shape) -> Keypoints:
     """Keypoints found on a resized copy -> the same in the image (``factor``: image / copy)."""
     mask = None

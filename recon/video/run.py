@@ -234,7 +234,7 @@ def video_source(config: ReconstructorConfig, max_people: int):
         return None
     if max_people == 1:
         return MediaPipeVideoSource(config.keypoint_model, config.guard, config.backbone_weight)
-    return PeopleVideoSource(config.keypoint_model, config.guard, config.backbone_weight)
+    return PeopleVideoSource(config.keypoint_model, config.guard, config.backbone_weight, detect=config.detect)
 
 
 def _finished(out: Path) -> dict | None:

@@ -1,0 +1,11 @@
+"""The people stage: where every person in an image is, before anyone's keypoints.
+
+``detector`` (``PersonDetector``: NanoDet over the whole image and zoomed tiles, NMS), ``tfjs``
+(TF.js graph models run in torch, no TensorFlow), ``models`` (where set-up installs the shipped
+models). ``recon.keypoints`` reads each person on its box.
+"""
+from __future__ import annotations
+
+from recon.people.detector import Detection, PersonDetector
+
+__all__ = ["Detection", "PersonDetector"]
