@@ -17,7 +17,7 @@ fi
 
 PY=${PYTHON:-python3.11}
 command -v "$PY" >/dev/null || PY=python3
-[ -x .venv/bin/python ] || "$PY" -m venv .venv
+[ -x .venv/bin/pip ] || "$PY" -m venv --clear .venv  # a set-up interrupted mid-way leaves no pip
 # torch first: the pinned CPU wheel (2.13.0) keeps pip from pulling a CUDA build.
 .venv/bin/pip install -q --disable-pip-version-check torch==2.13.0
 .venv/bin/pip install -q --disable-pip-version-check -e ".[render,test,sim,imagenet,heic,cluster]"
