@@ -222,7 +222,7 @@ class Reconstructor:
         self.source = (source if source is not None and not isinstance(source, str)
                        else make_source(cfg.source, self.body, cfg.device, cfg.flip, cfg.retry, cfg.guard,
                                    self.config.keypoint_model, cfg.fallback, cfg.backbone_weight, cfg.search,
-                                   cfg.detect, cfg.movenet))
+                                   self.config.detect, self.config.movenet))
 
     @property
     def fit(self) -> FitConfig:

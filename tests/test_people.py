@@ -229,3 +229,14 @@ def test_movenet_reads_the_astronauts_face_and_shoulders_where_they_are():
     assert score[:7].min() > 0.4  # nose, eyes, ears, shoulders: in view
     # the face above the shoulders, the person's left eye on the image's right (she faces us)
     assert xy[0, 1] < xy[5:7, 1].min() and xy[1, 0] > xy[2, 0]
+
+
+@pytest.mark.skipif(not mediapipe_available(), reason="needs mediapipe (scripts/setup.sh)")
+def test_without_the_installed_models_recon_run_falls_back_to_mediapipes_detector(tmp_path, monkeypatch):
+    from recon.pipeline import Reconstructor
+
+    monkeypatch.setenv("RECON_PEOPLE_MODELS", str(tmp_path))  # an empty folder: nothing installed
+    rec = Reconstructor()
+    assert rec.config.detect is False and rec.config.movenet == 0.0
+    assert rec.source.detect is False and rec.source.movenet == 0.0
+    assert rec(io.load_image(EXAMPLES / "astronaut.jpg")).keypoints.found_by == "mediapipe"
