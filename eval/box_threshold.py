@@ -23,7 +23,7 @@ from tqdm import tqdm
 from recon import report
 from recon.keypoints.adapter import KeypointAdapter
 from recon.keypoints.mediapipe import DEFAULT_MODEL
-from recon.keypoints.on_boxes import DETECTOR_REF, MIN_SCORE, LandmarksOnBoxes
+from recon.keypoints.on_boxes import MIN_SCORE, LandmarksOnBoxes, person_score
 from recon.keypoints.views import box_iou, same_answer
 from recon.people.detector import PersonDetector
 from recon.synth.dataset import open_bench
@@ -33,7 +33,7 @@ BARS = (-1.0, -0.5, 0.0, 0.5, 1.0, 1.5)
 
 
 def answers(bench: str, det: PersonDetector, reader: LandmarksOnBoxes) -> np.ndarray:
-    """(right, guard score, box score) per answer on a benchmark."""
+    """(right, the guard's score, the detector's term) per answer on a benchmark."""
     ds = open_bench(bench)
     rows = []
     for i in tqdm(range(len(ds)), desc=bench):
@@ -48,15 +48,14 @@ def answers(bench: str, det: PersonDetector, reader: LandmarksOnBoxes) -> np.nda
             best = max(((box_iou(kp.box, truth[t]), t) for t in free), default=(0.0, -1))
             if best[0] > 0.3:
                 free.discard(best[1])
-            guard = kp.person_score - (np.log(d.score / (1 - d.score)) - np.log(DETECTOR_REF / (1 - DETECTOR_REF)))
-            rows.append((best[0] > 0.3, guard, d.score))
+            detector = person_score(0.0, d.score)  # the detector's term of the answer's score
+            rows.append((best[0] > 0.3, kp.person_score - detector, detector))
     return np.array(rows, float).reshape(-1, 3)
 
 
 def kept(a: np.ndarray, w: float, bar: float) -> int:
-    """How many answers reach ``bar`` with the detector's log-odds weighted ``w``."""
-    logit = np.log(a[:, 2] / (1 - a[:, 2])) - np.log(DETECTOR_REF / (1 - DETECTOR_REF))
-    return int(((a[:, 1] + w * logit) >= bar).sum())
+    """How many answers reach ``bar`` with the detector's term weighted ``w``."""
+    return int(((a[:, 1] + w * a[:, 2]) >= bar).sum())
 
 
 def main() -> None:

@@ -46,8 +46,7 @@ def main() -> None:
     for name, (change, movenet) in VARIANTS.items():
         cfg = dataclasses.replace(ReconstructorConfig(), **change).as_installed()
         src = make_source("mediapipe", None, "cpu", cfg.flip, cfg.retry, cfg.guard, cfg.keypoint_model, cfg.fallback,
-                          cfg.backbone_weight, cfg.search, cfg.detect)
-        src.movenet = movenet
+                          cfg.backbone_weight, cfg.search, cfg.detect, movenet)
         pts = np.full((n, 42, 2), np.nan)
         for i in tqdm(range(n), desc=name):
             s = ds[i]

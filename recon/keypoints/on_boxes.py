@@ -12,16 +12,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from recon.body import skeleton
 from recon.keypoints import guard as person_guard
 from recon.keypoints.adapter import KeypointAdapter
 from recon.keypoints.base import Keypoints
 from recon.keypoints.mediapipe import MediaPipeLandmarks, MPPose
 from recon.keypoints.movenet import MoveNet, fuse
+from recon.keypoints.views import mirrored_camera, unmirror
 
 BOX_GROWTH = 1.25  # the first region's side: the box's longer side times this (MediaPipe's own margin)
 AGREE = 0.25  # the mirrored answer is averaged in where its median keypoint lies within this share of the box
-MIRROR = list(skeleton.POINT_MIRROR)
 # An answer is a person where the guard's log-odds plus the detector's (against a box score of
 # DETECTOR_REF) reach MIN_SCORE: chosen on other-crowd-val's people against the bodies found on
 # other-empty-val and the extra ones in other-crowd-val (eval/box_threshold.py).
@@ -85,11 +84,7 @@ class LandmarksOnBoxes:
             cx, cy, side, rot = r.roi()
             m = self.landmarks(np.ascontiguousarray(rgb[:, ::-1]), (w - cx, cy, side, -rot))
             if m is not None:
-                km = np.array(k, float)
-                km[0, 2] = w - km[0, 2]  # the mirrored camera: u -> w - u
-                p3m, uvm = self.adapter.predict(m, km)
-                p3m, uvm = p3m[MIRROR] * np.array([-1.0, 1.0, 1.0]), uvm[MIRROR]
-                uvm[:, 0] = w - uvm[:, 0]
+                p3m, uvm = unmirror(*self.adapter.predict(m, mirrored_camera(k, w)), w)
                 size = max(found[2] - found[0], found[3] - found[1], 1.0)
                 if np.median(np.linalg.norm(uvm - uv, axis=1)) < AGREE * size:
                     p3, uv = 0.5 * (p3 + p3m), 0.5 * (uv + uvm)

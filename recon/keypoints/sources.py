@@ -16,7 +16,6 @@ import numpy as np
 
 from recon import camera
 from recon.backbone.search import CropSearch, crop_from_keypoints
-from recon.body import skeleton
 from recon.keypoints import guard as person_guard
 from recon.keypoints.adapter import KeypointAdapter
 from recon.keypoints.base import Keypoints
@@ -27,12 +26,14 @@ from recon.keypoints.views import (
     GRAY_SMALL,
     blank_person,
     is_grayscale,
+    mirrored_camera,
     pad_image,
     same_answer,
     same_person,
     scaled,
     shifted,
     tinted,
+    unmirror,
     unview,
     windows,
 )
@@ -253,14 +254,9 @@ class MediaPipeSource:
         box = r.box()
         if self.flip:
             w = rgb.shape[1]
-            km = np.array(k, float)
-            km[0, 2] = w - km[0, 2]  # the mirrored camera: u -> w - u
-            mirrored = self._detect(np.ascontiguousarray(rgb[:, ::-1]), km)
+            mirrored = self._detect(np.ascontiguousarray(rgb[:, ::-1]), mirrored_camera(k, w))
             if mirrored is not None:
-                mirror = list(skeleton.POINT_MIRROR)
-                p3m = mirrored[1][mirror] * np.array([-1.0, 1.0, 1.0])
-                uvm = mirrored[2][mirror]
-                uvm[:, 0] = w - uvm[:, 0]
+                p3m, uvm = unmirror(mirrored[1], mirrored[2], w)
                 size = max(box[2] - box[0], box[3] - box[1], 1.0)
                 inside = camera.inside_image(uv, rgb.shape)  # guesses outside the image may disagree
                 d = np.linalg.norm(uvm - uv, axis=1)[inside if inside.any() else slice(None)]

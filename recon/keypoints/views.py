@@ -6,6 +6,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from recon.body import skeleton
 from recon.keypoints.adapter import MP_MIRROR
 from recon.keypoints.base import Keypoints
 from recon.keypoints.mediapipe import MPPose
@@ -43,6 +44,22 @@ def unview(r: MPPose, pad: int, mirrored: bool, shape) -> MPPose:
     if mask is not None:
         mask = np.ascontiguousarray(mask[pad:pad + h, pad:pad + w])
     return MPPose(xy, vis, world, mask)
+
+
+def mirrored_camera(k: np.ndarray, w: int) -> np.ndarray:
+    """The intrinsics of the image mirrored left-right (``u -> w - u``)."""
+    km = np.array(k, float)
+    km[0, 2] = w - km[0, 2]
+    return km
+
+
+def unmirror(p3: np.ndarray, uv: np.ndarray, w: int) -> tuple[np.ndarray, np.ndarray]:
+    """J+ found on the mirrored image (width ``w``) -> the same person's J+ in the image: left and
+    right swapped, x flipped in 3D and in pixels."""
+    mirror = list(skeleton.POINT_MIRROR)
+    uv = uv[mirror].copy()
+    uv[:, 0] = w - uv[:, 0]
+    return p3[mirror] * np.array([-1.0, 1.0, 1.0]), uv
 
 
 def _area(b) -> float:
