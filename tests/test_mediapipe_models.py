@@ -2,6 +2,8 @@
 no download attempt), an unknown name is refused before anything runs."""
 import json
 import logging
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -134,3 +136,18 @@ def test_adapter_evaluation_counts_found_images_and_measures_root_relative_joint
     rel = (p3 - p3[:, :1])[found][:, :24]
     assert r["samples"] == 4 and r["found_rate"] == pytest.approx(4 / 6)
     assert r["mpjpe_mm"] == pytest.approx(1000 * np.linalg.norm(rel, axis=-1).mean(), rel=1e-5)
+
+
+@needs_mediapipe
+def test_building_each_mediapipe_graph_writes_nothing_to_stderr():
+    """The C++ graphs log (INFO, W0000) from their own threads once their calculators open: each model
+    is built and run once inside the quiet window, so nothing reaches the terminal afterwards either."""
+    code = ("import time, numpy as np\n"
+            "from recon.keypoints.mediapipe import MediaPipeLandmarks, MediaPipePose\n"
+            "from recon.keypoints.proposals import PersonMask\n"
+            "models = [MediaPipeLandmarks(), MediaPipePose(), PersonMask()]\n"
+            "time.sleep(1.0)\n"
+            "print('built', len(models))\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0 and "built 3" in done.stdout, done.stderr
+    assert done.stderr.strip() == "", done.stderr

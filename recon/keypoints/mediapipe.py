@@ -175,6 +175,10 @@ class MediaPipeLandmarks:
         with quiet_native_logs():
             self.graph = SolutionBase(graph_config=ROI_GRAPH, side_inputs={
                 "model_complexity": MODELS[self.model], "enable_segmentation": segmentation})
+            # As in MediaPipePose: the calculators open (and log) on the graph's own threads; one
+            # image through it makes that happen inside this quiet window.
+            self.graph.process({"image": np.zeros((64, 64, 3), np.uint8),
+                                "roi": self._rect(x_center=0.5, y_center=0.5, width=1.0, height=1.0)})
 
     def __call__(self, rgb: np.ndarray, roi: tuple[float, float, float, float]) -> MPPose | None:
         h, w = rgb.shape[:2]
