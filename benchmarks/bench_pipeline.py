@@ -3,7 +3,9 @@
 
     .venv/bin/python benchmarks/bench_pipeline.py [--repeats 5] [--threads 1]
 
-Stages: keypoints (MediaPipe Pose + adapter, with ``recon run``'s backbone blend and fallback (on
+Stages: keypoints (``recon run``'s people stage: NanoDet's boxes, each read by MediaPipe with
+MoveNet fused in; without MoveNet's fusion; without the people stage, as 0.25 found people;
+MediaPipe Pose + adapter, with ``recon run``'s backbone blend and fallback (on
 these photos the blend's two backbone passes run, but the backbone is not trusted there) and
 without, its heavy, full and lite landmark models, with and without the mirror averaging; or our
 hourglass: 3 passes = the whole image through the first
@@ -45,6 +47,7 @@ OUT = Path(__file__).resolve().parent.parent / "eval" / "results" / "bench-pipel
 COMMANDS = {  # `recon run` over a folder of photos, whole commands (outputs included), on one core
     "`recon run` (defaults)": [],
     "`recon run --no-overlay`": ["--no-overlay"],
+    "`recon run --no-detect` (0.25's front end)": ["--no-detect"],
     "0.11.0's defaults (`--no-search --fallback --backbone-weight 0.5`)":
         ["--no-search", "--fallback", "--backbone-weight", "0.5"],
 }
@@ -87,12 +90,16 @@ def main() -> None:
     torch.set_num_threads(a.threads)
     body = default_body()
     images = [io.load_image(p) for p in example_photos()]
-    cfg = ReconstructorConfig()  # recon run's: MediaPipe with our backbone where it is confident
+    cfg = ReconstructorConfig().as_installed()  # recon run's: the people stage, MediaPipe, our backbone
 
     def mediapipe(**changes) -> MediaPipeSource:
-        return MediaPipeSource(**({"fallback": cfg.fallback, "backbone_weight": cfg.backbone_weight} | changes))
+        return MediaPipeSource(**({"fallback": cfg.fallback, "backbone_weight": cfg.backbone_weight,
+                                   "detect": cfg.detect, "movenet": cfg.movenet} | changes))
 
-    sources = {"mediapipe (`recon run` default: heavy landmark model + mirror averaging + backbone)": mediapipe(),
+    sources = {"mediapipe (`recon run` default: people stage + heavy landmark model + MoveNet + mirror averaging "
+               "+ backbone)": mediapipe(),
+               "mediapipe, no people stage (`--no-detect`: 0.25's front end)": mediapipe(detect=False, movenet=0.0),
+               "mediapipe, people stage, MoveNet not fused (`--movenet 0`; it still votes)": mediapipe(movenet=0.0),
                "mediapipe alone, no backbone (`--no-fallback --backbone-weight 0`)":
                    mediapipe(fallback=False, backbone_weight=0.0),
                "mediapipe, full landmark model (`--keypoint-model full`)": mediapipe(model="full"),
@@ -113,6 +120,7 @@ def main() -> None:
     sources = {s: r.source for s, r in recs.items()}
     fits = {"none": FitConfig(steps=0), "fit": FitConfig(), "fit, keypoints only": FitConfig(silhouette=0.0)}
     t = {s: {k: [] for k in ("keypoints", "one backbone pass", "smplr", "fit", "fit, keypoints only")} for s in sources}
+    missed: dict[str, int] = {}
     for _ in range(a.repeats):  # sources interleaved
         for source, rec in recs.items():
             for img in images:
@@ -121,6 +129,9 @@ def main() -> None:
                 t0 = time.perf_counter()
                 r0 = rec.batch([img], [k])[0]
                 total = (time.perf_counter() - t0) * 1000
+                if not hasattr(r0, "timings_ms"):  # no person found: no stage times to compare
+                    missed[source] = missed.get(source, 0) + 1
+                    continue
                 t[source]["keypoints"].append(r0.timings_ms["keypoints"])
                 t[source]["smplr"].append(total - r0.timings_ms["keypoints"])
                 for name in ("fit", "fit, keypoints only"):
@@ -137,7 +148,7 @@ def main() -> None:
              (m["keypoints"] + m["smplr"]) / base, m["fit"], m["fit, keypoints only"]] for s, m in med.items()]
     commands = whole_commands(a.photos, a.command_repeats) if a.photos else []
     data = {"machine": report.machine(), "photos": len(images), "repeats": a.repeats, "median_ms": med,
-            "whole_commands": commands}
+            "missed": missed, "whole_commands": commands}
     where = report.describe(data["machine"])
     whole = ["", f"## Whole commands: `recon run` over {a.photos} photos of other-val (640 x 480 or 480 x 640 JPEGs), "
              "outputs included", "",
@@ -149,7 +160,9 @@ def main() -> None:
     md = "\n".join([
         "# Image pipeline latency, batch 1 (median ms over the bundled photos)", "",
         f"`benchmarks/bench_pipeline.py --repeats {a.repeats} --threads {a.threads}`; {where}. "
-        "x MediaPipe: the total without the fit, relative to the first row.", "",
+        "x MediaPipe: the total without the fit, relative to the first row." +
+        "".join(f" {s}: nobody found in {n} of its {a.repeats * len(images)} runs (not timed)."
+                for s, n in missed.items()), "",
         report.table(rows, ["source", "keypoints", "of which one backbone pass", "SMPLR (+ shape head) + mesh + place",
                             "total without fit", "x MediaPipe", "fit (30 steps; MediaPipe: + mask)",
                             "fit, keypoints only"], ["", ".1f", ".1f", ".1f", ".1f", ".2f", ".1f", ".1f"]), *whole])

@@ -67,3 +67,24 @@ def test_recon_run_variants_by_name():
         get_method("recon-run[colour=1]")
     with pytest.raises(ReconError, match="unknown method"):
         get_method("not-a-method")
+
+
+def test_body_weight_is_the_closed_rest_meshs_volume_and_grows_with_the_weight_phenotype():
+    import torch
+    import trimesh
+
+    from recon.body import default_body
+
+    body = default_body()
+    names = list(body.shape_names)
+    mid = np.full(len(names), 0.5, np.float32)
+    with torch.no_grad():
+        v = body(shape=torch.as_tensor(mid)[None]).rest_vertices[0].numpy()
+    mesh = trimesh.Trimesh(v, body.faces.numpy(), process=False)
+    assert mesh.is_watertight  # a volume means something only for a closed mesh
+    kg = runner.body_mass(body, mid)
+    assert kg == pytest.approx(abs(mesh.volume) * runner.BODY_DENSITY, rel=1e-4)
+    assert 30.0 < kg < 120.0
+    light, heavy = mid.copy(), mid.copy()
+    light[names.index("weight")], heavy[names.index("weight")] = 0.0, 1.0
+    assert runner.body_mass(body, light) < kg < runner.body_mass(body, heavy)

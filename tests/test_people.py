@@ -208,14 +208,28 @@ def test_fusion_weighs_each_keypoint_by_its_models_confidence_and_hands_follow_w
     assert np.array_equal(f.world, r.world) and np.array_equal(f.visibility, r.visibility)
 
 
-def test_the_person_score_adds_the_detectors_log_odds_to_the_guards():
-    from recon.keypoints.on_boxes import DETECTOR_REF, box_roi, person_score
+def test_an_answers_score_is_the_sum_of_its_votes_each_zero_at_its_reference():
+    from recon.keypoints.on_boxes import DETECTOR_REF, MOVENET_REF, Reading, box_roi, logit, movenet_term
 
-    assert person_score(0.7, DETECTOR_REF) == pytest.approx(0.7)
-    assert person_score(0.0, 0.5) == pytest.approx(-np.log(DETECTOR_REF / (1 - DETECTOR_REF)))
-    assert person_score(1.0, 0.9) > person_score(1.0, 0.3)
-    assert np.isfinite(person_score(0.0, 1.0)) and np.isfinite(person_score(0.0, 0.0))
+    assert logit(DETECTOR_REF) - logit(DETECTOR_REF) == 0.0 and movenet_term(MOVENET_REF) == pytest.approx(0.0)
+    assert logit(0.5) == pytest.approx(0.0) and logit(0.9) > logit(0.3)
+    assert np.isfinite(logit(1.0)) and np.isfinite(logit(0.0)) and np.isfinite(movenet_term(0.0))
+    assert movenet_term(0.6) > 0 > movenet_term(0.1)  # a body MoveNet sees votes for, a wall against
+    r = Reading(None, {"guard": 0.7, "detector": -0.2, "movenet": 1.0}, None)
+    assert r.score == pytest.approx(1.5) and r.score_alone == pytest.approx(0.5)
     assert box_roi((10, 20, 30, 100)) == pytest.approx((20, 60, 100, 0))
+
+
+def test_the_first_person_needs_the_guard_and_detector_further_people_all_three_votes():
+    from recon.keypoints.on_boxes import MIN_SCORE, MIN_SCORE_ALONE, Reading, is_person
+
+    misread = Reading(None, {"guard": MIN_SCORE_ALONE, "detector": 0.1, "movenet": -1.5}, None)  # a lone, cut person
+    assert is_person(misread, first=True) and not is_person(misread, first=False)
+    wall = Reading(None, {"guard": 0.5, "detector": 0.2, "movenet": -2.0}, None)
+    assert not is_person(wall, first=True)
+    seen_by_all = Reading(None, {"guard": 0.2, "detector": 0.3, "movenet": MIN_SCORE}, None)
+    assert is_person(seen_by_all, first=False) and is_person(seen_by_all, first=True)
+    assert is_person(Reading(None, {"guard": 1.2, "detector": -0.1}, None), bar=MIN_SCORE_ALONE)  # no MoveNet
 
 
 @needs_detector

@@ -76,6 +76,7 @@ class MethodScorer:
             row["depth"] = abs(float(pred.joints[0, 2]) - float(s["points3d"][0, 2]))
         if pred.shape is not None:
             row["height"] = (body_height(body, pred.shape), body_height(body, s["shape"]))
+            row["mass"] = (body_mass(body, pred.shape), body_mass(body, s["shape"]))
             row["shape"] = np.abs(np.asarray(pred.shape, float) - s["shape"])
             row["shape_pred"] = np.asarray(pred.shape, float)
         if pred.shape_confidence is not None:
@@ -107,7 +108,8 @@ def run_method(name: str, ds, body, n: int | None = None, progress: bool = True,
         bar.close()
     scores = [r for chunk in scored for r in chunk]
     rows = {k: [r[k] for r in scores if r is not None and k in r]
-            for k in ("p1", "p2", "lm", "pve", "iou", "joint", "depth", "height", "shape", "shape_pred")}
+            for k in ("p1", "p2", "lm", "pve", "iou", "joint", "depth", "height", "mass", "shape",
+                      "shape_pred")}
     done = len(rows["p1"])
     failures = count - done
     joint = np.stack(rows["joint"]) * 1000 if done else np.zeros((0, 24))
@@ -127,10 +129,15 @@ def run_method(name: str, ds, body, n: int | None = None, progress: bool = True,
         res["body_shape"] = {"height_error_cm": float(np.mean(np.abs(hp - hg)) * 100),
                              "height_correlation": float(np.corrcoef(hp, hg)[0, 1]) if len(hp) > 2 else None,
                              "shape_error": dict(zip(names, map(float, np.mean(rows["shape"], 0)), strict=True))}
+        if len(rows["mass"]) == len(rows["height"]):
+            mp, mg = np.array(rows["mass"]).T
+            res["body_shape"] |= {"weight_error_kg": float(np.mean(np.abs(mp - mg))),
+                                  "weight_correlation": float(np.corrcoef(mp, mg)[0, 1]) if len(mp) > 2 else None}
         if "gender" in names:  # right side of 0.5 (synth-*: the true gender is 0 or 1)
             g = list(names).index("gender")
             res["body_shape"]["gender_accuracy"] = float(np.mean(np.stack(rows["shape"])[:, g] < 0.5))
             res["body_shape"] |= gender_extremes(truth["shape"], scores, g)
+        res["body_shape"]["shape_correlation"] = shape_correlation(truth["shape"], scores, names)
     if truth.get("info") is not None:
         res["found_by_view"] = found_by_view(truth["info"], scores)
     res["per_image"] = per_image(scores)
@@ -156,6 +163,16 @@ def gender_extremes(true_shapes: np.ndarray, scores: list, g: int) -> dict:
         n += 1
         right += (r["shape_pred"][g] > 0.5) == (true > 0.5)
     return {"gender_right_extremes": right / n if n else None, "gender_extremes_n": n}
+
+
+def shape_correlation(true_shapes: np.ndarray, scores: list, names: list[str]) -> dict:
+    """Pearson r of each predicted phenotype against the true one, on the images with a prediction."""
+    pairs = [(r["shape_pred"], t) for r, t in zip(scores, true_shapes, strict=False)
+             if r is not None and "shape_pred" in r]
+    if len(pairs) < 3:
+        return {}
+    pred, true = (np.stack(x) for x in zip(*pairs, strict=True))
+    return {n: float(np.corrcoef(pred[:, j], true[:, j])[0, 1]) for j, n in enumerate(names)}
 
 
 VIEWS = {"front": (0, 45), "side": (45, 135), "back": (135, 181)}
@@ -188,6 +205,17 @@ def body_height(body, shape) -> float:
     with torch.no_grad():
         v = body(shape=torch.as_tensor(np.asarray(shape, np.float32))[None]).rest_vertices[0]
     return float(v[:, 1].max() - v[:, 1].min())
+
+
+BODY_DENSITY = 985.0  # kg / m^3, a human body's average
+
+
+def body_mass(body, shape) -> float:
+    """Body weight (kg) of a body shape: its closed rest mesh's volume times BODY_DENSITY."""
+    with torch.no_grad():
+        v = body(shape=torch.as_tensor(np.asarray(shape, np.float32))[None]).rest_vertices[0].double()
+    tri = v[body.faces.long()]
+    return float(torch.linalg.det(tri).sum().abs() / 6.0 * BODY_DENSITY)
 
 
 def check(bench: str, methods: list[str], n: int = CHECK_IMAGES) -> dict:
@@ -252,15 +280,19 @@ def camera_and_shape(rows: list[dict]) -> list[str]:
     names = next((list(r["body_shape"]["shape_error"]) for r in measured if "body_shape" in r), [])
     table = [[r["method"], r.get("root_depth_mm", {}).get("median"), r.get("root_depth_mm", {}).get("mean"),
               r.get("body_shape", {}).get("height_error_cm"), r.get("body_shape", {}).get("height_correlation"),
+              r.get("body_shape", {}).get("weight_error_kg"), r.get("body_shape", {}).get("weight_correlation"),
+              r.get("body_shape", {}).get("shape_correlation", {}).get("weight"),
               r.get("body_shape", {}).get("gender_accuracy"), r.get("body_shape", {}).get("gender_right_extremes"),
               *(r.get("body_shape", {}).get("shape_error", {}).get(n) for n in names)] for r in measured]
     return ["Camera and body shape: pelvis depth error (mm; the benchmark's K is given), standing height of the "
-            "predicted body against the true one (mean |error| cm, Pearson correlation), gender right (share with "
-            "|error| < 0.5, measured since 0.6; and where the true gender is < 0.2 or > 0.8, the share on the right "
-            "side of 0.5), mean |error| per anny phenotype (0-1 scale):", "",
-            report.table(table, ["method", "depth median", "depth mean", "height cm", "height r", "gender right",
-                                 "gender extremes", *names],
-                         ["", ".0f", ".0f", ".1f", ".2f", ".3f", ".3f", *[".3f"] * len(names)]), ""]
+            "predicted body against the true one (mean |error| cm, Pearson correlation), the same for its weight "
+            "(rest mesh volume x 985 kg/m^3: kg, r), build r (Pearson r of anny's weight phenotype), gender "
+            "right (share with |error| < 0.5, measured since 0.6; and where the true gender is < 0.2 or > 0.8, "
+            "the share on the right side of 0.5), mean |error| per anny phenotype (0-1 scale):", "",
+            report.table(table, ["method", "depth median", "depth mean", "height cm", "height r", "weight kg",
+                                 "weight r", "build r", "gender right", "gender extremes", *names],
+                         ["", ".0f", ".0f", ".1f", ".2f", ".1f", ".2f", ".2f", ".3f", ".3f",
+                          *[".3f"] * len(names)]), ""]
 
 
 def found_table(rows: list[dict]) -> list[str]:

@@ -3,12 +3,15 @@
 The people stage (``recon.people``) says where each person is; MediaPipe's own detector, which
 wants a face and finds one person per call, is not needed. For each box the landmark model looks
 at the square around it, then again at the region its first answer implies (MediaPipe's tracking
-rule: centred on the hips, turned with the torso); the guard (``recon.keypoints.guard``) refuses
-answers that are no person; with ``movenet`` MoveNet's keypoints are fused in
-(``recon.keypoints.movenet``), and with ``flip`` the mirrored image's answer on the mirrored region
-is averaged in (left and right swapped) where it agrees.
+rule: centred on the hips, turned with the torso); an answer is a person where three independent
+votes agree: the guard (``recon.keypoints.guard``), the detector's box score and MoveNet's
+keypoint scores on the answer's box (``recon.keypoints.movenet``, a second pose model that sees no
+body in a wall); with ``movenet`` MoveNet's keypoints are also fused in, and with ``flip`` the
+mirrored image's answer on the mirrored region is averaged in (left and right swapped) where it agrees.
 """
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -18,20 +21,55 @@ from recon.keypoints.base import Keypoints
 from recon.keypoints.mediapipe import MediaPipeLandmarks, MPPose
 from recon.keypoints.movenet import MoveNet, fuse
 from recon.keypoints.views import mirrored_camera, unmirror
+from recon.people import models as people_models
 
 BOX_GROWTH = 1.25  # the first region's side: the box's longer side times this (MediaPipe's own margin)
 AGREE = 0.25  # the mirrored answer is averaged in where its median keypoint lies within this share of the box
-# An answer is a person where the guard's log-odds plus the detector's (against a box score of
-# DETECTOR_REF) reach MIN_SCORE: chosen on other-crowd-val's people against the bodies found on
-# other-empty-val and the extra ones in other-crowd-val (eval/box_threshold.py).
+# An answer is a person where its log-odds reach MIN_SCORE: the guard's, plus the detector's against
+# a box score of DETECTOR_REF, plus MoveNet's against a mean keypoint score of MOVENET_REF. The
+# image's first person may instead reach MIN_SCORE_ALONE on the guard's and the detector's alone
+# (MoveNet misreads some lone people: cut, turned away), which is also the bar where MoveNet is not
+# installed. Chosen on other-crowd-val's people against the bodies found on other-empty-val and the
+# extra ones in other-crowd-val, other-val's people kept (eval/box_threshold.py).
 DETECTOR_REF = 0.35
-MIN_SCORE = 1.0
+MOVENET_REF = 0.25
+MIN_SCORE = 1.5
+MIN_SCORE_ALONE = 1.0
 
 
-def person_score(guard_score: float, box_score: float) -> float:
-    """The log-odds that an answer on a box is a person: the guard's plus the detector's."""
-    p = min(max(box_score, 1e-6), 1 - 1e-6)
-    return guard_score + float(np.log(p / (1 - p)) - np.log(DETECTOR_REF / (1 - DETECTOR_REF)))
+def logit(p: float) -> float:
+    p = min(max(float(p), 1e-6), 1 - 1e-6)
+    return float(np.log(p / (1 - p)))
+
+
+def movenet_term(mean_score: float) -> float:
+    """MoveNet's vote on an answer's box: the log-odds of its mean keypoint score against MOVENET_REF."""
+    return logit(mean_score) - logit(MOVENET_REF)
+
+
+@dataclass
+class Reading:
+    """The landmark model's answer on a box, its votes (log-odds: "guard", "detector", "movenet"
+    where installed) and MoveNet's (keypoints, scores) on its box."""
+    pose: MPPose
+    votes: dict[str, float]
+    movenet: tuple[np.ndarray, np.ndarray] | None
+
+    @property
+    def score(self) -> float:
+        """The log-odds that the answer is a person: the sum of the votes."""
+        return float(sum(self.votes.values()))
+
+    @property
+    def score_alone(self) -> float:
+        """The guard's and the detector's votes, without MoveNet's."""
+        return float(self.votes["guard"] + self.votes["detector"])
+
+
+def is_person(got: Reading, bar: float = MIN_SCORE, first: bool = False) -> bool:
+    """Whether a reading is a person: all its votes reach ``bar``, or for the image's ``first``
+    person (nobody found yet), the guard's and the detector's reach MIN_SCORE_ALONE."""
+    return got.score >= bar or (first and got.score_alone >= MIN_SCORE_ALONE)
 
 
 def box_roi(box) -> tuple[float, float, float, float]:
@@ -43,18 +81,20 @@ def box_roi(box) -> tuple[float, float, float, float]:
 class LandmarksOnBoxes:
     """One person's keypoints from a box (see the module docstring). ``model``: MediaPipe's landmark
     model; ``passes``: looks at the region (the first on the box's square, each next on the last
-    answer's region); ``guard``: refuse answers whose ``person_score`` is under ``min_score``;
-    ``movenet``: MoveNet's weight in its 2D keypoints fused into MediaPipe's (0: MediaPipe's alone)."""
+    answer's region); ``guard``: refuse answers that are no person (``is_person``; ``min_score``:
+    the bar for all the votes, default the one for the votes installed); ``movenet``: MoveNet's
+    weight in its 2D keypoints fused into MediaPipe's (0: MediaPipe's alone; MoveNet still votes
+    where it is installed)."""
 
     name = "mediapipe"
 
     def __init__(self, adapter: KeypointAdapter, model: str, flip: bool = True, guard: bool = True, passes: int = 2,
-                 min_score: float = MIN_SCORE, movenet: float = 0.0):
+                 min_score: float | None = None, movenet: float = 0.0):
         self.landmarks = MediaPipeLandmarks(model)
-        self.movenet = MoveNet() if movenet > 0 else None
-        self.movenet_weight = movenet
+        self.movenet = MoveNet() if people_models.available("movenet-thunder") else None
+        self.movenet_weight = movenet if self.movenet is not None else 0.0
         self.adapter, self.flip, self.guard, self.passes = adapter, flip, guard, passes
-        self.min_score = min_score
+        self.min_score = min_score if min_score is not None else MIN_SCORE if self.movenet else MIN_SCORE_ALONE
         self.person_guard = person_guard.for_model(self.landmarks.model)
 
     def pose(self, rgb: np.ndarray, box) -> MPPose | None:
@@ -67,16 +107,36 @@ class LandmarksOnBoxes:
             roi = r.roi()
         return r
 
-    def __call__(self, rgb: np.ndarray, k: np.ndarray, box, box_score: float = DETECTOR_REF) -> Keypoints | None:
-        """The person on ``box`` (the detector's ``box_score``), or None."""
+    def read(self, rgb: np.ndarray, box, box_score: float = DETECTOR_REF) -> Reading | None:
+        """The answer on a box with its votes, before any bar; None where the landmark model sees nobody."""
         r = self.pose(rgb, box)
         if r is None:
             return None
-        score = person_score(self.person_guard.score(person_guard.evidence(r, rgb.shape)), box_score)
-        if self.guard and score < self.min_score:
-            return None
+        votes = {"guard": self.person_guard.score(person_guard.evidence(r, rgb.shape)),
+                 "detector": logit(box_score) - logit(DETECTOR_REF)}
+        moved = None
         if self.movenet is not None:
-            r = fuse(r, *self.movenet(rgb, r.box(0.0)), self.movenet_weight)
+            moved = self.movenet(rgb, r.box(0.0))
+            votes["movenet"] = movenet_term(float(np.mean(moved[1])))
+        return Reading(r, votes, moved)
+
+    def is_person(self, got: Reading, first: bool = False) -> bool:
+        return not self.guard or is_person(got, self.min_score, first)
+
+    def __call__(self, rgb: np.ndarray, k: np.ndarray, box, box_score: float = DETECTOR_REF, first: bool = False
+                 ) -> Keypoints | None:
+        """The person on ``box`` (the detector's ``box_score``; ``first``: nobody found in the image
+        yet), or None."""
+        got = self.read(rgb, box, box_score)
+        if got is None or not self.is_person(got, first):
+            return None
+        return self.keypoints(rgb, k, got)
+
+    def keypoints(self, rgb: np.ndarray, k: np.ndarray, got: Reading) -> Keypoints:
+        """A reading's keypoints: MoveNet's fused in, the mirrored image's answer averaged in where it agrees."""
+        r = got.pose
+        if got.movenet is not None and self.movenet_weight > 0:
+            r = fuse(r, *got.movenet, self.movenet_weight)
         p3, uv = self.adapter.predict(r, k)
         found = r.box()
         if self.flip:
@@ -88,4 +148,4 @@ class LandmarksOnBoxes:
                 size = max(found[2] - found[0], found[3] - found[1], 1.0)
                 if np.median(np.linalg.norm(uvm - uv, axis=1)) < AGREE * size:
                     p3, uv = 0.5 * (p3 + p3m), 0.5 * (uv + uvm)
-        return Keypoints(p3, uv, float(np.mean(r.visibility)), found, r.mask, score, self.name)
+        return Keypoints(p3, uv, float(np.mean(r.visibility)), found, r.mask, got.score, self.name)

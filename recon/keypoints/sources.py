@@ -106,7 +106,7 @@ class MediaPipeSource:
             self._on_boxes = LandmarksOnBoxes(self.adapter, self.model, self.flip, self.guard, movenet=self.movenet)
         found: list[Keypoints] = []
         for det in self._boxes(rgb):
-            kp = self._on_boxes(rgb, k, det.box, det.score)
+            kp = self._on_boxes(rgb, k, det.box, det.score, first=not found)
             if kp is not None and not any(same_answer(kp, f) for f in found):
                 kp.found_by = f"{self.name}-{det.view}"
                 found.append(self._with_backbone(rgb, k, kp))

@@ -50,7 +50,7 @@ BENCHMARKS = {
     "other-test": {"kind": "other", "split": "test", "seed": 4002, "n": 1000},
     "other-empty-val": {"kind": "empty", "split": "val", "seed": 3101, "n": 150, "shard_size": 50},
     "other-empty-test": {"kind": "empty", "split": "test", "seed": 4102, "n": 300, "shard_size": 50},
-    "other-crowd-val": {"kind": "crowd", "split": "val", "seed": 3201, "n": 40, "shard_size": 20},
+    "other-crowd-val": {"kind": "crowd", "split": "val", "seed": 3201, "n": 120, "shard_size": 20},
     "other-crowd-test": {"kind": "crowd", "split": "test", "seed": 4202, "n": 100, "shard_size": 20},
     # views: another benchmark's images changed on reading (``open_bench``)
     "other-val-gray": {"view": "other-val", "gray": True},
