@@ -39,7 +39,7 @@ from recon.body import default_body
 from recon.demo import example_photos
 from recon.fit import FitConfig
 from recon.keypoints import BackboneSource, MediaPipeSource
-from recon.pipeline import Reconstructor, ReconstructorConfig
+from recon.pipeline import NoPersonFound, Reconstructor, ReconstructorConfig
 
 OUT = Path(__file__).resolve().parent.parent / "eval" / "results" / "bench-pipeline"
 
@@ -129,7 +129,7 @@ def main() -> None:
                 t0 = time.perf_counter()
                 r0 = rec.batch([img], [k])[0]
                 total = (time.perf_counter() - t0) * 1000
-                if not hasattr(r0, "timings_ms"):  # no person found: no stage times to compare
+                if isinstance(r0, NoPersonFound):  # no stage times to compare
                     missed[source] = missed.get(source, 0) + 1
                     continue
                 t[source]["keypoints"].append(r0.timings_ms["keypoints"])

@@ -82,9 +82,10 @@ def test_body_weight_is_the_closed_rest_meshs_volume_and_grows_with_the_weight_p
         v = body(shape=torch.as_tensor(mid)[None]).rest_vertices[0].numpy()
     mesh = trimesh.Trimesh(v, body.faces.numpy(), process=False)
     assert mesh.is_watertight  # a volume means something only for a closed mesh
-    kg = runner.body_mass(body, mid)
+    metres, kg = runner.body_size(body, mid)
+    assert metres == pytest.approx(float(v[:, 1].max() - v[:, 1].min()))
     assert kg == pytest.approx(abs(mesh.volume) * runner.BODY_DENSITY, rel=1e-4)
     assert 30.0 < kg < 120.0
     light, heavy = mid.copy(), mid.copy()
     light[names.index("weight")], heavy[names.index("weight")] = 0.0, 1.0
-    assert runner.body_mass(body, light) < kg < runner.body_mass(body, heavy)
+    assert runner.body_size(body, light)[1] < kg < runner.body_size(body, heavy)[1]

@@ -75,8 +75,8 @@ class MethodScorer:
         if pred.placed:
             row["depth"] = abs(float(pred.joints[0, 2]) - float(s["points3d"][0, 2]))
         if pred.shape is not None:
-            row["height"] = (body_height(body, pred.shape), body_height(body, s["shape"]))
-            row["mass"] = (body_mass(body, pred.shape), body_mass(body, s["shape"]))
+            (hp, mp), (ht, mt) = body_size(body, pred.shape), body_size(body, s["shape"])
+            row["height"], row["mass"] = (hp, ht), (mp, mt)
             row["shape"] = np.abs(np.asarray(pred.shape, float) - s["shape"])
             row["shape_pred"] = np.asarray(pred.shape, float)
         if pred.shape_confidence is not None:
@@ -200,22 +200,16 @@ def per_image(scores: list) -> dict:
             "shape_confidence": [None if r is None else r.get("shape_confidence") for r in scores]}
 
 
-def body_height(body, shape) -> float:
-    """Standing height (m) of a body shape: the vertical extent of its rest mesh."""
-    with torch.no_grad():
-        v = body(shape=torch.as_tensor(np.asarray(shape, np.float32))[None]).rest_vertices[0]
-    return float(v[:, 1].max() - v[:, 1].min())
-
-
 BODY_DENSITY = 985.0  # kg / m^3, a human body's average
 
 
-def body_mass(body, shape) -> float:
-    """Body weight (kg) of a body shape: its closed rest mesh's volume times BODY_DENSITY."""
+def body_size(body, shape) -> tuple[float, float]:
+    """Standing height (m: the vertical extent of the rest mesh) and weight (kg: the closed rest
+    mesh's volume times BODY_DENSITY) of a body shape, from one pass of the body model."""
     with torch.no_grad():
-        v = body(shape=torch.as_tensor(np.asarray(shape, np.float32))[None]).rest_vertices[0].double()
-    tri = v[body.faces.long()]
-    return float(torch.linalg.det(tri).sum().abs() / 6.0 * BODY_DENSITY)
+        v = body(shape=torch.as_tensor(np.asarray(shape, np.float32))[None]).rest_vertices[0]
+    tri = v.double()[body.faces.long()]
+    return float(v[:, 1].max() - v[:, 1].min()), float(torch.linalg.det(tri).sum().abs() / 6.0 * BODY_DENSITY)
 
 
 def check(bench: str, methods: list[str], n: int = CHECK_IMAGES) -> dict:
