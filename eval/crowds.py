@@ -7,8 +7,9 @@ Each image goes through `recon run`'s source (`MediaPipeSource.people` with the 
 box (IoU > 0.3, each true person matched once); other finds are extra bodies. Reported: the share
 of people at least 100 px tall that are found (all of them, and those with at least half of their
 silhouette in view), by height band, and the extra bodies per 20 images. On other-empty-* (no
-person) every body found is an extra one. Writes eval/results/crowds-<bench>[-no-detect].{md,json}
-(``--no-detect``: without the people stage's detector, as 0.25 found people).
+person) every body found is an extra one. Writes eval/results/crowds-<bench>[-no-detect|-no-multipose].{md,json}
+(``--no-detect``: without the people stage's detector, as 0.25 found people; ``--no-multipose``:
+NanoDet's boxes alone, as 0.27 found them).
 
     .venv/bin/python eval/crowds.py --bench other-crowd-test      # ~10 min on 2 cores
 """
@@ -49,11 +50,12 @@ def main() -> None:
     ap.add_argument("--max-people", type=int, default=20)
     ap.add_argument("--n", type=int, default=None)
     ap.add_argument("--no-detect", action="store_true", help="without the people stage's detector")
+    ap.add_argument("--no-multipose", action="store_true", help="without MultiPose's boxes (0.27's people stage)")
     a = ap.parse_args()
     torch.set_num_threads(1)
-    cfg = ReconstructorConfig(detect=not a.no_detect).as_installed()
+    cfg = ReconstructorConfig(detect=not a.no_detect, multipose=not a.no_multipose).as_installed()
     src = make_source("mediapipe", None, "cpu", cfg.flip, cfg.retry, cfg.guard, cfg.keypoint_model, cfg.fallback,
-                      cfg.backbone_weight, cfg.search, cfg.detect)
+                      cfg.backbone_weight, cfg.search, cfg.detect, cfg.movenet, cfg.multipose)
     ds = open_bench(a.bench)
     rows = []
     for i in tqdm(range(min(a.n or len(ds), len(ds))), desc=a.bench):
@@ -79,7 +81,7 @@ def main() -> None:
                "bands": {f"{lo}-{hi}": share(r for r in people if lo <= r["height"] < hi) for lo, hi in BANDS},
                "source": dataclasses.asdict(cfg) | {"max_people": a.max_people}}
     fmt = lambda x: "-" if x[0] is None else f"{100 * x[0]:.1f} % of {x[1]}"  # noqa: E731
-    flag = " --no-detect" if a.no_detect else ""
+    flag = " --no-detect" if a.no_detect else " --no-multipose" if a.no_multipose else ""
     md = [f"# Crowds: people found in {a.bench} (`recon run --max-people {a.max_people}{flag}`)", "",
           "`eval/crowds.py`: " + __doc__.split("\n\n")[1].replace("\n", " "), "",
           report.table([["people >= 100 px tall", fmt(summary["found_100px"])],
@@ -88,7 +90,7 @@ def main() -> None:
                         ["extra bodies per 20 images", f"{summary['extra_per_20_images']:.2f}"]],
                        ["", "found"]), "",
           f"{images} images, {len(people)} people; {report.describe(report.machine())}."]
-    out = Path(report.RESULTS) / f"crowds-{a.bench}{'-no-detect' if a.no_detect else ''}"
+    out = Path(report.RESULTS) / f"crowds-{a.bench}{flag.replace(' --', '-')}"
     report.write(out, {"summary": summary, "people": people}, "\n".join(md))
     print("\n".join(md))
 

@@ -130,6 +130,8 @@ class ReconstructorConfig:
     and zoomed tiles) and read each with the landmark model on its box; MediaPipe's own detector
     and the search below only where it finds nobody. movenet: with ``detect``, the weight of MoveNet
     Thunder's 2D keypoints fused into MediaPipe's on each box (``recon.keypoints.movenet``; 0: none).
+    multipose: with ``detect`` and more than one person wanted, MoveNet MultiPose's boxes as well
+    (``recon.people.multipose``: people NanoDet misses or boxes as one in crowds).
     search: where MediaPipe's detector (and its retries) finds nobody, look for a person without a
     face (``recon.keypoints.proposals``: back views, people cut by a border, small people).
     keypoint_model: MediaPipe's landmark model, "lite", "full" or "heavy" (its own adapter and guard;
@@ -162,6 +164,7 @@ class ReconstructorConfig:
     search: bool = True
     detect: bool = True
     movenet: float = 1.0
+    multipose: bool = True
     shape_head: bool = True
     gender: str = "auto"
     height_cm: float | None = None
@@ -177,11 +180,13 @@ class ReconstructorConfig:
             return self
         detect = self.detect and people_models.available("nanodet")
         movenet = self.movenet if people_models.available("movenet-thunder") else 0.0
+        multipose = self.multipose and detect and people_models.available("movenet-multipose")
         if self.detect and not detect and "nanodet" not in _WARNED:
             _WARNED.add("nanodet")
             log.warning("the person detector is not installed (scripts/setup.sh adds it): MediaPipe's own detector "
                         "finds one person at a time")
-        return replace(self, keypoint_model=resolve_model(self.keypoint_model), detect=detect, movenet=movenet)
+        return replace(self, keypoint_model=resolve_model(self.keypoint_model), detect=detect, movenet=movenet,
+                       multipose=multipose)
 
     def to_json(self) -> dict:
         """What changes the result (not the device), for the record of what a result was made from."""
@@ -222,7 +227,7 @@ class Reconstructor:
         self.source = (source if source is not None and not isinstance(source, str)
                        else make_source(cfg.source, self.body, cfg.device, cfg.flip, cfg.retry, cfg.guard,
                                    self.config.keypoint_model, cfg.fallback, cfg.backbone_weight, cfg.search,
-                                   self.config.detect, self.config.movenet))
+                                   self.config.detect, self.config.movenet, self.config.multipose))
 
     @property
     def fit(self) -> FitConfig:

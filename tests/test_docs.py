@@ -16,7 +16,7 @@ DOCS = sorted((ROOT / "docs").glob("*.md"))
 PAGES = [README, ROOT / "CHANGELOG.md", ROOT / "eval" / "README.md", *DOCS,
          *sorted(ROOT.glob("recon/*/weights/*CARD.md"))]
 # README rows -> the method they quote on other-test and synth-test
-ROWS = {"`recon run` (0.27": "recon-run", "`recon run` of 0.11": "recon-run-0.11",
+ROWS = {"`recon run` (0.28": "recon-run", "`recon run` of 0.11": "recon-run-0.11",
         "`recon run --source backbone`": "backbone-smplr-fit", "MediaPipe's own 3D": "mediapipe",
         "oracle:": "smplr-gt2d"}
 

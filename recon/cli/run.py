@@ -75,6 +75,9 @@ def add_run(p: Parser) -> None:
     p.add_argument("--movenet", type=number(float, 0.0, 4.0), default=known(cfg, "movenet"),
                    help="with --detect: weight of MoveNet Thunder's 2D keypoints fused into MediaPipe's on each "
                         "person (0: MediaPipe's alone)")
+    p.add_argument("--multipose", action=argparse.BooleanOptionalAction, default=known(cfg, "multipose"),
+                   help="with --detect and --max-people above 1: MoveNet MultiPose's boxes as well (people the "
+                        "detector misses or boxes as one in crowds)")
     p.add_argument("--search", action=argparse.BooleanOptionalAction, default=known(cfg, "search"),
                    help="MediaPipe: where its face-anchored detector finds nobody, look for a person without a face "
                         "(back views, people cut by a border, small people)")

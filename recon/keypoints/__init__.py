@@ -18,7 +18,7 @@ SOURCES = ("mediapipe", "backbone")
 def make_source(name: str = "mediapipe", body=None, device: str = "cpu", flip: bool | None = None,
                 retry: bool = True, guard: bool = True, keypoint_model: str = DEFAULT_MODEL,
                 fallback: bool = False, backbone_weight: float = 0.0, search: bool = False,
-                detect: bool = False, movenet: float = 0.0) -> KeypointSource:
+                detect: bool = False, movenet: float = 0.0, multipose: bool = False) -> KeypointSource:
     """Keypoint source by name: "mediapipe" (default) or "backbone". ``flip`` (test-time mirror
     averaging, see each source): None = the source's default, on for MediaPipe (cheap next to
     the fit), off for the backbone (its 100 ms latency goal). ``retry``: MediaPipe's retries on
@@ -27,11 +27,12 @@ def make_source(name: str = "mediapipe", body=None, device: str = "cpu", flip: b
     finds nobody; ``backbone_weight``: its share of the J+ of MediaPipe's people; ``search``: look for
     people its detector misses without a face (``recon.keypoints.proposals``); ``detect``: find people
     with the people stage's detector first (``recon.people``); ``movenet``: MoveNet's weight in the 2D
-    keypoints of each detected person (all ``MediaPipeSource``)."""
+    keypoints of each detected person; ``multipose``: MoveNet MultiPose's boxes too where more than
+    one person is wanted (all ``MediaPipeSource``)."""
     if name == "mediapipe":
         return MediaPipeSource(flip=True if flip is None else flip, retry=retry, guard=guard, model=keypoint_model,
                                fallback=fallback, backbone_weight=backbone_weight, search=search,
-                               detect=detect, movenet=movenet)
+                               detect=detect, movenet=movenet, multipose=multipose)
     if name == "backbone":
         return BackboneSource(body, device=device, flip=bool(flip))
     raise ReconError(f"unknown keypoint source {name!r}; choose one of {', '.join(SOURCES)}")

@@ -32,6 +32,9 @@ AGREE = 0.25  # the mirrored answer is averaged in where its median keypoint lie
 # installed. Chosen on other-crowd-val's people against the bodies found on other-empty-val and the
 # extra ones in other-crowd-val, other-val's people kept (eval/box_threshold.py).
 DETECTOR_REF = 0.35
+# A MultiPose box (``recon.people.multipose``) votes with its own score against this (chosen on
+# other-crowd-val against other-empty-val: eval/crowd_proposals.py)
+MULTIPOSE_REF = 0.35
 MOVENET_REF = 0.25
 MIN_SCORE = 1.5
 MIN_SCORE_ALONE = 1.0
@@ -40,6 +43,11 @@ MIN_SCORE_ALONE = 1.0
 def logit(p: float) -> float:
     p = min(max(float(p), 1e-6), 1 - 1e-6)
     return float(np.log(p / (1 - p)))
+
+
+def detector_term(box_score: float, view: str = "image") -> float:
+    """The box's vote: the log-odds of its score against the reference of the model that proposed it."""
+    return logit(box_score) - logit(MULTIPOSE_REF if view == "multipose" else DETECTOR_REF)
 
 
 def movenet_term(mean_score: float) -> float:
@@ -107,13 +115,14 @@ class LandmarksOnBoxes:
             roi = r.roi()
         return r
 
-    def read(self, rgb: np.ndarray, box, box_score: float = DETECTOR_REF) -> Reading | None:
-        """The answer on a box with its votes, before any bar; None where the landmark model sees nobody."""
+    def read(self, rgb: np.ndarray, box, box_score: float = DETECTOR_REF, view: str = "image") -> Reading | None:
+        """The answer on a box with its votes, before any bar (``view``: the detector's view that
+        proposed the box); None where the landmark model sees nobody."""
         r = self.pose(rgb, box)
         if r is None:
             return None
         votes = {"guard": self.person_guard.score(person_guard.evidence(r, rgb.shape)),
-                 "detector": logit(box_score) - logit(DETECTOR_REF)}
+                 "detector": detector_term(box_score, view)}
         moved = None
         if self.movenet is not None:
             moved = self.movenet(rgb, r.box(0.0))
@@ -123,11 +132,11 @@ class LandmarksOnBoxes:
     def is_person(self, got: Reading, first: bool = False) -> bool:
         return not self.guard or is_person(got, self.min_score, first)
 
-    def __call__(self, rgb: np.ndarray, k: np.ndarray, box, box_score: float = DETECTOR_REF, first: bool = False
-                 ) -> Keypoints | None:
-        """The person on ``box`` (the detector's ``box_score``; ``first``: nobody found in the image
-        yet), or None."""
-        got = self.read(rgb, box, box_score)
+    def __call__(self, rgb: np.ndarray, k: np.ndarray, box, box_score: float = DETECTOR_REF, first: bool = False,
+                 view: str = "image") -> Keypoints | None:
+        """The person on ``box`` (the detector's ``box_score`` in its ``view``; ``first``: nobody
+        found in the image yet), or None."""
+        got = self.read(rgb, box, box_score, view)
         if got is None or not self.is_person(got, first):
             return None
         return self.keypoints(rgb, k, got)

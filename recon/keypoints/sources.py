@@ -38,6 +38,7 @@ from recon.keypoints.views import (
     windows,
 )
 from recon.people.detector import PersonDetector
+from recon.people.multipose import MultiPoseDetector, new_boxes
 
 # When MediaPipe finds nobody, it is asked again on these views of the image, in order (view,
 # zero-padding factor, detection threshold): its detector misses people behind occluders or cut by
@@ -75,14 +76,16 @@ class MediaPipeSource:
     stays far lower: it learnt our renders): ``fallback``: where MediaPipe finds nobody, its own
     crop search answers instead (people behind occluders; no person mask); ``backbone_weight``:
     each person's J+ become that weight of the backbone's on MediaPipe's crop (``on_crop``) plus
-    the rest of MediaPipe's (``found_by`` "mediapipe+backbone"). ``last_view`` says which view (or
+    the rest of MediaPipe's (``found_by`` "mediapipe+backbone"). ``detect``: the people stage's
+    boxes first (``detected``); ``multipose``: with more than one person wanted, MoveNet MultiPose's
+    boxes too (``recon.people.multipose``). ``last_view`` says which view (or
     "backbone") found the person of the last call."""
 
     name = "mediapipe"
 
     def __init__(self, adapter_path=None, flip: bool = True, retry: bool = True, guard: bool = True,
                  model: str = DEFAULT_MODEL, fallback: bool = False, backbone_weight: float = 0.0,
-                 search: bool = False, detect: bool = False, movenet: float = 0.0):
+                 search: bool = False, detect: bool = False, movenet: float = 0.0, multipose: bool = False):
         self.mp = MediaPipePose(model)
         self.model = self.mp.model  # the model that runs (full when the file asked for is missing)
         self.adapter = KeypointAdapter.load(adapter_path, self.model)
@@ -94,25 +97,40 @@ class MediaPipeSource:
         self._backbone: BackboneSource | None = None
         self.search = search
         self._searcher: PersonSearch | None = None
-        self.detect, self.movenet = detect, movenet
+        self.detect, self.movenet, self.multipose = detect, movenet, multipose
         self._boxes: PersonDetector | None = None
+        self._multipose: MultiPoseDetector | None = None
         self._on_boxes: LandmarksOnBoxes | None = None
 
     def detected(self, rgb: np.ndarray, k: np.ndarray, max_people: int) -> list[Keypoints]:
         """Up to ``max_people`` people from the people stage's boxes (``recon.people``), best box
-        first, each read by the landmark model on its box (``LandmarksOnBoxes``)."""
+        first, each read by the landmark model on its box (``LandmarksOnBoxes``). With
+        ``multipose``, MoveNet MultiPose's boxes follow: in crowds (more than one person wanted)
+        those that overlap none of NanoDet's, and all of them where NanoDet's give nobody."""
         if self._boxes is None:
             self._boxes = PersonDetector()
             self._on_boxes = LandmarksOnBoxes(self.adapter, self.model, self.flip, self.guard, movenet=self.movenet)
-        found: list[Keypoints] = []
-        for det in self._boxes(rgb):
-            kp = self._on_boxes(rgb, k, det.box, det.score, first=not found)
+        boxes = self._boxes(rgb)
+        found = self._read_boxes(rgb, k, boxes, [], max_people)
+        if self.multipose and len(found) < max_people and (max_people > 1 or not found):
+            if self._multipose is None:
+                self._multipose = MultiPoseDetector()
+            more = self._multipose(rgb)
+            found = self._read_boxes(rgb, k, new_boxes(more, boxes) if found else more, found, max_people)
+        return found
+
+    def _read_boxes(self, rgb: np.ndarray, k: np.ndarray, boxes: list, found: list[Keypoints], max_people: int
+                    ) -> list[Keypoints]:
+        """``found`` and the people read on ``boxes`` that are no one already found."""
+        found = list(found)
+        for det in boxes:
+            if len(found) >= max_people:
+                break
+            kp = self._on_boxes(rgb, k, det.box, det.score, first=not found, view=det.view)
             if kp is not None and not any(same_answer(kp, f) for f in found):
                 kp.found_by = f"{self.name}-{det.view}"
                 found.append(self._with_backbone(rgb, k, kp))
                 self.last_view = "detector"
-                if len(found) >= max_people:
-                    break
         return found
 
     @property

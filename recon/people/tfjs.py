@@ -3,7 +3,7 @@
 TF.js graph models are a TensorFlow GraphDef as JSON (``modelTopology.node``) and their constants
 as little-endian shards (``weightsManifest``), some quantised to uint8/uint16 or float16. ``TFJSGraph``
 decodes the constants once and runs the nodes in order with torch, in TensorFlow's NHWC layout.
-It knows the operations of the models recon ships (NanoDet, MoveNet); an unknown one is an error
+It knows the operations of the models recon ships (NanoDet, MoveNet single and multi-person); an unknown one is an error
 at load time, not a wrong answer.
 """
 from __future__ import annotations
@@ -169,6 +169,49 @@ def _split_v(x: torch.Tensor, sizes: torch.Tensor, axis: torch.Tensor) -> list[t
     return list(torch.split(x, s, dim=int(axis)))
 
 
+def _strided_slice(x: torch.Tensor, begin, end, strides, node: dict) -> torch.Tensor:
+    """TensorFlow's StridedSlice with its begin/end/new-axis/shrink masks (no ellipsis, positive strides)."""
+    masks = {k: _attr(node, k, 0) for k in ("begin_mask", "end_mask", "ellipsis_mask", "new_axis_mask",
+                                             "shrink_axis_mask")}
+    if masks["ellipsis_mask"] or any(int(s) <= 0 for s in strides):
+        raise ReconError(f"{node['name']}: StridedSlice with an ellipsis or a negative stride is not supported")
+    index = []
+    for i, (b, e, s) in enumerate(zip(begin.tolist(), end.tolist(), strides.tolist())):
+        bit = 1 << i
+        if masks["new_axis_mask"] & bit:
+            index.append(None)
+        elif masks["shrink_axis_mask"] & bit:
+            index.append(int(b))
+        else:
+            index.append(slice(None if masks["begin_mask"] & bit else int(b),
+                               None if masks["end_mask"] & bit else int(e), int(s)))
+    return x[tuple(index)]
+
+
+def _reduce(f, x: torch.Tensor, axis: torch.Tensor, node: dict) -> torch.Tensor:
+    dims = [int(a) % x.dim() for a in axis.reshape(-1)] if x.dim() else []
+    keep = _attr(node, "keep_dims", False)
+    for d in sorted(dims, reverse=True):
+        x = f(x, d, keep)
+    return x
+
+
+def _top_k(x: torch.Tensor, k: torch.Tensor) -> list[torch.Tensor]:
+    values, indices = torch.topk(x, int(k), dim=-1, sorted=True)
+    return [values, indices]
+
+
+def _select(cond: torch.Tensor, t: torch.Tensor, e: torch.Tensor) -> torch.Tensor:
+    """TensorFlow's Select: a vector condition picks rows (the first axis), else elementwise."""
+    if cond.dim() == 1 and t.dim() > 1:
+        cond = cond.reshape(-1, *[1] * (t.dim() - 1))
+    return torch.where(cond, t, e)
+
+
+def _int(x: torch.Tensor) -> torch.Tensor:
+    return torch.as_tensor(x, dtype=torch.int64)
+
+
 # op -> f(node, inputs) -> tensor or list of tensors (a node's outputs "name:i")
 OPS = {
     "Identity": lambda n, a: a[0],
@@ -185,6 +228,28 @@ OPS = {
     "Relu": lambda n, a: F.relu(a[0]),
     "Relu6": lambda n, a: F.relu6(a[0]),
     "LeakyRelu": lambda n, a: F.leaky_relu(a[0], _attr(n, "alpha", 0.2)),
+    "Abs": lambda n, a: torch.abs(a[0]),
+    "Exp": lambda n, a: torch.exp(a[0]),
+    "Reciprocal": lambda n, a: torch.reciprocal(a[0]),
+    "AddN": lambda n, a: torch.stack(torch.broadcast_tensors(*a)).sum(0),
+    "Maximum": lambda n, a: torch.maximum(*torch.broadcast_tensors(a[0], a[1].to(a[0].dtype))),
+    "Minimum": lambda n, a: torch.minimum(*torch.broadcast_tensors(a[0], a[1].to(a[0].dtype))),
+    "Equal": lambda n, a: a[0] == a[1],
+    "Greater": lambda n, a: a[0] > a[1],
+    "GreaterEqual": lambda n, a: a[0] >= a[1],
+    "Less": lambda n, a: a[0] < a[1],
+    "LogicalAnd": lambda n, a: torch.logical_and(a[0], a[1]),
+    "Select": lambda n, a: _select(*a),
+    "Sum": lambda n, a: _reduce(lambda x, d, k: x.sum(d, keepdim=k), a[0], a[1], n),
+    "Max": lambda n, a: _reduce(lambda x, d, k: x.amax(d, keepdim=k), a[0], a[1], n),
+    "TopKV2": lambda n, a: _top_k(a[0], a[1]),
+    "Shape": lambda n, a: _int(list(a[0].shape)),
+    "Size": lambda n, a: _int(a[0].numel()),
+    "Fill": lambda n, a: torch.full([int(v) for v in a[0].reshape(-1)], a[1].item(), dtype=a[1].dtype),
+    "Range": lambda n, a: torch.arange(a[0].item(), a[1].item(), a[2].item()),
+    "Tile": lambda n, a: a[0].repeat(*[int(v) for v in a[1]]),
+    "Split": lambda n, a: list(torch.chunk(a[1], _attr(n, "num_split"), dim=int(a[0]))),
+    "StridedSlice": lambda n, a: _strided_slice(a[0], a[1], a[2], a[3], n),
     "Transpose": lambda n, a: a[0].permute(*[int(v) for v in a[1]]),
     "Reshape": lambda n, a: a[0].reshape([int(v) for v in a[1]]),
     "ExpandDims": lambda n, a: a[0].unsqueeze(int(a[1])),
@@ -223,7 +288,7 @@ class TFJSGraph:
         unknown = sorted({n["op"] for n in nodes} - set(OPS) - {"Const", "Placeholder"})
         if unknown:
             raise ReconError(f"{name}: TF.js operations not supported: {', '.join(unknown)}")
-        self.consts = {k: torch.from_numpy(np.ascontiguousarray(v)) for k, v in weights.items()}
+        self.consts = {k: torch.from_numpy(np.array(v, order="C")) for k, v in weights.items()}  # 0-d stays 0-d
         for n in nodes:
             if n["op"] == "Const" and n["name"] not in self.consts:
                 raise ReconError(f"{name}: constant {n['name']} is missing from the weights")

@@ -21,7 +21,7 @@ def run_images(args) -> int:
                                  retry=args.retry, guard=args.guard, keypoint_model=args.keypoint_model,
                                  fallback=args.fallback, backbone_weight=args.backbone_weight,
                                  shape_head=args.shape_head, search=args.search, detect=args.detect,
-                                 movenet=args.movenet, gender=args.gender,
+                                 movenet=args.movenet, multipose=args.multipose, gender=args.gender,
                                  height_cm=args.height_cm,
                                  fit=FitConfig(steps=args.refine_steps, silhouette=args.silhouette),
                                  **({} if args.focal is None else {"focal_factor": args.focal}))
