@@ -130,8 +130,8 @@ class ReconstructorConfig:
     and zoomed tiles) and read each with the landmark model on its box; MediaPipe's own detector
     and the search below only where it finds nobody. movenet: with ``detect``, the weight of MoveNet
     Thunder's 2D keypoints fused into MediaPipe's on each box (``recon.keypoints.movenet``; 0: none).
-    multipose: with ``detect`` and more than one person wanted, MoveNet MultiPose's boxes as well
-    (``recon.people.multipose``: people NanoDet misses or boxes as one in crowds).
+    multipose: with ``detect``, MoveNet MultiPose's boxes as well where NanoDet's give nobody or more
+    than one person is wanted (``recon.people.multipose``: people NanoDet misses or boxes as one).
     search: where MediaPipe's detector (and its retries) finds nobody, look for a person without a
     face (``recon.keypoints.proposals``: back views, people cut by a border, small people).
     keypoint_model: MediaPipe's landmark model, "lite", "full" or "heavy" (its own adapter and guard;

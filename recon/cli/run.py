@@ -76,8 +76,8 @@ def add_run(p: Parser) -> None:
                    help="with --detect: weight of MoveNet Thunder's 2D keypoints fused into MediaPipe's on each "
                         "person (0: MediaPipe's alone)")
     p.add_argument("--multipose", action=argparse.BooleanOptionalAction, default=known(cfg, "multipose"),
-                   help="with --detect and --max-people above 1: MoveNet MultiPose's boxes as well (people the "
-                        "detector misses or boxes as one in crowds)")
+                   help="with --detect: MoveNet MultiPose's boxes as well, where the detector's give nobody or "
+                        "--max-people is above 1 (people it misses or boxes as one in crowds)")
     p.add_argument("--search", action=argparse.BooleanOptionalAction, default=known(cfg, "search"),
                    help="MediaPipe: where its face-anchored detector finds nobody, look for a person without a face "
                         "(back views, people cut by a border, small people)")

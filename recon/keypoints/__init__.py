@@ -27,8 +27,8 @@ def make_source(name: str = "mediapipe", body=None, device: str = "cpu", flip: b
     finds nobody; ``backbone_weight``: its share of the J+ of MediaPipe's people; ``search``: look for
     people its detector misses without a face (``recon.keypoints.proposals``); ``detect``: find people
     with the people stage's detector first (``recon.people``); ``movenet``: MoveNet's weight in the 2D
-    keypoints of each detected person; ``multipose``: MoveNet MultiPose's boxes too where more than
-    one person is wanted (all ``MediaPipeSource``)."""
+    keypoints of each detected person; ``multipose``: MoveNet MultiPose's boxes too where NanoDet's give
+    nobody or more than one person is wanted (all ``MediaPipeSource``)."""
     if name == "mediapipe":
         return MediaPipeSource(flip=True if flip is None else flip, retry=retry, guard=guard, model=keypoint_model,
                                fallback=fallback, backbone_weight=backbone_weight, search=search,

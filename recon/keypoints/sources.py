@@ -77,8 +77,8 @@ class MediaPipeSource:
     crop search answers instead (people behind occluders; no person mask); ``backbone_weight``:
     each person's J+ become that weight of the backbone's on MediaPipe's crop (``on_crop``) plus
     the rest of MediaPipe's (``found_by`` "mediapipe+backbone"). ``detect``: the people stage's
-    boxes first (``detected``); ``multipose``: with more than one person wanted, MoveNet MultiPose's
-    boxes too (``recon.people.multipose``). ``last_view`` says which view (or
+    boxes first (``detected``); ``multipose``: MoveNet MultiPose's boxes too, where NanoDet's give
+    nobody or more than one person is wanted (``recon.people.multipose``). ``last_view`` says which view (or
     "backbone") found the person of the last call."""
 
     name = "mediapipe"
