@@ -25,15 +25,17 @@ from tqdm import tqdm
 from recon import report
 from recon.keypoints.adapter import KeypointAdapter
 from recon.keypoints.mediapipe import DEFAULT_MODEL
-from recon.keypoints.on_boxes import MIN_SCORE, MIN_SCORE_ALONE, MULTIPOSE_REF, LandmarksOnBoxes, logit
-from recon.keypoints.views import box_iou, same_answer
+from recon.keypoints.on_boxes import DETECTOR_REF, MIN_SCORE, MULTIPOSE_REF, LandmarksOnBoxes, Reading, is_person, logit
+from recon.keypoints.views import same_answer
+from recon.people.boxes import box_iou
 from recon.people.detector import PersonDetector
-from recon.people.multipose import MultiPoseDetector
+from recon.people.multipose import OVERLAP, SIZE, MultiPoseDetector
 from recon.synth.dataset import open_bench
 
 SIZES = (384, 512, 640)
 OVERLAPS = (0.3, 0.5, 0.7)
 REFS = (0.2, 0.35, 0.5)
+SHIPPED = (SIZE, OVERLAP, MULTIPOSE_REF)
 
 
 def truth_boxes(s: dict) -> np.ndarray:
@@ -88,9 +90,9 @@ def kept(rows: list[dict], size: int, overlap: float, ref: float) -> list[dict]:
     for r in rows:
         if r["size"] not in (0, size) or (r["size"] and r["overlap"] > overlap):
             continue
-        det = logit(r["score"]) - logit(ref if r["size"] else 0.35)
-        first = r["image"] not in have
-        if r["guard"] + det + r["movenet"] >= MIN_SCORE or (first and r["guard"] + det >= MIN_SCORE_ALONE):
+        votes = {"guard": r["guard"], "detector": logit(r["score"]) - logit(ref if r["size"] else DETECTOR_REF),
+                 "movenet": r["movenet"]}
+        if is_person(Reading(None, votes, None), MIN_SCORE, first=r["image"] not in have):
             out.append(r)
             have.add(r["image"])
     return out
@@ -113,7 +115,7 @@ def main() -> None:
                 r = sum(x["right"] for x in c)
                 out.append({"size": size, "overlap": overlap, "ref": ref, "right": r, "extra": len(c) - r,
                             "empty": len(e)})
-                mark = " (shipped)" if ref == MULTIPOSE_REF and (size, overlap) == SHIPPED else ""
+                mark = " (shipped)" if (size, overlap, ref) == SHIPPED else ""
                 rows.append([f"+ MultiPose {size} px{mark}", f"{overlap:g}", f"{ref:g}", r, len(c) - r, len(e)])
     md = ["# MultiPose's boxes in crowds", "",
           "`eval/crowd_proposals.py`: " + __doc__.split("\n\n")[1].replace("\n", " "), "",
@@ -123,8 +125,6 @@ def main() -> None:
     report.write(Path(report.RESULTS) / "crowd-proposals", {"rows": out}, "\n".join(md))
     print("\n".join(md))
 
-
-SHIPPED = (512, 0.5)
 
 if __name__ == "__main__":
     main()

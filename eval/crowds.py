@@ -25,7 +25,7 @@ from tqdm import tqdm
 
 from recon import report
 from recon.keypoints import make_source
-from recon.keypoints.views import box_iou
+from recon.people.boxes import box_iou
 from recon.pipeline import ReconstructorConfig
 from recon.synth.dataset import open_bench
 

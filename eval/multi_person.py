@@ -23,7 +23,7 @@ from tqdm import tqdm
 from recon import camera, paths, report
 from recon.io import load_image, scan_inputs
 from recon.keypoints.sources import MediaPipeSource
-from recon.keypoints.views import box_iou
+from recon.people.boxes import box_iou
 from recon.pipeline import ReconstructorConfig
 from recon.synth.dataset import SynthDataset, bench_dir
 

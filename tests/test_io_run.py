@@ -21,7 +21,8 @@ from recon.keypoints import available as mediapipe_available
 from recon.keypoints.adapter import MP_MIRROR
 from recon.keypoints.adapter import WEIGHTS as ADAPTER_WEIGHTS
 from recon.keypoints.mediapipe import MPPose
-from recon.keypoints.views import box_overlap, pad_image, unview, windows
+from recon.keypoints.views import pad_image, unview, windows
+from recon.people.boxes import box_overlap
 from recon.pipeline import Reconstructor, ReconstructorConfig
 from recon.poses.bvh import read_bvh
 from recon.run import RunOptions, run

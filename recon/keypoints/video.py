@@ -27,7 +27,8 @@ from recon.keypoints.adapter import KeypointAdapter
 from recon.keypoints.base import Keypoints
 from recon.keypoints.mediapipe import DEFAULT_MODEL, MediaPipePose
 from recon.keypoints.sources import TRUSTED_CONFIDENCE, BackboneSource, MediaPipeSource, blend_backbone
-from recon.keypoints.views import blank_person, box_iou, same_person, windows
+from recon.keypoints.views import blank_person, same_person, windows
+from recon.people.boxes import box_iou
 
 PROBE_MISSES, PROBE_EVERY = 3, 30
 SEARCH_EVERY = 3

