@@ -7,8 +7,9 @@ The clip is synth-video-test's ``walk-03_03`` (eval/video.py renders it into the
 ``recon video --no-overlay`` with its defaults (MediaPipe's heavy landmark model in video mode; the
 per-frame pass's keypoint stage on a second thread, ``recon.video.perframe``), the same with the
 two stages one after the other (``VideoOptions(pipeline=False)``, as before 0.15), with 0.14's 120
-iterations of the track optimisation, with the full landmark model, and the default with
-overlay.mp4; ``recon run`` on each frame (its default: heavy
+iterations of the track optimisation, with the full landmark model, with 0.28's feet (planted
+from the 2D keypoints alone, no motion prior), and the default with overlay.mp4 (H.264), also
+in 0.28's MPEG-4 part 2; ``recon run`` on each frame (its default: heavy
 with mirror pass, backbone, per-image fit). Seconds per stage (per-frame pass, tracks = tracking
 and the track optimisation, outputs = BVH/glb/JSON, overlay) and frames/s over all, without
 loading the models (its seconds are listed). Rows take turns, ``--repeat`` times; each row's
@@ -18,18 +19,20 @@ fastest run counts (this machine's speed drifts).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
 import tempfile
 import time
 from dataclasses import replace
 from pathlib import Path
+from unittest import mock
 
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "eval"))
 from video import clips  # noqa: E402 - eval/video.py renders and caches the benchmark clips
 
-from recon import report  # noqa: E402
+from recon import paths, report  # noqa: E402
 from recon.pipeline import Reconstructor, ReconstructorConfig  # noqa: E402
 from recon.synth.video import SIZE  # noqa: E402
 from recon.video import FrameRange, FrameSource, SmoothConfig, VideoOptions, video  # noqa: E402
@@ -56,7 +59,10 @@ def main() -> None:
         "`recon video --no-overlay --smooth-steps 120` (0.14's iterations)":
             (base, {"overlay": False, "smooth": SmoothConfig(steps=120)}),
         "`recon video --no-overlay --keypoint-model full`": (replace(base, keypoint_model="full"), {"overlay": False}),
+        "`recon video --no-overlay`, feet planted from the 2D keypoints alone (as 0.28)":
+            (base, {"overlay": False, "smooth": SmoothConfig(contact_from="image")}),
         "`recon video` (with overlay.mp4)": (base, {}),
+        "`recon video` (with overlay.mp4 in MPEG-4 part 2, as 0.28)": (base, {"h264": False}),
     }
     results = {}
     with tempfile.TemporaryDirectory() as tmp:
@@ -65,8 +71,12 @@ def main() -> None:
                 t0 = time.perf_counter()
                 rec = video_reconstructor(cfg, 1)
                 loading = time.perf_counter() - t0
-                res = video(path, Path(tmp) / str(n), VideoOptions(frames=frames, force=True, **options),
-                            reconstructor=rec, progress=False, log=lambda m: None)
+                opts = {k: v for k, v in options.items() if k != "h264"}
+                encoder = mock.patch.object(paths, "h264_available", return_value=False) \
+                    if options.get("h264", True) is False else contextlib.nullcontext()
+                with encoder:
+                    res = video(path, Path(tmp) / str(n), VideoOptions(frames=frames, force=True, **opts),
+                                reconstructor=rec, progress=False, log=lambda m: None)
                 count = len(res.frames.index)
                 row = {**{k: v / count * 1000 for k, v in res.seconds.items()}, "frames": count,
                        "fps": count / sum(res.seconds.values()), "loading_s": loading}

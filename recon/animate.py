@@ -187,7 +187,7 @@ def write_video(path: Path, frames: list[np.ndarray], fps: float) -> Path:
     Written atomically; returns the path written."""
     if path.suffix.lower() == ".mp4":
         try:
-            return paths.write_mp4(path, frames, fps, frames[0].shape[:2])
+            return paths.write_mp4(path, frames, fps, frames[0].shape[:2], browser=True)
         except OSError:
             path = path.with_suffix(".gif")
     images = [Image.fromarray(f) for f in frames]

@@ -292,3 +292,25 @@ def test_a_page_of_a_thousand_results_stays_light(tmp_path):
         assert not _errors(c), c.console
     print(f"1000 results: page written in {written:.1f} s, opened in {opened:.1f} s, filtered in {filtered:.2f} s")
     assert opened < 20 and filtered < 5
+
+
+def test_a_video_page_plays_an_h264_overlay_and_only_links_an_mpeg4_one(tmp_path):
+    from recon import paths
+    frames = [np.full((31, 41, 3), 40 * i, np.uint8) for i in range(6)]
+    for codec in ("h264", "mpeg4"):
+        out = tmp_path / codec
+        out.mkdir()
+        paths.write_mp4(out / "overlay.mp4", iter(frames), 30.0, (31, 41), browser=codec == "h264")
+        (out / "video.json").write_text(json.dumps({"source": "clip.mp4", "frames": 6, "tracks": [],
+                                                    "overlay_codec": codec}))
+        rpage.write_page(out)
+        data = _data(out)
+        assert {"href": "overlay.mp4", "label": "overlay.mp4 (the clip with every track's body)"} in data["links"]
+        assert [v["src"] for v in data["videos"]] == (["overlay.mp4"] if codec == "h264" else [])
+    cap = cv2.VideoCapture(str(tmp_path / "h264" / "overlay.mp4"))
+    fourcc = int(cap.get(cv2.CAP_PROP_FOURCC)).to_bytes(4, "little").decode()
+    n = 0
+    while cap.read()[0]:
+        n += 1
+    assert fourcc in ("avc1", "h264") and n == 6
+    assert (cap.get(cv2.CAP_PROP_FRAME_WIDTH), cap.get(cv2.CAP_PROP_FRAME_HEIGHT)) == (42, 32)  # padded to even

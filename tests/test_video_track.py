@@ -287,3 +287,16 @@ def test_a_long_track_in_windows_is_as_good_as_in_one(body, mocap):
     assert np.linalg.norm(parts.points - one.points, axis=-1).mean() < 0.02
     with pytest.raises(ValueError, match="overlap"):
         smooth_track(body, inp, SmoothConfig(window=30, overlap=30))
+
+
+def test_feet_planted_by_the_image_the_motion_prior_or_either(body, mocap):
+    rot, tr, shape, pts, uv = _walk(body, mocap)
+    t = len(rot)
+    boxes = np.concatenate([uv.min(1), uv.max(1)], 1)
+    inp = TrackInput(np.ones(t, bool), uv, pts - pts[:, :1], boxes, rot, tr, shape, K, (480, 640))
+    plant = {c: smooth_track(body, inp, SmoothConfig(steps=0, contact_from=c)).planted
+             for c in ("image", "prior", "either")}
+    assert (plant["either"] == (plant["image"] | plant["prior"])).all()
+    assert plant["prior"].any() and not plant["prior"].all()  # a walk: each foot planted part of the time
+    with pytest.raises(ValueError, match="contact_from"):
+        smooth_track(body, inp, SmoothConfig(steps=0, contact_from="feet"))

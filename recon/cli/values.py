@@ -131,6 +131,8 @@ VALUES = {'recon.backbone.hourglass:SIZES': ('cpu', 'base', 'gpu'),
  'recon.synth.dataset:generate.workers': 2,
  'recon.video.camera_motion:MIN_MEASURED': 0.5,
  'recon.video.camera_motion:MOVING_DEGREES': 2.0,
+ 'recon.video.smooth:CONTACT_FROM': ('image', 'prior', 'either'),
+ 'recon.video:SmoothConfig.contact_from': 'either',
  'recon.video:SmoothConfig.steps': 400,
  'recon.video:VideoOptions.batch': 30,
  'recon.video:VideoOptions.max_people': 1}

@@ -37,6 +37,10 @@ def add_video(p: Parser) -> None:
                         f"{round(100 * known('recon.video.camera_motion:MIN_MEASURED'))} %% of the frames is not)")
     p.add_argument("--smooth-steps", type=STEPS, default=known("recon.video:SmoothConfig.steps"),
                    help="iterations of the track optimisation (0: the per-frame estimates, gaps interpolated)")
+    p.add_argument("--planted-from", choices=known("recon.video.smooth:CONTACT_FROM"),
+                   default=known("recon.video:SmoothConfig.contact_from"),
+                   help="which feet the track optimisation pins: where the 2D keypoints stand still and low "
+                        "(image), where the learned motion prior says so (prior), or either")
     p.add_argument("--outfit", default=None, help="dress the animated bodies: a trained outfit (presets: "
                    f"{', '.join(known('recon.garment.templates:PRESETS'))}); NCS dynamics where it has them")
     p.add_argument("--tightness", type=TIGHTNESS, nargs=2, default=None, metavar=("WEIGHT", "HEIGHT"),

@@ -55,6 +55,7 @@ class Page:
     items: list = field(default_factory=list)
     missing: list = field(default_factory=list)  # {"key", "why", "image"?}
     links: list = field(default_factory=list)  # {"href", "label"} for the whole folder
+    videos: list = field(default_factory=list)  # {"src", "label"}: clips a browser plays (H.264), shown on top
     views: dict = field(default_factory=dict)  # model id -> View
 
     def rel(self, path: Path) -> str:
@@ -163,6 +164,8 @@ def video_page(out: Path) -> Page:
         page.summary.append(["frames skipped", len(v["skipped"])])
     if (out / "overlay.mp4").is_file():
         page.links.append({"href": "overlay.mp4", "label": "overlay.mp4 (the clip with every track's body)"})
+        if v.get("overlay_codec") == "h264":
+            page.videos.append({"src": "overlay.mp4", "label": "the clip with every track's body | the bodies in 3D"})
     for t in v.get("tracks", []):
         folder = out / t["folder"]
         views = [page.view(View("animated", "animated", {"glb": folder / "animated.glb"}, folder / "animated.glb"))] \
@@ -253,7 +256,8 @@ def write_page(out: str | Path, kind: str | None = None) -> Path:
     for asset in ("page.js", "page.css"):
         paths.atomic_write(pdir / asset, lambda t, a=asset: shutil.copyfile(ASSETS / a, t))
     data = {"kind": page.kind, "title": page.title, "recon": __version__, "dir": PAGE_DIR, "summary": page.summary,
-            "items": page.items, "missing": page.missing, "links": page.links, "notes": notes, "viewer": viewer}
+            "items": page.items, "missing": page.missing, "links": page.links, "videos": page.videos,
+            "notes": notes, "viewer": viewer}
     paths.write_text(pdir / "data.js", "RECON_PAGE = " + json.dumps(data, separators=(",", ":")) + ";\n")
     viewer_tag = f'<script src="{PAGE_DIR}/{VIEWER}"></script>' if viewer else ""
     text = (ASSETS / "index.html").read_text().replace("{{title}}", html.escape(page.title)).replace(

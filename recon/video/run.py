@@ -198,6 +198,7 @@ def video(path: str | Path, out: str | Path, options: VideoOptions | None = None
                     "seen": int(m.seen.sum()), "files": track_files[m.id]} for m in motions],
         "seconds": {k_: round(v, 2) for k_, v in seconds.items()},
         "frames_per_second": round(len(frames.index) / max(sum(seconds.values()), 1e-9), 2),
+        "overlay_codec": ("h264" if paths.h264_available() else "mpeg4") if options.overlay else None,
         "static_camera": not moving, "camera": note,
         "camera_turned_degrees": round(estimate.degrees, 2) if estimate.known else None,
         "camera_turn_measured": round(estimate.measured_share, 3),
@@ -313,7 +314,7 @@ def _write_overlay(path: Path, src: FrameSource, body, motions: list[WorldMotion
             yield draw(last, position)
             bar.update(1)
     try:
-        paths.write_mp4(path, frames(), fps, (h, 2 * w))
+        paths.write_mp4(path, frames(), fps, (h, 2 * w), browser=True)
     finally:
         bar.close()
         draw.close()

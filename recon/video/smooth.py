@@ -11,8 +11,11 @@ one body shape fixed, to minimise (``SmoothConfig`` weights):
   (units of the image, like the reprojection): the motion prior. Frames where the person was not
   seen have only this term and so are bridged smoothly;
 * contact: a foot found planted in the image (its 2D keypoints still, and low: ``planted``) does
-  not move in 3D between planted frames;
-* a small prior keeping the rotations near the per-frame ones.
+  not move in 3D between planted frames (ankle, foot joint and toe tip); where only the learned
+  motion prior (``recon.video.prior``) finds it planted, its foot joint does not
+  (``SmoothConfig.contact_from``);
+* a small prior keeping the rotations near the per-frame ones; optionally (off by default) a pull
+  towards the motion prior's J+ (``SmoothConfig.prior``).
 
 A turning camera (``TrackInput.camera_rotations``: how each frame's camera turned from the clip's
 first one, ``recon.video.camera_motion``) is taken out: the motion lives in the first frame's camera
@@ -29,16 +32,20 @@ feet on y = 0, Z towards the camera.
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
 import roma
 import torch
+from scipy.ndimage import gaussian_filter1d
 
 from recon import camera
 from recon.body import skeleton
 from recon.fit import linear_rest_geometry
+from recon.video import prior as motion_prior
 
+CONTACT_FROM = ("image", "prior", "either")
 FOOT_POINTS = {  # per foot: ankle, foot joint, toe tip landmark (J+ indices)
     "left": (skeleton.JOINT_NAMES.index("left_ankle"), skeleton.JOINT_NAMES.index("left_foot"),
              skeleton.NUM_JOINTS + skeleton.LANDMARK_NAMES.index("left_toe_tip")),
@@ -63,6 +70,20 @@ class SmoothConfig:
     optimizer: str = "lbfgs"  # or "adam" (``pose_lr``, ``translation_lr``)
     planted_speed: float = 0.012  # a foot moving less than this (units of the box height a frame) in 2D ...
     planted_low: float = 0.06  # ... within this of the lowest foot point of the frame is planted
+    # the learned motion prior (``recon.video.prior``): the body pulled towards its root-relative J+
+    # and root path (units of the image, like the reprojection); 0: not used
+    prior: float = 0.0
+    prior_root: float = 0.0
+    # where the target comes from: "learned" (the motion prior) or "gaussian" (the per-frame J+
+    # filtered in time with ``gaussian_sigma`` frames: the prior's baseline)
+    prior_kind: str = "learned"
+    gaussian_sigma: float = 2.0
+    # the acceleration terms penalise the body's acceleration itself ("zero") or its difference from
+    # the target's ("target": the target's motion is kept, only what departs from it is damped)
+    acceleration_about: str = "zero"
+    # which feet are planted: "image" (2D keypoints still and low), "prior" (its planted flags) or "either"
+    contact_from: str = "either"
+    planted_probability: float = 0.5  # the prior's planted probability above which a foot is planted
     # a longer track is optimised in windows of this many frames, each overlapping the one before by
     # ``overlap`` frames and blended there: memory stays bounded on long clips
     window: int = 900
@@ -187,14 +208,38 @@ def smooth_track(body, inp: TrackInput, cfg: SmoothConfig | None = None) -> Trac
     cfg = cfg or SmoothConfig()
     if cfg.overlap < 2 or cfg.window <= cfg.overlap:
         raise ValueError("SmoothConfig needs overlap >= 2 and window > overlap")
+    for name, allowed in (("contact_from", CONTACT_FROM), ("prior_kind", ("learned", "gaussian")),
+                          ("acceleration_about", ("zero", "target"))):
+        if getattr(cfg, name) not in allowed:
+            raise ValueError(f"SmoothConfig.{name} must be one of {', '.join(allowed)}")
     rot0, tr0 = fill_gaps(inp.seen, *inp.in_reference())
-    contact = planted(inp, cfg)
+    contact = image = planted(inp, cfg)
     t = len(rot0)
     shape = torch.tensor(inp.shape, dtype=torch.float32)[None]
     rest = linear_rest_geometry(body, shape, None, with_jacobian=False)[0]  # (1, ...): the track's one shape
+    target = None
+    if cfg.prior or cfg.prior_root or cfg.contact_from != "image" or cfg.acceleration_about == "target":
+        with torch.no_grad():
+            start = body(torch.tensor(rot0, dtype=torch.float32), transl=torch.tensor(tr0, dtype=torch.float32),
+                         points_only=True, rest=tuple(x.expand(t, -1, -1) for x in rest)).points.numpy()
+        target, feet = motion_prior.denoise(_prior(), start, inp.seen)
+        if cfg.prior_kind == "gaussian":
+            target = gaussian_filter1d(start.astype(np.float64), cfg.gaussian_sigma, axis=0, mode="nearest")
+        if cfg.contact_from == "prior":
+            contact = feet > cfg.planted_probability
+        elif cfg.contact_from == "either":
+            contact = contact | (feet > cfg.planted_probability)
+    # which foot points are pinned: all three where the image saw the foot still, the foot joint
+    # alone where only the prior says planted (its flag is the foot joint's: a heel may be rising)
+    pinned = np.repeat(contact[:, :, None], 3, axis=2)
+    if cfg.contact_from == "either":
+        pinned[:, :, [0, 2]] = image[:, :, None]
+    elif cfg.contact_from == "prior":
+        pinned[:, :, [0, 2]] = False
     delta, tr = np.zeros((t, 24, 3), np.float32), np.zeros((t, 3), np.float32)
     for a, b in windows(t, cfg.window, cfg.overlap):
-        d, x = _optimise(body, inp.frames(a, b), cfg, rot0[a:b], tr0[a:b], contact[a:b], rest)
+        d, x = _optimise(body, inp.frames(a, b), cfg, rot0[a:b], tr0[a:b], pinned[a:b], rest,
+                         None if target is None else target[a:b])
         w = np.ones(b - a, np.float32)
         if a > 0:  # the overlap with the window before: from its answer to this one's, linearly
             n = min(cfg.overlap, b - a)
@@ -230,10 +275,12 @@ def windows(frames: int, window: int, overlap: int) -> list[tuple[int, int]]:
 
 
 def _optimise(body, inp: TrackInput, cfg: SmoothConfig, rot0: np.ndarray, tr0: np.ndarray, contact: np.ndarray,
-              rest: tuple[torch.Tensor, torch.Tensor]) -> tuple[np.ndarray, np.ndarray]:
+              rest: tuple[torch.Tensor, torch.Tensor], target: np.ndarray | None = None
+              ) -> tuple[np.ndarray, np.ndarray]:
     """One window's optimisation (module doc), started from the per-frame ``rot0``, ``tr0``, with
-    the body's ``rest`` geometry (1, ...): the rotation offsets (T, 24, 3) from ``rot0``
-    (axis-angle) and the pelvis positions (T, 3)."""
+    the body's ``rest`` geometry (1, ...), the foot points pinned (``contact``: (T, 2, 3), per foot
+    its ``FOOT_POINTS``) and the motion prior's J+ ``target`` (T, 42, 3) or None: the rotation
+    offsets (T, 24, 3) from ``rot0`` (axis-angle) and the pelvis positions (T, 3)."""
     t = len(rot0)
     dtype = torch.float32
     k = torch.tensor(inp.K, dtype=dtype)
@@ -248,7 +295,8 @@ def _optimise(body, inp: TrackInput, cfg: SmoothConfig, rot0: np.ndarray, tr0: n
     tr = torch.tensor(tr0, dtype=dtype).requires_grad_(True)
     ids = [list(FOOT_POINTS[s]) for s in ("left", "right")]
     turn = None if inp.camera_rotations is None else torch.tensor(inp.camera_rotations, dtype=dtype)
-    both = torch.tensor(contact[1:] & contact[:-1], dtype=dtype)  # (T-1, 2) planted in f and f+1
+    both = torch.tensor(contact[1:] & contact[:-1], dtype=dtype)  # (T-1, 2, 3) pinned in f and f+1
+    tgt = None if target is None else torch.tensor(target, dtype=dtype)
 
     def pose(d):
         return r0 @ roma.rotvec_to_rotmat(d)
@@ -262,8 +310,13 @@ def _optimise(body, inp: TrackInput, cfg: SmoothConfig, rot0: np.ndarray, tr0: n
         e3d = ((seen_pts - seen_pts[:, :1]) - p3).pow(2).sum(-1).mean(-1)
         loss = loss + cfg.depth_prior * 1e-3 * (seen * e3d).sum() / seen.sum().clamp_min(1)
         loss = loss + cfg.pose_prior * 1e-3 * delta.pow(2).sum() / t
+        if tgt is not None:
+            rel = ((pts - pts[:, :1]) - (tgt - tgt[:, :1])) / depth
+            root = (pts[:, 0] - tgt[:, 0]) / depth[:, 0]
+            loss = loss + cfg.prior * rel.pow(2).sum(-1).mean() + cfg.prior_root * root.pow(2).sum(-1).mean()
         if t >= 3:
-            acc = (pts[2:] - 2 * pts[1:-1] + pts[:-2]) / depth[1:-1]
+            moving = pts if tgt is None or cfg.acceleration_about == "zero" else pts - tgt
+            acc = (moving[2:] - 2 * moving[1:-1] + moving[:-2]) / depth[1:-1]
             root = acc[:, :1]
             rel = (acc - root).pow(2)
             if cfg.depth_acceleration is None:
@@ -275,7 +328,7 @@ def _optimise(body, inp: TrackInput, cfg: SmoothConfig, rot0: np.ndarray, tr0: n
         if t >= 2 and both.any():
             for s in range(2):
                 step = (pts[1:, ids[s]] - pts[:-1, ids[s]]) / depth[1:]
-                loss = loss + cfg.contact * (both[:, s, None] * step.pow(2).sum(-1)).sum() / (both.sum() * 3)
+                loss = loss + cfg.contact * (both[:, s] * step.pow(2).sum(-1)).sum() / both.sum()
         return loss
 
     if cfg.optimizer == "lbfgs":
@@ -297,6 +350,11 @@ def _optimise(body, inp: TrackInput, cfg: SmoothConfig, rot0: np.ndarray, tr0: n
             loss.backward()
             opt.step()
     return delta.detach().numpy(), tr.detach().numpy()
+
+
+@functools.lru_cache(maxsize=1)
+def _prior() -> motion_prior.MotionPrior:
+    return motion_prior.load()
 
 
 def _sole_height(body, shape: torch.Tensor) -> float:

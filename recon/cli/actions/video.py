@@ -15,8 +15,8 @@ def run_video(args) -> int:
     config = ReconstructorConfig(keypoint_model=args.keypoint_model, backbone_weight=args.backbone_weight,
                                  **({} if args.focal is None else {"focal_factor": args.focal}))
     frames = FrameRange(start=args.start, end=args.end, every=args.every, fps=args.fps)
-    options = VideoOptions(frames=frames, max_people=args.max_people,
-                           smooth=replace(SmoothConfig(), steps=args.smooth_steps), outfit=args.outfit,
+    smooth = replace(SmoothConfig(), steps=args.smooth_steps, contact_from=args.planted_from)
+    options = VideoOptions(frames=frames, max_people=args.max_people, smooth=smooth, outfit=args.outfit,
                            tightness=args.tightness, overlay=not args.no_overlay, batch=args.batch, force=args.force,
                            static_camera=args.static_camera)
     executor = ExecutorConfig(**executor_args(args))

@@ -143,6 +143,10 @@
     summary.appendChild(el("span", { text: "recon " + D.recon }));
     const links = document.getElementById("links");
     for (const l of D.links) links.appendChild(el("a", { href: l.href, text: l.label }));
+    for (const v of D.videos || []) {
+      links.after(el("figure", { class: "clip" }, el("video", { src: v.src, controls: "", muted: "", loop: "",
+        playsinline: "", preload: "metadata" }), el("figcaption", { text: v.label })));
+    }
     const main = document.getElementById("items");
     const frag = document.createDocumentFragment();
     for (const item of D.items) frag.appendChild(card(item));
