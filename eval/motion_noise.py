@@ -32,7 +32,7 @@ import video as video_eval  # eval/video.py, beside this file
 from scipy.ndimage import gaussian_filter1d
 from scipy.spatial.transform import Rotation
 
-from recon import camera, paths, report
+from recon import camera, metrics, paths, report
 from recon.body import default_body, skeleton
 from recon.video import prior as motion_prior
 from recon.video import smooth
@@ -102,11 +102,9 @@ def residuals(body, dets: Detections, truth) -> list[dict]:
 
 def smoothers(runs: list[dict]) -> dict:
     """The per-frame J+ of each run as they are, through the motion prior, and filtered in time
-    (Gaussian): MPJPE and acceleration error of the root-relative J+, jitter against the truth's."""
+    (Gaussian): MPJPE and acceleration error of the root-relative J+ (frames weighted alike), and
+    jitter against the truth's."""
     prior = motion_prior.load()
-    acc = lambda v: v[2:] - 2 * v[1:-1] + v[:-2]  # noqa: E731
-    jerk = lambda v: np.linalg.norm(v[3:] - 3 * v[2:-1] + 3 * v[1:-2] - v[:-3], axis=-1).mean()  # noqa: E731
-    rel = lambda v: v - v[:, :1]  # noqa: E731
     ways = {"per frame": lambda x: x,
             "motion prior": lambda x: motion_prior.denoise(prior, x, np.ones(len(x), bool))[0]}
     for s in (1, 2, 3):
@@ -115,13 +113,14 @@ def smoothers(runs: list[dict]) -> dict:
     for name, way in ways.items():
         err, aerr, jit, jit_true = [], [], [], []
         for r in runs:
-            out, true = way(r["est"]), r["true"]
-            err.append(np.linalg.norm(rel(out) - rel(true), axis=-1).mean(1))
-            aerr.append(np.linalg.norm(acc(rel(out)) - acc(rel(true)), axis=-1).mean(1))
-            jit.append(jerk(out) * len(out))
-            jit_true.append(jerk(true) * len(out))
-        mm = lambda x: float(np.concatenate(x).mean() * 1000)  # noqa: E731
-        rows[name] = {"mpjpe": mm(err), "accel": mm(aerr), "jitter_ratio": float(sum(jit) / sum(jit_true))}
+            out, true = torch.as_tensor(way(r["est"])), torch.as_tensor(r["true"])
+            err.append(metrics.per_point_error(out, true).mean(1))
+            aerr.append(metrics.acceleration_error(out, true) * (len(out) - 2))
+            jit.append(metrics.jitter(out, None) * len(out))
+            jit_true.append(metrics.jitter(true, None) * len(out))
+        rows[name] = {"mpjpe": float(torch.cat(err).mean() * 1000),
+                      "accel": float(sum(aerr) / sum(len(r["est"]) - 2 for r in runs) * 1000),
+                      "jitter_ratio": float(sum(jit) / sum(jit_true))}
     return rows
 
 

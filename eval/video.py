@@ -62,7 +62,6 @@ LABELS = {"per-frame": "per-frame `recon run`", "video-raw": "video mode, no smo
           "video-full": "`recon video --keypoint-model full`"}
 ON_REQUEST = ("video-heavy", "video-full")  # other landmark models: run only when named
 FEET = [skeleton.JOINT_NAMES.index(n) for n in ("left_foot", "right_foot")]
-PLANTED_HEIGHT, PLANTED_SPEED = 0.05, 0.02
 
 
 def clips(bench: str) -> list[tuple[str, Path, ClipTruth]]:
@@ -160,12 +159,7 @@ def match(truth: ClipTruth, pred: list[list[tuple]]) -> np.ndarray:
 
 def planted(truth: ClipTruth) -> np.ndarray:
     """(P, F, 2) the true foot joints planted (module doc)."""
-    feet = truth.joints_world[:, :, FEET]
-    low = feet[..., 1] - feet[..., 1].min(1, keepdims=True) < PLANTED_HEIGHT
-    speed = np.zeros(low.shape)
-    speed[:, 1:] = np.linalg.norm(np.diff(feet, axis=1), axis=-1)
-    speed[:, 0] = speed[:, 1]
-    return low & (speed < PLANTED_SPEED)
+    return metrics.planted_feet(torch.as_tensor(truth.joints_world[:, :, FEET])).numpy()
 
 
 RTE_MIN_PATH = 1.0  # m: RTE is a share of the distance walked, undefined for people standing still

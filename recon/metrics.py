@@ -96,6 +96,16 @@ def foot_skating(pred_feet: torch.Tensor, planted: torch.Tensor) -> torch.Tensor
     return step[both].mean() if both.any() else torch.tensor(float("nan"))
 
 
+def planted_feet(feet: torch.Tensor, height: float = 0.05, speed: float = 0.02) -> torch.Tensor:
+    """(..., T, F) bool: foot points of ``feet`` (..., T, F, 3; a world frame, +Y up, metres) within
+    ``height`` of their lowest over the T frames and moving under ``speed`` a frame (the first frame
+    takes the second's speed): where a foot counts as planted for ``foot_skating``."""
+    low = feet[..., 1] - feet[..., 1].amin(-2, keepdim=True) < height
+    step = (feet[..., 1:, :, :] - feet[..., :-1, :, :]).norm(dim=-1)
+    step = torch.cat([step[..., :1, :], step], -2)
+    return low & (step < speed)
+
+
 # World-grounded metrics of a person's global motion (T, N, 3) in one world (or static-camera)
 # frame, as WHAM and GVHMR report them: chunks of ``WORLD_CHUNK`` frames, similarity-aligned to the
 # truth on the whole chunk (WA-MPJPE) or on its first two frames only (W-MPJPE, which lets drift

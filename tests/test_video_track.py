@@ -300,3 +300,17 @@ def test_feet_planted_by_the_image_the_motion_prior_or_either(body, mocap):
     assert plant["prior"].any() and not plant["prior"].all()  # a walk: each foot planted part of the time
     with pytest.raises(ValueError, match="contact_from"):
         smooth_track(body, inp, SmoothConfig(steps=0, contact_from="feet"))
+
+
+def test_planted_feet_are_low_and_still_in_the_world():
+    """+Y up: a foot resting on the floor is planted; one lifted or sliding is not, and the first
+    frame takes the second's speed."""
+    t = torch.arange(6, dtype=torch.float64)
+    feet = torch.zeros(2, 6, 2, 3, dtype=torch.float64)  # 2 people, 6 frames, 2 feet
+    feet[0, :, 1, 1] = torch.tensor([0.0, 0.0, 0.2, 0.2, 0.0, 0.0])  # the right foot lifted at frames 2-3
+    feet[1, :, 0, 0] = 0.05 * t  # the left foot slides 5 cm a frame
+    p = metrics.planted_feet(feet)
+    assert p.shape == (2, 6, 2)
+    assert p[0, :, 0].all() and p[1, :, 1].all()
+    assert p[0, :, 1].tolist() == [True, True, False, False, False, True]
+    assert not p[1, :, 0].any()

@@ -17,8 +17,8 @@ eval/motion_noise.py measured it on the validation clips (``eval/results/motion-
 
 Losses: the root-relative J+ (L1, metres) and the root's features (L1) as two terms, their
 accelerations (L1), and the feet's planted flags
-(binary cross-entropy; planted as eval/video.py defines it: within 5 cm of the clip's lowest and
-moving under 2 cm a frame).
+(binary cross-entropy; planted as eval/video.py scores foot skating, ``recon.metrics.planted_feet``,
+over the window).
 
     OMP_NUM_THREADS=2 .venv/bin/python scripts/train_motion_prior.py   # -> recon/video/weights/motion_prior.pt
 """
@@ -34,7 +34,7 @@ import numpy as np
 import roma
 import torch
 
-from recon import report
+from recon import metrics, report
 from recon.body import default_body
 from recon.poses.mocap import MocapPoses
 from recon.poses.sampler import ShapeSampler
@@ -42,7 +42,6 @@ from recon.video import prior as motion_prior
 
 NOISE = report.RESULTS / "motion-noise.json"
 SLOW_RHO = 0.97
-PLANTED_HEIGHT, PLANTED_SPEED = 0.05, 0.02  # m, m a frame: as eval/video.py
 
 
 @dataclass
@@ -96,14 +95,9 @@ class Motions:
                 noisy = self.body(noisy_rot, noisy_shape, transl=transl, points_only=True).points
             clean, noisy = clean.unflatten(0, (m, self.frames)), noisy.unflatten(0, (m, self.frames))
             noisy = noisy - noisy[:, :, :1] + clean[:, :, :1]  # the root's error: drawn in the camera (Noise.root)
-            feet = clean[:, :, list(motion_prior.FEET)]
-            low = feet[..., 1] - feet[..., 1].amin(1, keepdim=True) < PLANTED_HEIGHT
-            speed = torch.zeros(low.shape)
-            speed[:, 1:] = (feet[:, 1:] - feet[:, :-1]).norm(dim=-1)
-            speed[:, 0] = speed[:, 1]
             out["clean"].append(clean)
             out["noisy"].append(noisy)
-            out["planted"].append(low & (speed < PLANTED_SPEED))
+            out["planted"].append(metrics.planted_feet(clean[:, :, list(motion_prior.FEET)]))
         return {k: torch.cat(v) for k, v in out.items()}
 
 

@@ -218,28 +218,24 @@ def smooth_track(body, inp: TrackInput, cfg: SmoothConfig | None = None) -> Trac
     shape = torch.tensor(inp.shape, dtype=torch.float32)[None]
     rest = linear_rest_geometry(body, shape, None, with_jacobian=False)[0]  # (1, ...): the track's one shape
     target = None
-    if cfg.prior or cfg.prior_root or cfg.contact_from != "image" or cfg.acceleration_about == "target":
+    pulled = bool(cfg.prior or cfg.prior_root or cfg.acceleration_about == "target")  # the objective uses target
+    if pulled or cfg.contact_from != "image":
         with torch.no_grad():
             start = body(torch.tensor(rot0, dtype=torch.float32), transl=torch.tensor(tr0, dtype=torch.float32),
                          points_only=True, rest=tuple(x.expand(t, -1, -1) for x in rest)).points.numpy()
         target, feet = motion_prior.denoise(_prior(), start, inp.seen)
         if cfg.prior_kind == "gaussian":
             target = gaussian_filter1d(start.astype(np.float64), cfg.gaussian_sigma, axis=0, mode="nearest")
-        if cfg.contact_from == "prior":
-            contact = feet > cfg.planted_probability
-        elif cfg.contact_from == "either":
-            contact = contact | (feet > cfg.planted_probability)
-    # which foot points are pinned: all three where the image saw the foot still, the foot joint
-    # alone where only the prior says planted (its flag is the foot joint's: a heel may be rising)
-    pinned = np.repeat(contact[:, :, None], 3, axis=2)
-    if cfg.contact_from == "either":
-        pinned[:, :, [0, 2]] = image[:, :, None]
-    elif cfg.contact_from == "prior":
-        pinned[:, :, [0, 2]] = False
+        flags = feet > cfg.planted_probability
+        contact = {"image": image, "prior": flags, "either": image | flags}[cfg.contact_from]
+    # the foot points pinned (ankle, foot joint, toe tip): all three where the image saw the foot
+    # still, the foot joint alone where only the prior says planted (its flag is the foot joint's)
+    edge = np.zeros_like(image) if cfg.contact_from == "prior" else image
+    pinned = np.stack([edge, contact, edge], axis=2)
     delta, tr = np.zeros((t, 24, 3), np.float32), np.zeros((t, 3), np.float32)
     for a, b in windows(t, cfg.window, cfg.overlap):
         d, x = _optimise(body, inp.frames(a, b), cfg, rot0[a:b], tr0[a:b], pinned[a:b], rest,
-                         None if target is None else target[a:b])
+                         target[a:b] if pulled else None)
         w = np.ones(b - a, np.float32)
         if a > 0:  # the overlap with the window before: from its answer to this one's, linearly
             n = min(cfg.overlap, b - a)
