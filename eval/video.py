@@ -5,7 +5,8 @@
 
 The clips of ``recon.synth.video.VIDEO_BENCHMARKS[bench]`` (held-out mocap subjects, 30 fps,
 people entering and leaving, two people in some; a static camera, or in the ``-moving-`` sets a
-panning, tilting, hand-held and walking one) are rendered once into the cache. Rows:
+panning, tilting, hand-held and walking one; in the ``-occlusion-`` sets look-alikes, one passing
+behind the other) are rendered once into the cache. Rows:
 
 * ``per-frame recon run``: every frame through ``recon run``'s reconstruction on its own (MediaPipe
   heavy with its mirror pass, retries and backbone, SMPLR, the per-image fit); no tracks;
@@ -13,7 +14,8 @@ panning, tilting, hand-held and walking one) are rendered once into the cache. R
   mode (several people: found one after the other), SMPLR per frame, tracks, gaps interpolated;
 * ``recon video``: the same with the track optimisation;
 * ``recon video --static-camera`` (moving sets): the camera's turn left in the people's motion;
-* ``recon video --keypoint-model heavy|full`` (on request, ``--methods``): another landmark model.
+* ``recon video --keypoint-model heavy|full`` (on request, ``--methods``): another landmark model;
+* ``recon video``, 0.29's tracker (on request): boxes, keypoints and colours, no motion through gaps.
 
 The cameras' true focal length is given to every row. Each frame's people are matched to the
 truth by their projected joints (within half the person's box; a track matched the frame before
@@ -55,12 +57,15 @@ from recon.video import smooth
 from recon.video.camera_motion import turned_degrees
 from recon.video.frames import FrameSource
 from recon.video.run import VideoOptions, video
+from recon.video.track import TrackerConfig
 
-METHODS = ("per-frame", "video-raw", "video", "video-static", "video-heavy", "video-full")
+METHODS = ("per-frame", "video-raw", "video", "video-static", "video-heavy", "video-full", "video-tracker-0.29")
 LABELS = {"per-frame": "per-frame `recon run`", "video-raw": "video mode, no smoothing", "video": "`recon video`",
           "video-static": "`recon video --static-camera`", "video-heavy": "`recon video --keypoint-model heavy`",
-          "video-full": "`recon video --keypoint-model full`"}
-ON_REQUEST = ("video-heavy", "video-full")  # other landmark models: run only when named
+          "video-full": "`recon video --keypoint-model full`",
+          "video-tracker-0.29": "`recon video`, 0.29's tracker (no motion through gaps)"}
+ON_REQUEST = ("video-heavy", "video-full", "video-tracker-0.29")  # run only when named
+MODELS = ("video-heavy", "video-full")  # other landmark models
 FEET = [skeleton.JOINT_NAMES.index(n) for n in ("left_foot", "right_foot")]
 
 
@@ -91,20 +96,22 @@ def predict_per_frame(path: Path, truth: ClipTruth, rec: Reconstructor) -> list[
 
 
 def predict_video(path: Path, truth: ClipTruth, smoothing: smooth.SmoothConfig, work: Path, body,
-                  force: bool = True, static_camera: bool = False, keypoint_model: str | None = None
-                  ) -> tuple[list[list[tuple]], dict]:
+                  force: bool = True, static_camera: bool = False, keypoint_model: str | None = None,
+                  tracker: TrackerConfig | None = None) -> tuple[list[list[tuple]], dict]:
     """``recon video``'s people per frame [(track id, joints, vertices in the frame's camera, joints
     in the track's world frame)], with the track optimisation ``smoothing``, and what video.json says
     of the camera; without ``force`` the per-frame detections stored in ``work`` are read back."""
     people = truth.joints.shape[0]
     cfg = ReconstructorConfig(focal_factor=float(truth.K[0, 0]) / max(SIZE))
     cfg = cfg if keypoint_model is None else replace(cfg, keypoint_model=keypoint_model)
-    opts = VideoOptions(max_people=people, smooth=smoothing, overlay=False, force=force, static_camera=static_camera)
+    opts = VideoOptions(max_people=people, smooth=smoothing, overlay=False, force=force, static_camera=static_camera,
+                        tracker=tracker or TrackerConfig())
     (work / "video.json").unlink(missing_ok=True)  # a finished folder would be left as it is, with no tracks
     res = video(path, work, opts, cfg, progress=False, log=lambda m: None)
     out: list[list[tuple]] = [[] for _ in range(len(res.frames.index))]
     summary = json.loads((work / "video.json").read_text())
-    cam = {k: summary.get(k) for k in ("static_camera", "camera_turned_degrees", "camera_turn_measured")}
+    cam = {k: summary.get(k) for k in ("static_camera", "camera_turned_degrees", "camera_turn_measured",
+                                       "camera_travelled")}
     for m in res.tracks:
         with torch.no_grad():
             o = body(torch.tensor(m.rotmats, dtype=torch.float32),
@@ -124,6 +131,12 @@ def true_turns(truth: ClipTruth) -> np.ndarray:
 def true_turn(truth: ClipTruth) -> float:
     """The largest angle (degrees) between the clip's first camera and any later one's."""
     return turned_degrees(true_turns(truth))
+
+
+def true_travel(truth: ClipTruth) -> float:
+    """The farthest (m) the camera's centre got from where it started."""
+    eye = -np.einsum("fji,fj->fi", truth.R, truth.t)
+    return float(np.linalg.norm(eye - eye[0], axis=1).max())
 
 
 def match(truth: ClipTruth, pred: list[list[tuple]]) -> np.ndarray:
@@ -284,10 +297,12 @@ def camera_table(cameras: dict | None) -> list[str]:
     if not cameras:
         return []
     body = [[name, c["true_turn_degrees"], c["camera_turned_degrees"], f"{100 * c['camera_turn_measured']:.0f} %",
-             "still" if c["static_camera"] else "taken out"] for name, c in cameras.items()]
-    head = ["clip", "true turn (deg)", "measured turn (deg)", "frames measured", "recon video"]
+             "still" if c["static_camera"] else "taken out", c.get("true_travel_m"),
+             {True: "yes", False: "no", None: "-"}[c.get("camera_travelled")]] for name, c in cameras.items()]
+    head = ["clip", "true turn (deg)", "measured turn (deg)", "frames measured", "recon video", "true move (m)",
+            "move detected"]
     return ["The camera's turn per clip (`recon video`; no measured turn: too little of the turn measured, taken "
-            "as still):", "", report.table(body, head, ["", ".2f", ".2f", "", ""]), ""]
+            "as still), and whether it moved:", "", report.table(body, head, ["", ".2f", ".2f", "", "", ".2f", ""]), ""]
 
 
 def main() -> None:
@@ -316,11 +331,12 @@ def main() -> None:
                 pred = predict_per_frame(path, truth, rec)
             else:
                 steps = 0 if method == "video-raw" else smooth.SmoothConfig.steps
-                model = method.removeprefix("video-") if method in ON_REQUEST else None
+                model = method.removeprefix("video-") if method in MODELS else None
                 pred, cam = predict_video(path, truth, smooth.SmoothConfig(steps=steps), work / (name + (model or "")),
                                           body, force=method != "video-static", static_camera=method == "video-static",
-                                          keypoint_model=model)
-                cameras[name] = cam | {"true_turn_degrees": true_turn(truth)}
+                                          keypoint_model=model,
+                                          tracker=TrackerConfig(motion=False) if method == "video-tracker-0.29" else None)
+                cameras[name] = cam | {"true_turn_degrees": true_turn(truth), "true_travel_m": true_travel(truth)}
             seconds += time.perf_counter() - t0
             frames += truth.visible.shape[1]
             score(truth, pred, sums, name)

@@ -227,3 +227,35 @@ def test_helpers():
     assert np.allclose(np.linalg.det(kabsch(v, -b)), 1.0)  # a rotation, never a reflection
     column = np.stack([np.full(50, 300.0), np.linspace(0, 470, 50)], 1)
     assert spread(column, (480, 640))[0] < 0.01 and spread(column, (480, 640))[1] > 0.7
+
+
+def _travelling(n=12, metres_per_frame=0.02, depth=3.0, sway=None):
+    """A camera sliding sideways (``sway``: to and fro this many metres, once in 3 s): the top half
+    far away (it does not shift), the bottom half a textured wall ``depth`` metres off (it shifts by
+    f * move / depth pixels: parallax)."""
+    far, near = _panorama(0), _panorama(5)
+    frames = []
+    for t in range(n):
+        f = _view(far, np.eye(3))
+        place = sway * np.sin(2 * np.pi * t / 90) if sway else metres_per_frame * t
+        shift = K[0, 0] * place / depth
+        wall = cv2.warpAffine(_view(near, np.eye(3)), np.float32([[1, 0, -shift], [0, 1, 0]]), (640, 480))
+        f[240:] = wall[240:]
+        frames.append(f)
+    return frames
+
+
+def test_a_camera_that_moved_is_told_from_one_that_only_turned():
+    moved = CameraRotations(K)((f, None) for f in _travelling())
+    assert moved.travelled and np.median(moved.parallax) > 0.3
+    # 2 cm a frame 3 m off: f * 0.02 / 3 px a frame, 0.2 radians a second, as measured from the key frames
+    assert np.median(moved.rates) == pytest.approx(0.02 / 3.0 * 30.0, rel=0.25)
+    swayed = CameraRotations(K)((f, None) for f in _travelling(90, sway=0.05))  # a hand-held camera's drift
+    assert (swayed.parallax > 0.1).mean() > 0.2 and np.median(swayed.rates[swayed.parallax > 0]) < 0.015
+    assert not swayed.travelled
+    turned = CameraRotations(K)((f, None) for f in _clip(_turns())[0])
+    assert not turned.travelled and turned.turned and np.median(turned.parallax) < 0.05
+    still = CameraRotations(K)((f, None) for f in _travelling(metres_per_frame=0.0))
+    assert not still.travelled and not still.turned
+    blank = CameraRotations(K)((np.full((480, 640, 3), 128, np.uint8), None) for _ in range(3))
+    assert len(blank.parallax) == 0 and not blank.travelled

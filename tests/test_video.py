@@ -107,9 +107,14 @@ def test_video_writes_each_track_and_the_overlay(body, clip, tmp_path):
     out = tmp_path / "out"
     assert sorted(p.name for p in out.iterdir()) == [".recon-page", ".work", "index.html", "overlay.mp4", "track_0",
                                                      "video.json"]
-    assert sorted(p.name for p in (out / "track_0").iterdir()) == ["animated.glb", "motion.bvh", "motion.json"]
+    assert sorted(p.name for p in (out / "track_0").iterdir()) == ["animated.glb", "motion.bvh", "motion.json",
+                                                                   "person.jpg"]
     assert len(res.tracks) == 1 and len(res.tracks[0].rotmats) == FRAMES
     summary = json.loads((out / "video.json").read_text())  # the synthetic camera stands still
+    assert summary["tracks"][0]["files"][-1] == "person.jpg" and not summary["camera_travelled"]
+    portrait = cv2.imread(str(out / "track_0" / "person.jpg"))  # the person, standing: taller than wide
+    assert portrait.shape[0] > 1.5 * portrait.shape[1] and portrait.shape[0] <= 256
+    assert '"src":"track_0/person.jpg"' in (out / ".recon-page" / "data.js").read_text()  # the track's card
     assert summary["static_camera"] and summary["camera_turned_degrees"] < 0.5
     m = res.tracks[0]
     # the world motion back in the camera frame is the truth (it was fed the truth, with noise)

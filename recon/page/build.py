@@ -171,7 +171,8 @@ def video_page(out: Path) -> Page:
         views = [page.view(View("animated", "animated", {"glb": folder / "animated.glb"}, folder / "animated.glb"))] \
             if (folder / "animated.glb").is_file() else []
         numbers = [["first frame", t.get("first")], ["frames", t.get("frames")], ["seen in", t.get("seen")]]
-        page.items.append({"key": t["folder"], "images": [], "people": [
+        portrait = _image(page, folder / "person.jpg", f"track {t['id']}")
+        page.items.append({"key": t["folder"], "images": [portrait] if portrait else [], "people": [
             {"label": f"track {t['id']}", "numbers": numbers, "views": views,
              "files": page.files(folder, t.get("files", []))}]})
     for frame, why in (v.get("skipped") or {}).items():

@@ -2,7 +2,8 @@
 static or moving camera, rendered like the image benchmarks (``recon.synth.scene``).
 
 A clip is a ``ClipSpec``: one or two people, each a mocap clip of the pose set from a start frame,
-with its own body shape, clothing colours and place on the ground; a static camera at head height
+with its own body shape, clothing colours and place on the ground (or another actor's shape and
+clothes: a look-alike); a static camera at head height
 looks at the scene from a random side; ``aim`` says where: the middle of the people's paths
 ("middle"), or the end or the start of the first person's path, so that a walker enters or
 leaves the frame ("enter", "leave"). ``camera`` moves it: "pan" turns it to follow the first
@@ -42,6 +43,8 @@ VIDEO_GENERATOR = 1
 CAMERAS = ("static", "pan", "tilt", "handheld", "walk")
 CANVAS = 2000  # px wide: a moving camera's background photograph, seen at the clip's focal length
 FAR_PHOTOS = ("building.jpg", "leuvenA.jpg", "leuvenB.jpg", "CA_tCA00.jpg", "aero3.jpg")  # streets, large enough
+GROUND_PHOTOS = ("aero1.jpg", "graf3.png")  # laid on the ground: texture seen from above
+GROUND_HALF, GROUND_CM = 8.0, 1.0  # m: the ground photograph's half width about the aimed point; cm a pixel
 
 
 @dataclass(frozen=True)
@@ -50,6 +53,7 @@ class Actor:
     start: int = 0  # its first frame
     offset: tuple[float, float] = (0.0, 0.0)  # (x, z) metres added to its path, after centring it
     heading: float | None = None  # degrees: the path turned about the vertical to run this way (0: +x, 90: -z)
+    look: int | None = None  # a look-alike of actor ``look`` of the clip: its body shape and clothes
 
 
 @dataclass(frozen=True)
@@ -63,6 +67,7 @@ class ClipSpec:
     focal: float = 600.0  # pixels
     yaw: float | None = None  # degrees: where the camera stands around the aimed point (0: on +z); None: random
     camera: str = "static"  # or how it moves: ``CAMERAS`` (module doc)
+    ground: bool = False  # a photograph laid on the ground around the people (near background: parallax)
 
 
 # The fixed sets: clips of the held-out subjects of the pose set's val and test splits.
@@ -102,6 +107,38 @@ VIDEO_BENCHMARKS: dict[str, list[ClipSpec]] = {
         ClipSpec("walk-09_12", (Actor("09_12", 100),), 90, 44, "middle", 4.5, camera="walk"),
         ClipSpec("pan-two-03_01-14_17", (Actor("03_01", 0, (0.0, 0.8), 0.0), Actor("14_17", 100, (1.2, -0.8))), 90, 45,
                  "middle", 5.0, yaw=20.0, camera="pan"),
+    ],
+    # A photograph on the ground (parallax) under cameras that travel (walk) and that only turn.
+    "synth-video-travel-val": [
+        ClipSpec("ground-walk-02_01", (Actor("02_01"),), 80, 71, "middle", 4.5, camera="walk", ground=True),
+        ClipSpec("ground-walk-06_01", (Actor("06_01"),), 90, 74, "middle", 4.0, camera="walk", ground=True),
+        ClipSpec("ground-pan-06_01", (Actor("06_01"),), 90, 72, "middle", 4.5, camera="pan", ground=True),
+        ClipSpec("ground-static-02_05", (Actor("02_05", 60),), 60, 73, "middle", 4.5, ground=True),
+        ClipSpec("ground-handheld-02_06", (Actor("02_06", 100),), 90, 75, "middle", 4.0, camera="handheld",
+                 ground=True),
+    ],
+    "synth-video-travel-test": [
+        ClipSpec("ground-walk-12_01", (Actor("12_01", 20),), 90, 81, "middle", 4.5, camera="walk", ground=True),
+        ClipSpec("ground-walk-14_12", (Actor("14_12", 150),), 90, 82, "middle", 4.0, camera="walk", ground=True),
+        ClipSpec("ground-handheld-03_03", (Actor("03_03", 200),), 90, 83, "middle", 4.5, camera="handheld",
+                 ground=True),
+        ClipSpec("ground-tilt-14_07", (Actor("14_07", 60),), 90, 84, "middle", 4.5, camera="tilt", ground=True),
+    ],
+    # Look-alikes (one body shape, one outfit) where one passes behind the other: who is who must
+    # come from the motion through the gap, not from the looks.
+    "synth-video-occlusion-val": [
+        ClipSpec("behind-10_04-02_10", (Actor("02_10", 100, (0.0, 0.8)), Actor("10_04", 0, (0.0, -0.6), 0.0, 0)),
+                 90, 51, "middle", 6.5, yaw=0.0),
+        ClipSpec("cross-02_01-06_01", (Actor("02_01", 0, (0.0, 0.6), 0.0), Actor("06_01", 10, (0.0, -0.6), 180.0, 0)),
+                 80, 52, "middle", 6.5, yaw=0.0),
+    ],
+    "synth-video-occlusion-test": [
+        ClipSpec("behind-12_01-14_12", (Actor("14_12", 150, (0.0, 0.8)), Actor("12_01", 20, (0.0, -0.6), 0.0, 0)),
+                 90, 61, "middle", 6.5, yaw=0.0),
+        ClipSpec("cross-03_02-12_01", (Actor("03_02", 0, (0.0, 0.6), 0.0), Actor("12_01", 0, (0.0, -0.6), 180.0, 0)),
+                 90, 62, "middle", 6.5, yaw=0.0),
+        ClipSpec("overtake-09_12-12_01", (Actor("09_12", 100, (0.3, 0.6), 0.0), Actor("12_01", 10, (-0.3, -0.6), 0.0, 0)),
+                 90, 63, "middle", 6.5, yaw=10.0),
     ],
 }
 
@@ -182,6 +219,9 @@ class ClipRenderer:
         rng = np.random.default_rng([VIDEO_GENERATOR, spec.seed])
         torch.manual_seed(spec.seed)
         shapes = ShapeSampler(self.body, seed=spec.seed).sample(len(spec.actors)).double()
+        for p, actor in enumerate(spec.actors):
+            if actor.look is not None:
+                shapes[p] = shapes[actor.look]
         joints, points, verts, colours = [], [], [], []
         poses = []
         for p, actor in enumerate(spec.actors):
@@ -194,7 +234,8 @@ class ClipRenderer:
             joints.append(out.joints.numpy() + [0, lift, 0])
             points.append(out.points.numpy() + [0, lift, 0])
             verts.append(v + [0, lift, 0])
-            colours.append(vertex_colours(rng, out.rest_vertices[0].numpy(), self.parts))
+            own = vertex_colours(rng, out.rest_vertices[0].numpy(), self.parts)  # drawn always: the same clip per seed
+            colours.append(own if actor.look is None else colours[actor.look])
             poses.append(rot)
         path = joints[0][:, 0]
         target = {"middle": np.concatenate([j[:, 0] for j in joints]).mean(0), "enter": path[-1],
@@ -209,6 +250,7 @@ class ClipRenderer:
         ambient = rng.uniform(0.35, 0.6)
         noise = rng.uniform(1, 5)
         r, t = camera_path(spec, eye, target, path, rng)
+        ground = ground_photo(rng) if spec.ground else None  # drawn last: the clips without one unchanged
         to_cam = lambda x: np.einsum("fij,f...j->f...i", r, x) + t[:, None]  # noqa: E731
         faces = np.concatenate([self.faces + p * len(colours[0]) for p in range(len(spec.actors))])
         cols = np.concatenate(colours)
@@ -217,6 +259,8 @@ class ClipRenderer:
             vc = np.concatenate([v[f] @ r[f].T + t[f] for v in verts])
             rgb, labels, _ = self.raster.render(vc, faces, k, cols, None, light_dir=-light, ambient=ambient)
             img = bg[:SIZE[0]].copy() if spec.camera == "static" else far_background(bg, k, r[n_mid], r[f])
+            if spec.ground:
+                laid_on_ground(img, ground, target, k, r[f], t[f])
             img[labels >= 0] = rgb[labels >= 0]
             grain = rng.standard_normal(img.shape, dtype=np.float32) * np.float32(noise)
             frames.append(np.clip(img.astype(np.float32) + grain, 0, 255).astype(np.uint8))
@@ -279,6 +323,31 @@ def far_background(canvas: np.ndarray, k: np.ndarray, r_canvas: np.ndarray, r: n
     m = kc @ r_canvas @ r.T @ np.linalg.inv(k)  # a frame's pixel -> the canvas's
     return cv2.warpPerspective(canvas, m, (SIZE[1], SIZE[0]), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
                                borderMode=cv2.BORDER_REFLECT)
+
+
+def ground_photo(rng: np.random.Generator) -> np.ndarray:
+    """One of ``GROUND_PHOTOS`` as a square ``2 * GROUND_HALF`` metres wide at ``GROUND_CM`` cm a pixel."""
+    side = round(2 * GROUND_HALF * 100 / GROUND_CM)
+    im = load_photo(GROUND_PHOTOS[rng.integers(len(GROUND_PHOTOS))])
+    return cv2.resize(im, (side, side), interpolation=cv2.INTER_CUBIC)
+
+
+def laid_on_ground(img: np.ndarray, photo: np.ndarray, centre: np.ndarray, k: np.ndarray, r: np.ndarray,
+                   t: np.ndarray) -> None:
+    """Draw ``photo`` lying on the ground (y = 0) about ``centre``'s x, z into ``img`` (in place) as
+    the camera (r, t) sees it: each pixel's ray to where it meets the ground."""
+    h, w = img.shape[:2]
+    u, v = np.meshgrid(np.arange(w, dtype=np.float64) + 0.5, np.arange(h, dtype=np.float64) + 0.5)
+    rays = np.stack([u, v, np.ones_like(u)], -1) @ np.linalg.inv(k).T @ r  # world directions (R^T K^-1 x)
+    eye = -r.T @ t
+    down = rays[..., 1] < -1e-6
+    dist = np.where(down, -eye[1] / np.where(down, rays[..., 1], -1.0), 0.0)
+    x = eye[0] + dist * rays[..., 0] - centre[0] + GROUND_HALF
+    z = eye[2] + dist * rays[..., 2] - centre[2] + GROUND_HALF
+    px = 100.0 / GROUND_CM
+    hit = down & (x > 0) & (x < 2 * GROUND_HALF) & (z > 0) & (z < 2 * GROUND_HALF)
+    seen = cv2.remap(photo, (x * px).astype(np.float32), (z * px).astype(np.float32), cv2.INTER_LINEAR)
+    img[hit] = seen[hit]
 
 
 def write_clip(frames: list[np.ndarray], path: Path, fps: float = FPS) -> Path:

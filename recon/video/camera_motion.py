@@ -22,11 +22,18 @@ for a direction), the points each step rested on and whether it was measured; or
 ``add(image, boxes)`` (``hold()`` for a frame that could not be read) then ``result()``.
 ``recon video`` takes the turn out of the people's motion when it is known and the camera turned
 more than ``MOVING_DEGREES``.
+
+A camera that moves (travels) is detected, not measured: where it moved, background points at
+different depths shift against each other (parallax), so a turn leaves many of them out while a
+turn and a move together (an essential matrix) explain them; ``TurnEstimate.travelled`` says so
+when the typical match shows that on ``TRAVEL_SHARE`` of its points (points of real texture only:
+corners found in the noise of a blank wall drift along it and look like a move). Its move stays in the
+people's paths (``recon video`` says so).
 """
 from __future__ import annotations
 
 from collections.abc import Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -34,6 +41,10 @@ from scipy.spatial.transform import Rotation
 
 MOVING_DEGREES = 2.0  # a camera that turned more than this over a clip is not static
 MIN_MEASURED = 0.5  # a clip whose turn is measured on fewer of its steps is taken as still
+TRAVEL_SHARE = 0.1  # a camera moved where a typical match has this share of its points showing parallax
+PARALLAX_SPREAD = 0.3  # ... and spread across this share of the frame's width
+TRAVEL_RATE = 0.02  # ... growing this much a second (radians: its speed over the near background's distance)
+MIN_TEXTURE = 5e-4  # points whose corner strength (``corner_strength``) is under this show no parallax
 
 
 @dataclass
@@ -45,6 +56,18 @@ class TurnEstimate:
     rotations: np.ndarray
     points: np.ndarray
     measured: np.ndarray
+    parallax: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (M,) per match: ``parallax``'s share
+    rates: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (M,) its parallax a second (radians)
+
+    @property
+    def travelled(self) -> bool:
+        """The camera moved, not only turned: the median match shows parallax on ``TRAVEL_SHARE`` of
+        its points (a background with depth is needed to see it: a far one shows none), growing
+        by ``TRAVEL_RATE`` a second (a hand-held camera's sway of a few centimetres shows parallax
+        on a near ground too, but little and slowly)."""
+        if not len(self.parallax) or float(np.median(self.parallax)) <= TRAVEL_SHARE:
+            return False
+        return float(np.median(self.rates[self.parallax > 0])) > TRAVEL_RATE
 
     @property
     def measured_share(self) -> float:
@@ -108,6 +131,8 @@ class CameraRotations:
     def __post_init__(self):
         self._steps: list[tuple[np.ndarray | None, int]] = []  # step t -> t+1: (rotation vector, inliers)
         self._frames, self._key, self._prev, self._k = 0, None, None, None
+        self._moves: list[tuple[float, float]] = []  # per match: ``parallax``'s share, the parallax a second
+        self._move: tuple[float, float] | None = None
 
     def __call__(self, frames: Iterable[tuple[np.ndarray, np.ndarray | None]]) -> TurnEstimate:
         """``frames``: (RGB (H, W, 3) uint8, the people's (n, 4) x0, y0, x1, y1 boxes or None),
@@ -137,6 +162,7 @@ class CameraRotations:
             self._key = self._new_key(t, gray, mask)
             return
         rot, used = self._match(key.gray, key.corners, gray, mask, key.last_rotation)
+        self._keep_move(key.index)
         if rot is not None:  # the steps since the key's last linked frame share the turn between them
             step = Rotation.from_matrix(rot @ key.last_rotation.T).as_rotvec() / (t - key.last)
             self._steps[key.last:t] = [(step, used)] * (t - key.last)
@@ -149,6 +175,7 @@ class CameraRotations:
         if prev is not None and prev[0] == t - 1 and prev[0] != key.index:  # the frame before, then
             corners = _corners(prev[1], prev[2], self.corners)
             rot, used = self._match(prev[1], corners, gray, mask)
+            self._keep_move(t - 1)
             if rot is not None:
                 self._steps[t - 1] = (Rotation.from_matrix(rot).as_rotvec(), used)
                 self._key = self._new_key(t, gray, mask)
@@ -176,7 +203,15 @@ class CameraRotations:
         for r in Rotation.from_rotvec(filled).as_matrix() if n else []:
             rotations.append(r @ rotations[-1])
         points = np.array([0] + [s[1] for s in self._steps], int)
-        return TurnEstimate(np.stack(rotations), points, np.concatenate([[False], ok]))
+        rotations = np.stack(rotations)
+        moves = np.array(self._moves, float).reshape(-1, 2)
+        return TurnEstimate(rotations, points, np.concatenate([[False], ok]), moves[:, 0], moves[:, 1])
+
+    def _keep_move(self, first: int) -> None:
+        if self._move is not None:  # the parallax per second: how fast the camera moved against the near background
+            share, angle = self._move
+            self._moves.append((share, angle * self.fps / max(self._frames - 1 - first, 1)))
+        self._move = None
 
     def _new_key(self, t: int, gray: np.ndarray, mask: np.ndarray) -> _Key:
         return _Key(t, gray, _corners(gray, mask, self.corners), t, np.eye(3))
@@ -216,6 +251,8 @@ class CameraRotations:
             return None, 0
         rot, inliers = ransac_rotation(p0, p1, self._k, self.ransac_px)
         used = int(inliers.sum())
+        textured = corner_strength(a, p0) >= MIN_TEXTURE  # noise on a blank wall drifts: no evidence of a move
+        self._move = parallax(p0[textured], p1[textured], self._k, rot, self.ransac_px, (h, w))
         if used < self.min_points or used < self.min_inlier_share * len(p0) or \
                 min(spread(p1[inliers], (h, w))) < self.min_spread:
             return None, used
@@ -242,6 +279,42 @@ def ransac_rotation(p0: np.ndarray, p1: np.ndarray, k: np.ndarray, px: float, hy
         rot = kabsch(r0[best][None], r1[best][None])[0]
         best = _within(rot[None], r0, p1, k, px)[0]
     return rot, best
+
+
+def parallax(p0: np.ndarray, p1: np.ndarray, k: np.ndarray, rot: np.ndarray, px: float, shape: tuple[int, int],
+             min_spread: float = PARALLAX_SPREAD) -> tuple[float, float]:
+    """How much of a match shows that the camera moved: the share of the points (N, 2) that the
+    camera's turn ``rot`` misses (by more than ``px``) but a turn and a move together explain (an
+    essential matrix, RANSAC within ``px``): points nearer than the rest seen from a camera that
+    moved; and how far the turn misses those points (their median, radians). Near 0 for a camera
+    that only turns. Points that span less than ``min_spread`` of the frame's (H, W) ``shape``
+    across count as none: one thing moving (a person's edge the boxes left out), not the scene
+    seen from elsewhere."""
+    if len(p0) < 8:
+        return 0.0, 0.0
+    x = _rays(p0, np.linalg.inv(k)) @ (k @ rot).T
+    off = np.linalg.norm(x[:, :2] / x[:, 2:] - p1, axis=1)
+    missed = off > px
+    if missed.sum() == 0:
+        return 0.0, 0.0
+    try:
+        e, mask = cv2.findEssentialMat(p0, p1, k, method=cv2.RANSAC, prob=0.999, threshold=px)
+    except cv2.error:  # degenerate (the points hardly moved): nothing a move explains
+        return 0.0, 0.0
+    if e is None or mask is None or e.shape != (3, 3):
+        return 0.0, 0.0
+    moved = (mask[:, 0] > 0) & missed
+    if spread(p1[moved], shape)[0] < min_spread:
+        return 0.0, 0.0
+    return float(moved.sum()) / len(p0), float(np.median(off[moved])) / float(k[0, 0])
+
+
+def corner_strength(gray: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """(N,) the smaller eigenvalue of the image's structure tensor (OpenCV's, 5 x 5 blocks) at
+    ``points`` (N, 2): how well a point's place is pinned down by the texture around it."""
+    eig = cv2.cornerMinEigenVal(gray, 5, 3)
+    h, w = gray.shape
+    return eig[points[:, 1].round().astype(int).clip(0, h - 1), points[:, 0].round().astype(int).clip(0, w - 1)]
 
 
 def kabsch(a: np.ndarray, b: np.ndarray) -> np.ndarray:

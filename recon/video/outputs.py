@@ -2,7 +2,8 @@
 
 Per track (``write_track``): ``motion.bvh`` (the motion on the track's own skeleton, centimetres),
 ``animated.glb`` (skinned body with the track's shape, dressed with an outfit when asked; NCS
-dynamics where the outfit has them) and ``motion.json``, all in the track's world frame (+Y up
+dynamics where the outfit has them), ``motion.json`` and ``person.jpg`` (``write_portrait``: who
+the track is, cut from the clip), all in the track's world frame (+Y up
 from the estimated ground, feet on y = 0, Z towards the camera; ``recon.video.smooth.to_world``).
 ``OverlayFrames`` draws the frames of ``overlay.mp4``: every track's body over the frame, side
 by side with a 3D view of the bodies, each standing on its own estimated ground. A body the
@@ -16,6 +17,7 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
 import roma
 import torch
@@ -210,6 +212,24 @@ class OverlayFrames:
 
     def close(self) -> None:
         pass
+
+
+PORTRAIT_HEIGHT = 256  # px: the most a track's portrait is tall
+
+
+def write_portrait(path: Path, rgb: np.ndarray, box) -> None:
+    """The person in ``box`` (x0, y0, x1, y1) of frame ``rgb``, with a margin, at most
+    ``PORTRAIT_HEIGHT`` pixels tall: who a track is, on the results page."""
+    h, w = rgb.shape[:2]
+    x0, y0, x1, y1 = np.asarray(box, float)
+    m = 0.1 * max(x1 - x0, y1 - y0)
+    x0, y0 = int(max(0, x0 - m)), int(max(0, y0 - m))
+    x1, y1 = int(min(w, x1 + m)), int(min(h, y1 + m))
+    crop = rgb[y0:max(y1, y0 + 1), x0:max(x1, x0 + 1)]
+    scale = min(1.0, PORTRAIT_HEIGHT / crop.shape[0])
+    if scale < 1.0:
+        crop = cv2.resize(crop, (max(1, round(crop.shape[1] * scale)), PORTRAIT_HEIGHT), interpolation=cv2.INTER_AREA)
+    paths.write_image(path, np.ascontiguousarray(crop))
 
 
 def drawn_frames(seen: np.ndarray, max_gap: int) -> np.ndarray:

@@ -42,7 +42,7 @@ from recon.run import check_writable
 from recon.version import __version__
 from recon.video.camera_motion import MOVING_DEGREES, CameraRotations, TurnEstimate
 from recon.video.frames import FrameRange, FrameSource
-from recon.video.outputs import OverlayFrames, WorldMotion, write_track
+from recon.video.outputs import OverlayFrames, WorldMotion, write_portrait, write_track
 from recon.video.perframe import Detections, FrameLog, PerFrame, same_work, stamp
 from recon.video.smooth import SmoothConfig, TrackInput, smooth_track, to_world
 from recon.video.track import Detection, Track, TrackerConfig, track
@@ -167,7 +167,7 @@ def video(path: str | Path, out: str | Path, options: VideoOptions | None = None
     rotations = estimate.rotations
     moving = estimate.turned and not options.static_camera
     note = camera_note(estimate, options.static_camera)
-    if estimate.turned or not estimate.known:
+    if estimate.turned or not estimate.known or estimate.travelled:
         log(f"camera: {note} (docs/video.md)")
     t0 = time.perf_counter()
     tracks = track(_detections(dets, len(frames.index)), replace(options.tracker, max_people=options.max_people))
@@ -179,8 +179,9 @@ def video(path: str | Path, out: str | Path, options: VideoOptions | None = None
     cam = {"K": np.round(k, 3).tolist(), "image_size": list(src.size), "focal_from": "default"}
     track_files = {}
     for m in motions:
-        track_files[m.id] = write_track(out / f"track_{m.id}", rec.body, m, fps, frames.index, frames.time, cam,
-                                        dresser, options.tightness)
+        track_files[m.id] = list(write_track(out / f"track_{m.id}", rec.body, m, fps, frames.index, frames.time, cam,
+                                             dresser, options.tightness))
+    _write_portraits(out, src, motions, _portrait_frames(tracks, dets), track_files)
     for old in out.glob("track_*"):  # an earlier run's tracks beyond this run's
         if old.is_dir() and old.name not in {f"track_{m.id}" for m in motions}:
             shutil.rmtree(old, ignore_errors=True)
@@ -202,6 +203,8 @@ def video(path: str | Path, out: str | Path, options: VideoOptions | None = None
         "static_camera": not moving, "camera": note,
         "camera_turned_degrees": round(estimate.degrees, 2) if estimate.known else None,
         "camera_turn_measured": round(estimate.measured_share, 3),
+        "camera_travelled": estimate.travelled,
+        "camera_parallax": round(float(np.median(estimate.parallax)), 3) if len(estimate.parallax) else None,
         "made_from": made_from,
     }
     paths.write_text(out / "video.json", json.dumps(summary, indent=1))
@@ -212,7 +215,15 @@ def video(path: str | Path, out: str | Path, options: VideoOptions | None = None
 
 
 def camera_note(estimate: TurnEstimate, static_camera: bool = False) -> str:
-    """What ``recon video`` made of the camera's turn, in words (the log, video.json, the page)."""
+    """What ``recon video`` made of the camera's turn and move, in words (the log, video.json, the page)."""
+    return _turn_note(estimate, static_camera) + (_TRAVELLED if estimate.travelled else "")
+
+
+_TRAVELLED = ("; it also moved (the background shifts with depth): its move is not measured and stays in the "
+              "people's paths")
+
+
+def _turn_note(estimate: TurnEstimate, static_camera: bool) -> str:
     measured = f"measured on {estimate.measured_share:.0%} of the frames"
     if not estimate.known:
         return f"taken as still: its turn was {measured} only (too little background in view)"
@@ -269,8 +280,39 @@ def _detections(dets: Detections, frames: int) -> list[list[Detection]]:
         f = int(dets.frame[n])
         hist = dets.appearance[n]
         per_frame[f].append(Detection(f, dets.box[n].astype(float), dets.points2d[n].astype(float),
-                                      None if np.isnan(hist).any() else hist.astype(np.float32), n))
+                                      None if np.isnan(hist).any() else hist.astype(np.float32), n,
+                                      float(dets.translation[n, 2])))
     return per_frame
+
+
+def _portrait_frames(tracks: list[Track], dets: Detections) -> list[tuple[int, np.ndarray]]:
+    """Per track the frame and box its portrait is cut from: of its detections at least as large
+    as its median one (not a person half hidden or far), the one found with most confidence."""
+    out = []
+    for t in tracks:
+        rows = np.array([d.index for d in t.detections])
+        box = dets.box[rows]
+        area = (box[:, 2] - box[:, 0]) * (box[:, 3] - box[:, 1])
+        big = np.flatnonzero(area >= np.median(area))
+        best = rows[big[np.argmax(dets.confidence[rows[big]])]]
+        out.append((int(dets.frame[best]), dets.box[best].astype(float)))
+    return out
+
+
+def _write_portraits(out: Path, src: FrameSource, motions: list[WorldMotion], chosen: list[tuple[int, np.ndarray]],
+                     files: dict[int, list[str]]) -> None:
+    """Each track's ``person.jpg`` (``write_portrait``), the clip read once up to the last frame needed."""
+    wanted: dict[int, list[tuple[int, np.ndarray]]] = {}
+    for m, (position, box) in zip(motions, chosen, strict=True):
+        wanted.setdefault(position, []).append((m.id, box))
+    if not wanted:
+        return
+    for position, frame in enumerate(src):
+        for track_id, box in wanted.pop(position, []) if frame.rgb is not None else []:
+            write_portrait(out / f"track_{track_id}" / "person.jpg", frame.rgb, box)
+            files[track_id].append("person.jpg")
+        if not wanted or position >= max(wanted):
+            break
 
 
 def _world_motion(body, t: Track, dets: Detections, k: np.ndarray, size, cfg: SmoothConfig,

@@ -33,6 +33,7 @@ class Detection:
     points2d: np.ndarray
     appearance: np.ndarray | None = None
     index: int = 0  # its place among the frame's detections
+    depth: float | None = None  # metres from the camera (the per-frame pass's placement), None where unknown
 
 
 @dataclass
@@ -60,6 +61,25 @@ class Track:
     def appearance(self) -> np.ndarray | None:
         hs = [d.appearance for d in self.detections[-30:] if d.appearance is not None]
         return None if not hs else np.mean(hs, 0).astype(np.float32)
+
+    def predicted(self, frame: int, history: int = 10) -> tuple[np.ndarray, float, float | None]:
+        """Box centre, box height and depth at ``frame``: straight lines fitted to the detections of
+        the last ``history`` frames before the track's last one, carried on through any gap."""
+        recent = [d for d in self.detections[-history:] if d.frame > self.last.frame - history]
+        t = np.array([d.frame for d in recent], float) - self.last.frame
+        centre = np.array([[(d.box[0] + d.box[2]) / 2, (d.box[1] + d.box[3]) / 2] for d in recent])
+        height = np.log([max(d.box[3] - d.box[1], 1.0) for d in recent])
+        depths = [d.depth for d in recent if d.depth is not None and d.depth > 0]
+        depth = np.log(depths) if len(depths) == len(recent) else None
+        ahead = frame - self.last.frame
+
+        def line(y):
+            if len(t) < 3:
+                return y[-1]
+            slope, at_last = np.polyfit(t, y, 1)
+            return at_last + slope * ahead
+        c = np.array([line(centre[:, 0]), line(centre[:, 1])])
+        return c, float(np.exp(line(height))), None if depth is None else float(np.exp(line(depth)))
 
 
 def appearance(rgb: np.ndarray, box, mask: np.ndarray | None = None) -> np.ndarray | None:
@@ -103,6 +123,12 @@ class TrackerConfig:
     max_keypoint_distance: float = 0.5  # ... or the keypoints are this close (units of the box size)
     appearance: float = 1.0  # weight of the colour histograms' distance in the assignment (people crossing)
     reid_distance: float = 0.35  # a retired track's appearance this close gives its id back
+    motion: bool = True  # predict each track's box and depth through gaps (people passing behind others)
+    history: int = 10  # frames of a track its motion is fitted to
+    max_offset: float = 0.3  # a detection joins a track within this distance of its predicted box centre
+    # (units of the box's height), growing by ``offset_growth`` per frame of gap
+    offset_growth: float = 0.03
+    size: float = 1.0  # weight of |log| of the box heights' ratio and of the depths' ratio
     min_frames: int = 5  # shorter tracks are dropped
     max_people: int | None = None
 
@@ -120,17 +146,7 @@ def track(detections: list[list[Detection]], cfg: TrackerConfig | None = None) -
             retired.append(t)
         matched: set[int] = set()
         if live and dets:
-            cost = np.full((len(live), len(dets)), 1e6)
-            looks = [t.appearance() for t in live]
-            for i, t in enumerate(live):
-                pred = t.predicted_box(f)
-                for j, d in enumerate(dets):
-                    iou = box_iou(pred, d.box)
-                    kd = _keypoint_distance(t.last.points2d, d.points2d, d.box)
-                    if iou >= cfg.min_iou or kd <= cfg.max_keypoint_distance:
-                        app = 0.5 if looks[i] is None or d.appearance is None else \
-                            appearance_distance(looks[i], d.appearance)
-                        cost[i, j] = (1.0 - iou) + min(kd, 1.0) + cfg.appearance * app
+            cost = np.array([[_cost(t, d, f, cfg) for d in dets] for t in live])
             rows, cols = linear_sum_assignment(cost)
             for i, j in zip(rows, cols, strict=True):
                 if cost[i, j] < 1e6:
@@ -154,6 +170,31 @@ def track(detections: list[list[Detection]], cfg: TrackerConfig | None = None) -
     for n, t in enumerate(tracks):
         t.id = n
     return tracks
+
+
+def _cost(t: Track, d: Detection, frame: int, cfg: TrackerConfig) -> float:
+    """The cost of giving detection ``d`` to track ``t`` (1e6 where it may not join it)."""
+    look = t.appearance()
+    app = 0.5 if look is None or d.appearance is None else appearance_distance(look, d.appearance)
+    if not cfg.motion:
+        pred = t.predicted_box(frame)
+        iou = box_iou(pred, d.box)
+        kd = _keypoint_distance(t.last.points2d, d.points2d, d.box)
+        if iou >= cfg.min_iou or kd <= cfg.max_keypoint_distance:
+            return (1.0 - iou) + min(kd, 1.0) + cfg.appearance * app
+        return 1e6
+    centre, height, depth = t.predicted(frame, cfg.history)
+    own = np.array([(d.box[0] + d.box[2]) / 2, (d.box[1] + d.box[3]) / 2])
+    offset = float(np.linalg.norm(own - centre)) / height
+    gap = frame - t.last.frame - 1
+    if offset > cfg.max_offset + cfg.offset_growth * gap:
+        return 1e6
+    size = abs(np.log(max(d.box[3] - d.box[1], 1.0) / height))
+    if depth is not None and d.depth is not None and d.depth > 0:
+        size = (size + abs(np.log(d.depth / depth))) / 2
+    moved = t.last.points2d + (centre - (t.last.box[:2] + t.last.box[2:]) / 2)
+    kd = _keypoint_distance(moved, d.points2d, d.box)
+    return offset + cfg.size * size + min(kd, 1.0) + cfg.appearance * app
 
 
 def _reidentified(d: Detection, retired: list[Track], cfg: TrackerConfig) -> Track | None:
