@@ -4,7 +4,7 @@ person's path; the renderer's sensor noise smoothed a little, which GIF compress
 
     .venv/bin/python demos/video_preview.py [--clip walk-03_03] [--outfit tshirt-skirt]
     -> demos/previews/video-<clip>.gif
-    .venv/bin/python demos/video_preview.py --real [--start 0 --end 6 --max-people 4]
+    .venv/bin/python demos/video_preview.py --real --every 1 --height 240 [--start 0 --end 6 --max-people 4]
     -> demos/previews/video-vtest.gif
 
 The synthetic clip is one of synth-video-test's (eval/video.py renders it). ``--real`` takes real

@@ -2,7 +2,8 @@
 
     OMP_NUM_THREADS=1 .venv/bin/python eval/tracking.py            # ~1 min with detections stored
 
-Every clip of the video sets (``recon.synth.video.VIDEO_BENCHMARKS``) is passed through ``recon video``'s per-frame pass once (its detections stored under
+Every clip of the video sets (``recon.synth.video.VIDEO_BENCHMARKS``) is passed through
+``recon video``'s per-frame pass once (its detections stored under
 ``~/.cache/recon/eval-video-work/<clip>``, as eval/video.py leaves them); then each tracker
 variant of ``VARIANTS`` follows the people. A detection belongs to the true person whose projected
 J+ lie closest (median distance under a quarter of the box's height, and under half the next
@@ -27,14 +28,12 @@ import torch
 sys.path.insert(0, str(Path(__file__).parent))
 import video as video_eval  # noqa: E402
 
-from recon import camera, report  # noqa: E402
+from recon import camera, paths, report  # noqa: E402
 from recon.body import default_body  # noqa: E402
 from recon.video import smooth  # noqa: E402
 from recon.video.perframe import Detections  # noqa: E402
-from recon.video.run import _detections  # noqa: E402
+from recon.video.run import detections_per_frame  # noqa: E402
 from recon.video.track import TrackerConfig, track  # noqa: E402
-
-from recon import paths  # noqa: E402
 
 SETS = ("synth-video-val", "synth-video-moving-val", "synth-video-occlusion-val", "synth-video-test",
         "synth-video-moving-test", "synth-video-occlusion-test")
@@ -76,7 +75,7 @@ def owners(dets: Detections, truth) -> np.ndarray:
 def identities(dets: Detections, truth, cfg: TrackerConfig) -> dict:
     """Identity switches and tracks per true person for one tracker configuration."""
     people = truth.joints.shape[0]
-    tracks = track(_detections(dets, truth.visible.shape[1]), replace(cfg, max_people=people))
+    tracks = track(detections_per_frame(dets, truth.visible.shape[1]), replace(cfg, max_people=people))
     owner = owners(dets, truth)
     switches, ids = 0, []
     for p in range(people):

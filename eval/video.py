@@ -335,7 +335,8 @@ def main() -> None:
                 pred, cam = predict_video(path, truth, smooth.SmoothConfig(steps=steps), work / (name + (model or "")),
                                           body, force=method != "video-static", static_camera=method == "video-static",
                                           keypoint_model=model,
-                                          tracker=TrackerConfig(motion=False) if method == "video-tracker-0.29" else None)
+                                          tracker=TrackerConfig(motion=False) if method == "video-tracker-0.29"
+                                          else None)
                 cameras[name] = cam | {"true_turn_degrees": true_turn(truth), "true_travel_m": true_travel(truth)}
             seconds += time.perf_counter() - t0
             frames += truth.visible.shape[1]

@@ -321,12 +321,12 @@ def _lookalikes(hidden_width: float = 70.0, frames: int = 60) -> list[list[Detec
     walks right 8 px a frame, 8 m away (a smaller box), and is not seen while it passes behind."""
     out = []
     for f in range(frames):
-        people = [(300.0, 6.0, 0)]
+        people = [(300.0, 6.0)]
         x = 100.0 + 8.0 * f
         if abs(x - 300.0) > hidden_width:
-            people.append((x, 8.0, 1))
+            people.append((x, 8.0))
         dets = []
-        for x, depth, who in (people if f % 2 else people[::-1]):  # listed in either order
+        for x, depth in (people if f % 2 else people[::-1]):  # listed in either order
             size = 1200.0 / depth
             box, pts = _person(x, 260.0 - size, size)
             dets.append(Detection(f, box, pts, None, len(dets), depth))

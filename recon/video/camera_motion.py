@@ -27,8 +27,9 @@ A camera that moves (travels) is detected, not measured: where it moved, backgro
 different depths shift against each other (parallax), so a turn leaves many of them out while a
 turn and a move together (an essential matrix) explain them; ``TurnEstimate.travelled`` says so
 when the typical match shows that on ``TRAVEL_SHARE`` of its points (points of real texture only:
-corners found in the noise of a blank wall drift along it and look like a move). Its move stays in the
-people's paths (``recon video`` says so).
+corners found in the noise of a blank wall drift along it and look like a move), growing by
+``TRAVEL_RATE`` a second. The matches' points are kept (``TurnEstimate.matches``) for
+``recon.video.camera_travel``, which then fits the turn and the move together.
 """
 from __future__ import annotations
 
@@ -58,6 +59,8 @@ class TurnEstimate:
     measured: np.ndarray
     parallax: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (M,) per match: ``parallax``'s share
     rates: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (M,) its parallax a second (radians)
+    # the background points of each measured match: (frame a, frame b, a's (N, 2), b's (N, 2)), the frames' pixels
+    matches: list = field(default_factory=list)
 
     @property
     def travelled(self) -> bool:
@@ -133,6 +136,8 @@ class CameraRotations:
         self._frames, self._key, self._prev, self._k = 0, None, None, None
         self._moves: list[tuple[float, float]] = []  # per match: ``parallax``'s share, the parallax a second
         self._move: tuple[float, float] | None = None
+        self._matches: list[tuple[int, int, np.ndarray, np.ndarray]] = []
+        self._points: tuple[np.ndarray, np.ndarray] | None = None  # the last match's background points
 
     def __call__(self, frames: Iterable[tuple[np.ndarray, np.ndarray | None]]) -> TurnEstimate:
         """``frames``: (RGB (H, W, 3) uint8, the people's (n, 4) x0, y0, x1, y1 boxes or None),
@@ -166,6 +171,7 @@ class CameraRotations:
         if rot is not None:  # the steps since the key's last linked frame share the turn between them
             step = Rotation.from_matrix(rot @ key.last_rotation.T).as_rotvec() / (t - key.last)
             self._steps[key.last:t] = [(step, used)] * (t - key.last)
+            self._keep_match(key.index, t)
             key.last, key.last_rotation = t, rot
             key.first_inliers = key.first_inliers or used
             if used < self.rekey_share * key.first_inliers or \
@@ -178,6 +184,7 @@ class CameraRotations:
             self._keep_move(t - 1)
             if rot is not None:
                 self._steps[t - 1] = (Rotation.from_matrix(rot).as_rotvec(), used)
+                self._keep_match(t - 1, t)
                 self._key = self._new_key(t, gray, mask)
                 return
         if t - key.last >= self.lost_after:
@@ -205,7 +212,13 @@ class CameraRotations:
         points = np.array([0] + [s[1] for s in self._steps], int)
         rotations = np.stack(rotations)
         moves = np.array(self._moves, float).reshape(-1, 2)
-        return TurnEstimate(rotations, points, np.concatenate([[False], ok]), moves[:, 0], moves[:, 1])
+        return TurnEstimate(rotations, points, np.concatenate([[False], ok]), moves[:, 0], moves[:, 1],
+                            list(self._matches))
+
+    def _keep_match(self, a: int, b: int) -> None:
+        scale = self.k[0, 0] / self._k[0, 0]  # back to the frames' own pixels
+        p0, p1 = self._points
+        self._matches.append((a, b, p0 * scale, p1 * scale))
 
     def _keep_move(self, first: int) -> None:
         if self._move is not None:  # the parallax per second: how fast the camera moved against the near background
@@ -253,6 +266,7 @@ class CameraRotations:
         used = int(inliers.sum())
         textured = corner_strength(a, p0) >= MIN_TEXTURE  # noise on a blank wall drifts: no evidence of a move
         self._move = parallax(p0[textured], p1[textured], self._k, rot, self.ransac_px, (h, w))
+        self._points = (p0[textured], p1[textured])
         if used < self.min_points or used < self.min_inlier_share * len(p0) or \
                 min(spread(p1[inliers], (h, w))) < self.min_spread:
             return None, used

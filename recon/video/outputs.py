@@ -50,6 +50,8 @@ class WorldMotion:
     to_world: tuple[np.ndarray, np.ndarray]  # (R, o): X_world = R @ (X_ref - o), X_ref: the first frame's camera
     # (T, 3, 3) each frame's camera turn from the clip's first camera (x_f = R_f x_ref); None: static
     camera_rotations: np.ndarray | None = None
+    # (T, 3) its move where it travelled (X_f = R_f X_ref + t_f for a point); None: it did not
+    camera_shifts: np.ndarray | None = None
 
     def vertices(self, body, f: int, stop: int | None = None) -> np.ndarray:
         """The body's vertices (V, 3) in frame ``f``, world frame; with ``stop``: frames f..stop-1
@@ -78,14 +80,16 @@ class WorldMotion:
             return x
         if f is None:
             raise ValueError("the camera turned in this clip: say which frame's camera")
-        return x @ self.camera_rotations[f].T
+        x = x @ self.camera_rotations[f].T
+        return x if self.camera_shifts is None else x + self.camera_shifts[f]
 
     def world_to_camera(self) -> tuple[np.ndarray, np.ndarray]:
         """(T, 3, 3), (T, 3): each frame's X_camera = R @ X_world + t."""
         r, o = self.to_world
         turns = self.camera_rotations if self.camera_rotations is not None else np.eye(3)[None].repeat(
             len(self.rotmats), 0)
-        return turns @ r.T, turns @ o
+        shifts = 0.0 if self.camera_shifts is None else self.camera_shifts
+        return turns @ r.T, turns @ o + shifts
 
 
 def write_track(folder: Path, body, m: WorldMotion, fps: float, frame_index: list[int], frame_time: list[float],

@@ -9,7 +9,10 @@ an overlay video of the clip.
    optimisation of the pose and position of every frame; gaps bridged; the ground from the
    planted feet. A camera that turned (``recon.video.camera_motion``, measured on the background
    during the per-frame pass) is taken out: the motion is in the first frame's camera. A turn that
-   could not be measured on most of the clip (too little background in view) is not taken out.
+   could not be measured on most of the clip (too little background in view) is not taken out. A
+   camera that moved (parallax on the background) has its turn and move fitted together on the
+   ground and the far background, at the people's scale (``recon.video.camera_travel``), and both
+   are taken out.
 4. Outputs (``recon.video.outputs``): ``<out>/track_<id>/`` motion.bvh, animated.glb, motion.json;
    ``<out>/overlay.mp4``; ``<out>/video.json`` last (frames, skipped frames, tracks, timings): it is
    removed before the others are written, so it stands only beside a complete set.
@@ -28,6 +31,7 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
+import torch
 from tqdm import tqdm
 
 from recon import camera, paths
@@ -41,10 +45,11 @@ from recon.pipeline import Reconstructor, ReconstructorConfig
 from recon.run import check_writable
 from recon.version import __version__
 from recon.video.camera_motion import MOVING_DEGREES, CameraRotations, TurnEstimate
+from recon.video.camera_travel import travelling_camera
 from recon.video.frames import FrameRange, FrameSource
 from recon.video.outputs import OverlayFrames, WorldMotion, write_portrait, write_track
 from recon.video.perframe import Detections, FrameLog, PerFrame, same_work, stamp
-from recon.video.smooth import SmoothConfig, TrackInput, smooth_track, to_world
+from recon.video.smooth import SmoothConfig, TrackInput, smooth_track, sole_height, to_world
 from recon.video.track import Detection, Track, TrackerConfig, track
 
 WORK = ".work"
@@ -164,15 +169,20 @@ def video(path: str | Path, out: str | Path, options: VideoOptions | None = None
         log(f"resumed: {sum(resumed)} frames read back from {work}")
     seconds["per_frame"] = time.perf_counter() - t0
     estimate = turn.result()
-    rotations = estimate.rotations
-    moving = estimate.turned and not options.static_camera
-    note = camera_note(estimate, options.static_camera)
+    rotations, shifts, travel = estimate.rotations, None, None
+    if estimate.travelled and not options.static_camera and len(dets):
+        rotations, shifts, _ = travelling_camera(estimate, k, dets.frame, dets.points3d + dets.translation[:, None],
+                                                 sole_height(rec.body, torch.tensor(np.median(dets.shape, 0))[None]))
+        travel = float(np.linalg.norm(np.diff(camera_centres(rotations, shifts), axis=0), axis=1).sum())
+    moving = (estimate.turned or shifts is not None) and not options.static_camera
+    note = camera_note(estimate, options.static_camera, travel)
     if estimate.turned or not estimate.known or estimate.travelled:
         log(f"camera: {note} (docs/video.md)")
     t0 = time.perf_counter()
-    tracks = track(_detections(dets, len(frames.index)), replace(options.tracker, max_people=options.max_people))
-    motions = [_world_motion(rec.body, t, dets, k, src.size, options.smooth, rotations if moving else None)
-               for t in tracks]
+    tracks = track(detections_per_frame(dets, len(frames.index)),
+                   replace(options.tracker, max_people=options.max_people))
+    motions = [_world_motion(rec.body, t, dets, k, src.size, options.smooth, rotations if moving else None,
+                             shifts if moving else None) for t in tracks]
     seconds["tracks"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     (out / "video.json").unlink(missing_ok=True)  # present only over a complete set of outputs
@@ -204,6 +214,7 @@ def video(path: str | Path, out: str | Path, options: VideoOptions | None = None
         "camera_turned_degrees": round(estimate.degrees, 2) if estimate.known else None,
         "camera_turn_measured": round(estimate.measured_share, 3),
         "camera_travelled": estimate.travelled,
+        "camera_travelled_m": None if travel is None else round(travel, 3),
         "camera_parallax": round(float(np.median(estimate.parallax)), 3) if len(estimate.parallax) else None,
         "made_from": made_from,
     }
@@ -214,13 +225,16 @@ def video(path: str | Path, out: str | Path, options: VideoOptions | None = None
     return VideoResult(out, motions, frames, dets, fps, seconds)
 
 
-def camera_note(estimate: TurnEstimate, static_camera: bool = False) -> str:
-    """What ``recon video`` made of the camera's turn and move, in words (the log, video.json, the page)."""
-    return _turn_note(estimate, static_camera) + (_TRAVELLED if estimate.travelled else "")
-
-
-_TRAVELLED = ("; it also moved (the background shifts with depth): its move is not measured and stays in the "
-              "people's paths")
+def camera_note(estimate: TurnEstimate, static_camera: bool = False, travel: float | None = None) -> str:
+    """What ``recon video`` made of the camera's turn and move, in words (the log, video.json, the
+    page); ``travel``: the length of its path where it was measured (m)."""
+    note = _turn_note(estimate, static_camera)
+    if not estimate.travelled:
+        return note
+    if static_camera or travel is None:
+        return note + "; it also moved (the background shifts with depth): the move stays in the people's paths"
+    return note + (f"; it also moved, {travel:.2f} m (from the ground and the far background, at the people's "
+                   "scale): turn and move are taken out of the people's motion")
 
 
 def _turn_note(estimate: TurnEstimate, static_camera: bool) -> str:
@@ -274,7 +288,8 @@ def _output_fps(src: FrameSource, r: FrameRange) -> float:
     return min(fps, r.fps) if r.fps is not None else fps
 
 
-def _detections(dets: Detections, frames: int) -> list[list[Detection]]:
+def detections_per_frame(dets: Detections, frames: int) -> list[list[Detection]]:
+    """The tracker's input: per frame position, its people as ``Detection`` s."""
     per_frame: list[list[Detection]] = [[] for _ in range(frames)]
     for n in range(len(dets)):
         f = int(dets.frame[n])
@@ -287,13 +302,15 @@ def _detections(dets: Detections, frames: int) -> list[list[Detection]]:
 
 def _portrait_frames(tracks: list[Track], dets: Detections) -> list[tuple[int, np.ndarray]]:
     """Per track the frame and box its portrait is cut from: of its detections at least as large
-    as its median one (not a person half hidden or far), the one found with most confidence."""
+    as its median one (not a person half hidden or far) and no wider for their height than the
+    median (not two people walking side by side), the one found with most confidence."""
     out = []
     for t in tracks:
         rows = np.array([d.index for d in t.detections])
         box = dets.box[rows]
-        area = (box[:, 2] - box[:, 0]) * (box[:, 3] - box[:, 1])
-        big = np.flatnonzero(area >= np.median(area))
+        w, h = box[:, 2] - box[:, 0], box[:, 3] - box[:, 1]
+        big = np.flatnonzero((w * h >= np.median(w * h)) & (w / np.maximum(h, 1) <= np.median(w / np.maximum(h, 1))))
+        big = big if len(big) else np.arange(len(rows))
         best = rows[big[np.argmax(dets.confidence[rows[big]])]]
         out.append((int(dets.frame[best]), dets.box[best].astype(float)))
     return out
@@ -315,10 +332,16 @@ def _write_portraits(out: Path, src: FrameSource, motions: list[WorldMotion], ch
             break
 
 
+def camera_centres(rotations: np.ndarray, shifts: np.ndarray) -> np.ndarray:
+    """(T, 3) where the camera stood in each frame, in the first frame's camera (-R^T t)."""
+    return -np.einsum("tji,tj->ti", rotations, shifts)
+
+
 def _world_motion(body, t: Track, dets: Detections, k: np.ndarray, size, cfg: SmoothConfig,
-                  rotations: np.ndarray | None = None) -> WorldMotion:
+                  rotations: np.ndarray | None = None, shifts: np.ndarray | None = None) -> WorldMotion:
     """The track's one optimisation (``smooth_track``) and its motion in the world frame;
-    ``rotations``: (frames, 3, 3) each frame's camera turn from the first one's, or None (still)."""
+    ``rotations``: (frames, 3, 3) each frame's camera turn from the first one's, or None (still);
+    ``shifts``: (frames, 3) its move where it travelled (X_f = R_f X_ref + t_f), or None."""
     rows = np.array([d.index for d in t.detections])
     first, last = int(dets.frame[rows].min()), int(dets.frame[rows].max())
     n = last - first + 1
@@ -334,13 +357,14 @@ def _world_motion(body, t: Track, dets: Detections, k: np.ndarray, size, cfg: Sm
     rot[~seen] = np.eye(3)
     shape = np.median(dets.shape[rows], 0)
     turns = None if rotations is None else rotations[first:last + 1]
+    moves = None if shifts is None else shifts[first:last + 1]
     inp = TrackInput(seen, spread(dets.points2d), spread(dets.points3d), spread(dets.box), rot,
-                     spread(dets.translation), shape, k, tuple(size), turns)
+                     spread(dets.translation), shape, k, tuple(size), turns, moves)
     m = smooth_track(body, inp, cfg)
     r, o = to_world(m.ground, m.translation[np.flatnonzero(seen)[0]])
     rotw = m.rotmats.copy()
     rotw[:, 0] = r @ m.rotmats[:, 0]
-    return WorldMotion(t.id, first, rotw, (m.translation - o) @ r.T, shape, seen, m.planted, (r, o), turns)
+    return WorldMotion(t.id, first, rotw, (m.translation - o) @ r.T, shape, seen, m.planted, (r, o), turns, moves)
 
 
 def _write_overlay(path: Path, src: FrameSource, body, motions: list[WorldMotion], k, fps: float,

@@ -105,12 +105,15 @@ class TrackInput:
     image_shape: tuple[int, int]
     # (T, 3, 3) each frame's camera turn from the reference camera (x_t = R_t x_ref); None: static
     camera_rotations: np.ndarray | None = None
+    # (T, 3) and its move, where it travelled: X_t = R_t X_ref + t_t for a point; None: it did not
+    camera_shifts: np.ndarray | None = None
 
     def frames(self, a: int, b: int) -> TrackInput:
         """The track over its frames a..b-1."""
         cut = lambda x: None if x is None else x[a:b]  # noqa: E731
         return TrackInput(self.seen[a:b], self.points2d[a:b], self.points3d[a:b], self.boxes[a:b], self.rotmats[a:b],
-                          self.translation[a:b], self.shape, self.K, self.image_shape, cut(self.camera_rotations))
+                          self.translation[a:b], self.shape, self.K, self.image_shape, cut(self.camera_rotations),
+                          cut(self.camera_shifts))
 
     def in_reference(self) -> tuple[np.ndarray, np.ndarray]:
         """The per-frame root rotations and pelvis positions turned into the reference frame."""
@@ -119,7 +122,8 @@ class TrackInput:
         back = np.swapaxes(self.camera_rotations, 1, 2)
         rot = self.rotmats.copy()
         rot[:, 0] = back @ self.rotmats[:, 0]
-        return rot, np.einsum("tij,tj->ti", back, self.translation)
+        moved = self.translation if self.camera_shifts is None else self.translation - self.camera_shifts
+        return rot, np.einsum("tij,tj->ti", back, moved)
 
 
 @dataclass
@@ -251,7 +255,7 @@ def smooth_track(body, inp: TrackInput, cfg: SmoothConfig | None = None) -> Trac
     torso = pts[:, neck] - pts[:, 0]
     up = (torso / np.linalg.norm(torso, axis=1, keepdims=True)).mean(0)  # people hold the torso upright
     feet = np.concatenate([pts[contact[:, s], FOOT_POINTS[side][1]] for s, side in enumerate(("left", "right"))])
-    sole = _sole_height(body, shape)
+    sole = sole_height(body, shape)
     ground = ground_plane(feet, up, sole) if len(feet) else _lowest_plane(pts, up)
     return TrackMotion(rot, tr.astype(np.float64), pts[:, :24], pts, contact, ground)
 
@@ -291,6 +295,7 @@ def _optimise(body, inp: TrackInput, cfg: SmoothConfig, rot0: np.ndarray, tr0: n
     tr = torch.tensor(tr0, dtype=dtype).requires_grad_(True)
     ids = [list(FOOT_POINTS[s]) for s in ("left", "right")]
     turn = None if inp.camera_rotations is None else torch.tensor(inp.camera_rotations, dtype=dtype)
+    shift = None if inp.camera_shifts is None else torch.tensor(inp.camera_shifts, dtype=dtype)[:, None]
     both = torch.tensor(contact[1:] & contact[:-1], dtype=dtype)  # (T-1, 2, 3) pinned in f and f+1
     tgt = None if target is None else torch.tensor(target, dtype=dtype)
 
@@ -300,6 +305,7 @@ def _optimise(body, inp: TrackInput, cfg: SmoothConfig, rot0: np.ndarray, tr0: n
     def objective():
         pts = body(pose(delta), transl=tr, points_only=True, rest=rest).points  # reference frame
         seen_pts = pts if turn is None else pts @ turn.transpose(1, 2)  # each frame's camera
+        seen_pts = seen_pts if shift is None else seen_pts + shift
         depth = seen_pts[:, :1, 2:].detach().clamp_min(0.5)
         e2d = (((camera.project(seen_pts, k, min_depth=1e-3) - uv) / k[0, 0]) ** 2).sum(-1)
         loss = (w * e2d).sum() / w.sum().clamp_min(1)
@@ -353,7 +359,7 @@ def _prior() -> motion_prior.MotionPrior:
     return motion_prior.load()
 
 
-def _sole_height(body, shape: torch.Tensor) -> float:
+def sole_height(body, shape: torch.Tensor) -> float:
     """How high the foot joint is above the sole in the rest pose (metres)."""
     with torch.no_grad():
         o = body(shape=shape)
