@@ -23,8 +23,6 @@ error split into three parts per run of consecutive frames:
 from __future__ import annotations
 
 import argparse
-from dataclasses import fields
-from pathlib import Path
 
 import numpy as np
 import torch
@@ -32,28 +30,13 @@ import video as video_eval  # eval/video.py, beside this file
 from scipy.ndimage import gaussian_filter1d
 from scipy.spatial.transform import Rotation
 
-from recon import camera, metrics, paths, report
+from recon import camera, metrics, report
 from recon.body import default_body, skeleton
 from recon.video import prior as motion_prior
-from recon.video import smooth
 from recon.video.perframe import Detections
 
 BENCHES = ("synth-video-val", "synth-video-moving-val")
 MIN_RUN = 10  # frames: shorter runs say little about the wobble's correlation
-
-
-def detections(clip: str, path: Path, truth, body) -> Detections:
-    """The clip's stored per-frame detections (made with ``recon video``'s defaults when missing)."""
-    work = paths.cache_dir() / "eval-video-work" / clip
-    if not sorted((work / ".work").glob("batch-*.npz")):
-        video_eval.predict_video(path, truth, smooth.SmoothConfig(steps=0), work, body)
-    parts = []
-    for f in sorted((work / ".work").glob("batch-*.npz")):
-        with np.load(f) as z:  # frames are numbered within their batch; the file holds the batch's source indices
-            d = Detections(**{k.name: z[k.name] for k in fields(Detections)})
-            d.frame = z["indices"][d.frame]
-        parts.append(d)
-    return Detections.concat(parts)
 
 
 def residuals(body, dets: Detections, truth) -> list[dict]:
@@ -136,7 +119,7 @@ def measure(benches=BENCHES) -> dict:
     runs = []
     for bench in benches:
         for clip, path, truth in video_eval.clips(bench):
-            runs += residuals(body, detections(clip, path, truth, body), truth)
+            runs += residuals(body, video_eval.stored_detections(clip, path, truth, body), truth)
     bias = np.stack([r["rel"].mean(0) for r in runs])  # (runs, 42, 3)
     wobble = [r["rel"] - r["rel"].mean(0) for r in runs]
     sigma, rho = ar1(wobble)

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import argparse
 import sys
-from dataclasses import fields, replace
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -28,9 +28,8 @@ import torch
 sys.path.insert(0, str(Path(__file__).parent))
 import video as video_eval  # noqa: E402
 
-from recon import camera, paths, report  # noqa: E402
+from recon import camera, report  # noqa: E402
 from recon.body import default_body  # noqa: E402
-from recon.video import smooth  # noqa: E402
 from recon.video.perframe import Detections  # noqa: E402
 from recon.video.run import detections_per_frame  # noqa: E402
 from recon.video.track import TrackerConfig, track  # noqa: E402
@@ -41,20 +40,6 @@ VARIANTS = {
     "0.29 (box, keypoints, colours)": TrackerConfig(motion=False),
     "0.30 (+ motion through gaps, size, depth)": TrackerConfig(),
 }
-
-
-def detections(clip: str, path: Path, truth, body) -> Detections:
-    """The clip's stored per-frame detections (made with ``recon video``'s defaults when missing)."""
-    work = paths.cache_dir() / "eval-video-work" / clip
-    if not sorted((work / ".work").glob("batch-*.npz")):
-        video_eval.predict_video(path, truth, smooth.SmoothConfig(steps=0), work, body)
-    parts = []
-    for f in sorted((work / ".work").glob("batch-*.npz")):
-        with np.load(f) as z:  # frames are numbered within their batch; the file holds the batch's source indices
-            d = Detections(**{k.name: z[k.name] for k in fields(Detections)})
-            d.frame = z["indices"][d.frame]
-        parts.append(d)
-    return Detections.concat(parts)
 
 
 def owners(dets: Detections, truth) -> np.ndarray:
@@ -94,7 +79,7 @@ def measure() -> dict:
     out = {}
     for bench in SETS:
         for name, path, truth in video_eval.clips(bench):
-            dets = detections(name, path, truth, body)
+            dets = video_eval.stored_detections(name, path, truth, body)
             out[f"{bench}/{name}"] = {v: identities(dets, truth, cfg) for v, cfg in VARIANTS.items()}
     return out
 

@@ -41,7 +41,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
-from dataclasses import replace
+from dataclasses import fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -56,7 +56,8 @@ from recon.synth.video import SIZE, VIDEO_BENCHMARKS, VIDEO_GENERATOR, ClipRende
 from recon.video import smooth
 from recon.video.camera_motion import turned_degrees
 from recon.video.frames import FrameSource
-from recon.video.run import VideoOptions, video
+from recon.video.perframe import Detections
+from recon.video.run import VideoOptions, camera_centres, video
 from recon.video.track import TrackerConfig
 
 METHODS = ("per-frame", "video-raw", "video", "video-static", "video-heavy", "video-full", "video-tracker-0.29")
@@ -123,6 +124,20 @@ def predict_video(path: Path, truth: ClipTruth, smoothing: smooth.SmoothConfig, 
     return out, cam
 
 
+def stored_detections(clip: str, path: Path, truth: ClipTruth, body) -> Detections:
+    """The clip's stored per-frame detections (made with ``recon video``'s defaults when missing)."""
+    work = paths.cache_dir() / "eval-video-work" / clip
+    if not sorted((work / ".work").glob("batch-*.npz")):
+        predict_video(path, truth, smooth.SmoothConfig(steps=0), work, body)
+    parts = []
+    for f in sorted((work / ".work").glob("batch-*.npz")):
+        with np.load(f) as z:  # frames are numbered within their batch; the file holds the batch's source indices
+            d = Detections(**{k.name: z[k.name] for k in fields(Detections)})
+            d.frame = z["indices"][d.frame]
+        parts.append(d)
+    return Detections.concat(parts)
+
+
 def true_turns(truth: ClipTruth) -> np.ndarray:
     """(F, 3, 3): each frame's true camera turned from the first one's (``x_t = R_t x_0``)."""
     return np.einsum("fij,kj->fik", truth.R, truth.R[0])
@@ -135,7 +150,7 @@ def true_turn(truth: ClipTruth) -> float:
 
 def true_travel(truth: ClipTruth) -> float:
     """The farthest (m) the camera's centre got from where it started."""
-    eye = -np.einsum("fji,fj->fi", truth.R, truth.t)
+    eye = camera_centres(truth.R, truth.t)
     return float(np.linalg.norm(eye - eye[0], axis=1).max())
 
 

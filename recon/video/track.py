@@ -72,7 +72,7 @@ class Track:
         the last ``history`` frames before the track's last one, carried on through any gap."""
         recent = [d for d in self.detections[-history:] if d.frame > self.last.frame - history]
         t = np.array([d.frame for d in recent], float) - self.last.frame
-        centre = np.array([[(d.box[0] + d.box[2]) / 2, (d.box[1] + d.box[3]) / 2] for d in recent])
+        centre = np.array([box_centre(d.box) for d in recent])
         height = np.log([max(d.box[3] - d.box[1], 1.0) for d in recent])
         depths = [d.depth for d in recent if d.depth is not None and d.depth > 0]
         depth = np.log(depths) if len(depths) == len(recent) else None
@@ -151,7 +151,7 @@ def track(detections: list[list[Detection]], cfg: TrackerConfig | None = None) -
             retired.append(t)
         matched: set[int] = set()
         if live and dets:
-            cost = np.array([[_cost(t, d, f, cfg) for d in dets] for t in live])
+            cost = np.array([_costs(t, dets, f, cfg) for t in live])
             rows, cols = linear_sum_assignment(cost)
             for i, j in zip(rows, cols, strict=True):
                 if cost[i, j] < 1e6:
@@ -177,29 +177,40 @@ def track(detections: list[list[Detection]], cfg: TrackerConfig | None = None) -
     return tracks
 
 
-def _cost(t: Track, d: Detection, frame: int, cfg: TrackerConfig) -> float:
-    """The cost of giving detection ``d`` to track ``t`` (1e6 where it may not join it)."""
+def box_centre(box) -> np.ndarray:
+    """(2,) the middle of an (x0, y0, x1, y1) box."""
+    return np.array([(box[0] + box[2]) / 2, (box[1] + box[3]) / 2])
+
+
+def _costs(t: Track, dets: list[Detection], frame: int, cfg: TrackerConfig) -> list[float]:
+    """The costs of giving each of ``dets`` to track ``t`` (1e6 where one may not join it); the
+    track's look and predicted place are worked out once for them all."""
     look = t.appearance()
-    app = 0.5 if look is None or d.appearance is None else appearance_distance(look, d.appearance)
+    apps = [0.5 if look is None or d.appearance is None else appearance_distance(look, d.appearance) for d in dets]
     if not cfg.motion:
         pred = t.predicted_box(frame)
-        iou = box_iou(pred, d.box)
-        kd = _keypoint_distance(t.last.points2d, d.points2d, d.box)
-        if iou >= cfg.min_iou or kd <= cfg.max_keypoint_distance:
-            return (1.0 - iou) + min(kd, 1.0) + cfg.appearance * app
-        return 1e6
+        out = []
+        for d, app in zip(dets, apps, strict=True):
+            iou = box_iou(pred, d.box)
+            kd = _keypoint_distance(t.last.points2d, d.points2d, d.box)
+            ok = iou >= cfg.min_iou or kd <= cfg.max_keypoint_distance
+            out.append((1.0 - iou) + min(kd, 1.0) + cfg.appearance * app if ok else 1e6)
+        return out
     centre, height, depth = t.predicted(frame, cfg.history)
-    own = np.array([(d.box[0] + d.box[2]) / 2, (d.box[1] + d.box[3]) / 2])
-    offset = float(np.linalg.norm(own - centre)) / height
-    gap = frame - t.last.frame - 1
-    if offset > cfg.max_offset + cfg.offset_growth * gap:
-        return 1e6
-    size = abs(np.log(max(d.box[3] - d.box[1], 1.0) / height))
-    if depth is not None and d.depth is not None and d.depth > 0:
-        size = (size + abs(np.log(d.depth / depth))) / 2
-    moved = t.last.points2d + (centre - (t.last.box[:2] + t.last.box[2:]) / 2)
-    kd = _keypoint_distance(moved, d.points2d, d.box)
-    return offset + cfg.size * size + min(kd, 1.0) + cfg.appearance * app
+    reach = cfg.max_offset + cfg.offset_growth * (frame - t.last.frame - 1)
+    moved = t.last.points2d + (centre - box_centre(t.last.box))  # the last keypoints carried with the prediction
+    out = []
+    for d, app in zip(dets, apps, strict=True):
+        offset = float(np.linalg.norm(box_centre(d.box) - centre)) / height
+        if offset > reach:
+            out.append(1e6)
+            continue
+        size = abs(np.log(max(d.box[3] - d.box[1], 1.0) / height))
+        if depth is not None and d.depth is not None and d.depth > 0:
+            size = (size + abs(np.log(d.depth / depth))) / 2
+        kd = _keypoint_distance(moved, d.points2d, d.box)
+        out.append(offset + cfg.size * size + min(kd, 1.0) + cfg.appearance * app)
+    return out
 
 
 def _reidentified(d: Detection, retired: list[Track], cfg: TrackerConfig) -> Track | None:
