@@ -48,7 +48,7 @@ from recon.video.camera_motion import MOVING_DEGREES, CameraRotations, TurnEstim
 from recon.video.camera_travel import travelling_camera
 from recon.video.frames import FrameRange, FrameSource
 from recon.video.outputs import OverlayFrames, WorldMotion, write_portrait, write_track
-from recon.video.perframe import Detections, FrameLog, PerFrame, same_work, stamp
+from recon.video.perframe import Detections, FrameLog, PerFrame, ahead, same_work, stamp
 from recon.video.smooth import SmoothConfig, TrackInput, smooth_track, sole_height, to_world
 from recon.video.track import Detection, Track, TrackerConfig, track
 
@@ -380,7 +380,7 @@ def _write_overlay(path: Path, src: FrameSource, body, motions: list[WorldMotion
             yield draw(last, position)
             bar.update(1)
     try:
-        paths.write_mp4(path, frames(), fps, (h, 2 * w), browser=True)
+        paths.write_mp4(path, ahead(frames(), 2), fps, (h, 2 * w), browser=True)  # drawn while encoded
     finally:
         bar.close()
         draw.close()
