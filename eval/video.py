@@ -197,6 +197,15 @@ def score(truth: ClipTruth, pred: list[list[tuple]], sums: dict, clip: str = "")
     """Add one clip's errors to ``sums`` (lists of per-item values)."""
     m = match(truth, pred)
     plant = planted(truth)
+    for f in range(m.shape[1]):  # people towards each other: pelvis to pelvis, in the camera and in the world
+        both = [p for p in range(m.shape[0]) if m[p, f] >= 0]
+        for i, p in enumerate(both):
+            for q in both[i + 1:]:
+                a, b = pred[f][m[p, f]], pred[f][m[q, f]]
+                between = (a[1][0] - b[1][0]) - (truth.joints[p, f, 0] - truth.joints[q, f, 0])
+                sums["between_camera"].append(float(np.linalg.norm(between)) * 1000)
+                sums["between_world"].append(abs(float(np.linalg.norm(a[3][0] - b[3][0]) - np.linalg.norm(
+                    truth.joints_world[p, f, 0] - truth.joints_world[q, f, 0]))) * 1000)
     for p in range(m.shape[0]):
         vis = truth.visible[p]
         sums["visible"] += int(vis.sum())
@@ -255,7 +264,7 @@ def score(truth: ClipTruth, pred: list[list[tuple]], sums: dict, clip: str = "")
 def new_sums() -> dict:
     """Empty per-item lists and counters for ``score``."""
     sums = {k: [] for k in ("mpjpe", "pa_mpjpe", "pve", "accel", "jitter", "jitter_truth", "skate", "skate_truth",
-                            "wa_mpjpe", "w_mpjpe", "rte", "people")}
+                            "wa_mpjpe", "w_mpjpe", "rte", "people", "between_camera", "between_world")}
     return sums | {"visible": 0, "found": 0, "id_switches": 0}
 
 
@@ -269,7 +278,8 @@ def summarise(sums: dict, seconds: float, frames: int) -> dict:
              "jitter_ratio": mean("jitter") / mean("jitter_truth") if sums["jitter"] else None,
              "worst_person_skating_cm": max(skates) if skates else None,
              "people_skating_over_2cm": sum(x >= 2.0 for x in skates),
-             "person_jitter_ratio_range": [min(ratios), max(ratios)] if ratios else None, "people": people}
+             "person_jitter_ratio_range": [min(ratios), max(ratios)] if ratios else None, "people": people,
+             "between_camera": mean("between_camera"), "between_world": mean("between_world")}
     return world | {"mpjpe": mean("mpjpe"), "pa_mpjpe": mean("pa_mpjpe"), "pve": mean("pve"), "accel": mean("accel"),
             "jitter": mean("jitter"), "jitter_truth": mean("jitter_truth"), "foot_skating_cm": mean("skate"),
             "foot_skating_truth_cm": mean("skate_truth"), "id_switches": sums["id_switches"],
@@ -287,12 +297,13 @@ def markdown(bench: str, rows: dict, data: dict, machine: dict) -> str:
     body.append(["ground truth (on the last row's frames)", None, None, None, None, any_row["jitter_truth"],
                  any_row["foot_skating_truth_cm"], None, None, None])
     world_head = ["method", "WA-MPJPE", "W-MPJPE", "RTE %", "RTE runs", "jitter / truth's",
-                  "jitter ratio per person", "worst person's skating (cm)", "people skating >= 2 cm"]
+                  "jitter ratio per person", "worst person's skating (cm)", "people skating >= 2 cm",
+                  "between people: camera", "world"]
     spread = lambda r: "{:.2f}-{:.2f}".format(*r["person_jitter_ratio_range"]) if r.get(  # noqa: E731
         "person_jitter_ratio_range") else None
     world = [[LABELS[k], r.get("wa_mpjpe"), r.get("w_mpjpe"), r.get("rte_pct"), r.get("rte_runs"),
-              r.get("jitter_ratio"), spread(r), r.get("worst_person_skating_cm"), r.get("people_skating_over_2cm")]
-             for k, r in rows.items()]
+              r.get("jitter_ratio"), spread(r), r.get("worst_person_skating_cm"), r.get("people_skating_over_2cm"),
+              r.get("between_camera"), r.get("between_world")] for k, r in rows.items()]
     return "\n".join([
         f"# `recon video` on {bench}", "",
         f"{data['clips']} clips, {data['frames']} frames of 640 x 480 at 30 fps, {any_row['person_frames']} visible "
@@ -302,7 +313,10 @@ def markdown(bench: str, rows: dict, data: dict, machine: dict) -> str:
         "Rows score the frames where they have the person: `recon video` also its bridged gaps.", "",
         "World-grounded (each track's world frame against the scene's; the per-frame row has only the camera's; "
         f"chunks of 100 frames; RTE on runs of at least {RTE_MIN_PATH:g} m walked):", "",
-        report.table(world, world_head, ["", ".1f", ".1f", ".1f", "", ".2f", "", ".1f", ""]), "",
+        report.table(world, world_head, ["", ".1f", ".1f", ".1f", "", ".2f", "", ".1f", "", ".0f", ".0f"]), "",
+        "Between people (clips of several): the error of one person's pelvis seen from another's, in the camera "
+        "(mm), and of the distance between them in the world frames (mm; the files of one clip share one "
+        "world since 0.31).", "",
         *camera_table(rows.get("video", {}).get("cameras")),
         f"Machine: {report.describe(machine)}.", ""])
 

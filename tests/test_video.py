@@ -55,7 +55,7 @@ class TruthReconstructor:
         """The keypoint stage (``recon.Reconstructor.find_people``): here it makes each frame's answer."""
         out = []
         t = self.truth
-        rot_world = roma.rotvec_to_rotmat(torch.tensor(t.pose[0], dtype=torch.float64)).numpy()
+        rot_world = roma.rotvec_to_rotmat(torch.tensor(t.pose, dtype=torch.float64)).numpy()
         for rgb in images:
             assert rgb[0, 0, 1] == 77, "frames marked by _mark"
             f = int(round(float(rgb[0, 0, 0]) / 10))
@@ -63,14 +63,17 @@ class TruthReconstructor:
                 raise KeyboardInterrupt
             self.seen.append(f)
             rng = np.random.default_rng(f)
-            pts = t.points[0, f]
-            uv = camera.project(pts, t.K) + rng.normal(0, self.noise, (42, 2))
-            rot = rot_world[f].copy()
-            rot[0] = t.R[f] @ rot[0]
-            kp = SimpleNamespace(points2d=uv, points3d=pts - pts[:1], confidence=0.9, mask=None,
-                                 box=(*uv.min(0), *uv.max(0)))
-            out.append([SimpleNamespace(keypoints=kp, rotmats=rot, shape=t.shape[0].astype(np.float64),
-                                        translation=t.joints[0, f, 0] + rng.normal(0, 0.03, 3))])
+            people = []
+            for p in range(min(max_people, len(t.points))):
+                pts = t.points[p, f]
+                uv = camera.project(pts, t.K) + rng.normal(0, self.noise, (42, 2))
+                rot = rot_world[p, f].copy()
+                rot[0] = t.R[f] @ rot[0]
+                kp = SimpleNamespace(points2d=uv, points3d=pts - pts[:1], confidence=0.9, mask=None,
+                                     box=(*uv.min(0), *uv.max(0)))
+                people.append(SimpleNamespace(keypoints=kp, rotmats=rot, shape=t.shape[p].astype(np.float64),
+                                              translation=t.joints[p, f, 0] + rng.normal(0, 0.03, 3)))
+            out.append(people)
         return out
 
     def people_from(self, images, found):
@@ -139,6 +142,35 @@ def test_video_writes_each_track_and_the_overlay(body, clip, tmp_path):
     # ... and takes the track's body to move it with another clip
     person = person_from(out / "track_0", tmp_path / "anim")
     assert list(person["shape"].values()) == pytest.approx(m.shape, abs=1e-4)
+
+
+@pytest.mark.slow
+def test_the_tracks_of_a_clip_share_one_world_on_one_ground(body, tmp_path):
+    """Two people walking past each other: both tracks' files in one world frame, where they stand
+    as far apart as they stood, each with the feet on the ground."""
+    spec = ClipSpec("test-two", (Actor("03_01", 0, (0.0, 0.8), 0.0), Actor("14_17", 100, (1.2, -0.8))), FRAMES,
+                    seed=8, distance=5.0, yaw=20.0)
+    frames, truth = ClipRenderer(body).render(spec)
+    rec = TruthReconstructor(body, truth)
+    rec.config = replace(rec.config, focal_factor=float(truth.K[0, 0]) / 640)
+    res = video(_folder(frames, tmp_path / "frames"), tmp_path / "out", VideoOptions(max_people=2, overlay=False),
+                reconstructor=rec, progress=False, log=lambda m: None, page=False)
+    assert len(res.tracks) == 2
+    frame = [json.loads((tmp_path / "out" / f"track_{m.id}" / "motion.json").read_text())["camera"]["world_to_camera"]
+             for m in res.tracks]
+    assert frame[0] == frame[1]
+    pelvis = np.full((2, FRAMES, 3), np.nan)
+    for n, m in enumerate(res.tracks):
+        with torch.no_grad():
+            j = body(torch.tensor(m.rotmats, dtype=torch.float32), torch.tensor(m.shape[None], dtype=torch.float32),
+                     transl=torch.tensor(m.translation, dtype=torch.float32)).joints.numpy()
+        assert abs(float(j[:, [10, 11], 1].min())) < 0.06  # the feet on the shared ground
+        pelvis[n, m.first:m.first + len(j)] = j[:, 0]
+    apart = np.linalg.norm(pelvis[0] - pelvis[1], axis=-1)
+    true_apart = np.linalg.norm(truth.joints_world[0, :, 0] - truth.joints_world[1, :, 0], axis=-1)
+    both = ~np.isnan(apart)
+    assert both.sum() >= FRAMES - 4
+    assert np.abs(apart[both] - true_apart[both]).max() < 0.15, (apart, true_apart)
 
 
 def test_a_turning_camera_is_taken_out_of_the_people_s_motion(body, pan_clip, tmp_path):
@@ -296,22 +328,3 @@ def test_the_overlay_draws_bridged_frames_fainter_and_leaves_out_long_gaps(body)
     rgb = np.full((240, 320, 3), 40, np.uint8)
     change = {f: np.abs(draw(rgb, f)[:, :320].astype(int) - rgb).sum() for f in (5, 12, 25)}
     assert change[5] > change[12] > 0 and change[25] == 0
-
-
-def test_the_3d_view_stands_each_track_on_its_own_ground(body):
-    """Two tracks whose grounds were estimated 0.5 m apart: in the 3D view each stands on the floor
-    (drawn where a track with the first one's ground would be)."""
-    t = 3
-    rot = np.tile(np.eye(3), (t, 24, 1, 1))
-    ground = (np.diag([1.0, -1.0, -1.0]), np.array([0.0, 0.0, 3.0]))
-    lower = (ground[0], ground[1] + [0.0, 0.5, 0.0])  # camera +y is down
-    make = lambda g: WorldMotion(0, 0, rot, np.tile([0.0, 0.9, 0.0], (t, 1)), body.mean_shape.numpy(),  # noqa: E731
-                                 np.ones(t, bool), np.zeros((t, 2), bool), g)
-    k = np.array([[500.0, 0, 160], [0, 500.0, 120], [0, 0, 1]])
-    rgb = np.full((240, 320, 3), 40, np.uint8)
-    same = OverlayFrames(body, [make(ground), make(ground)], k, (240, 320))(rgb, 1)
-    apart = OverlayFrames(body, [make(ground), make(lower)], k, (240, 320))
-    assert apart.lift == pytest.approx([0.0, -0.5])
-    right = apart(rgb, 1)[:, 320:]
-    assert np.abs(right.astype(int) - same[:, 320:]).max() <= 1
-    assert np.abs(apart(rgb, 1)[:, :320].astype(int) - same[:, :320]).sum() > 0  # over the frame: where seen

@@ -5,17 +5,8 @@ import roma
 import torch
 
 from recon import camera, metrics
-from recon.video.smooth import (
-    FOOT_POINTS,
-    SmoothConfig,
-    TrackInput,
-    fill_gaps,
-    ground_plane,
-    planted,
-    smooth_track,
-    to_world,
-    windows,
-)
+from recon.video.ground import FOOT_POINTS, ground_plane, to_world
+from recon.video.smooth import SmoothConfig, TrackInput, fill_gaps, planted, smooth_track, windows
 from recon.video.track import Detection, TrackerConfig, appearance, appearance_distance, track
 
 K = np.array([[600.0, 0, 320], [0, 600.0, 240], [0, 0, 1]])

@@ -2,9 +2,11 @@
 
 ``frames`` reads the frames of a video file or a folder of images, with a frame range;
 ``perframe`` runs the image pipeline on each frame (MediaPipe in video mode), stored batch by
-batch; ``track`` follows people across frames; ``smooth`` optimises each track's motion over all
-its frames (motion prior, foot contact, ground plane); ``outputs`` writes BVH, animated .glb,
-JSON and the overlay video; ``run`` puts them together.
+batch; ``camera_motion`` and ``camera_travel`` measure how the camera turned and moved; ``track``
+follows people across frames; ``smooth`` optimises each track's motion over all its frames (motion
+prior, foot contact); ``ground`` and ``world`` put a clip's tracks on one ground, in one world
+frame; ``outputs`` writes BVH, animated .glb, JSON and the overlay video; ``run`` puts them
+together.
 """
 from __future__ import annotations
 

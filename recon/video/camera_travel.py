@@ -24,7 +24,7 @@ from scipy.spatial.transform import Rotation
 
 from recon.body import skeleton
 from recon.video.camera_motion import TurnEstimate
-from recon.video.smooth import ground_plane
+from recon.video.ground import ground_plane
 
 MAX_DISTANCE = 40.0  # m: ground points farther than this are taken as far background
 FIRST_FRAMES = 10  # frames whose people give the first ground plane (the camera has moved little)

@@ -3,10 +3,10 @@
 Per track (``write_track``): ``motion.bvh`` (the motion on the track's own skeleton, centimetres),
 ``animated.glb`` (skinned body with the track's shape, dressed with an outfit when asked; NCS
 dynamics where the outfit has them), ``motion.json`` and ``person.jpg`` (``write_portrait``: who
-the track is, cut from the clip), all in the track's world frame (+Y up
-from the estimated ground, feet on y = 0, Z towards the camera; ``recon.video.smooth.to_world``).
+the track is, cut from the clip), all in the clip's world frame, the same for every track (+Y up
+from the estimated ground, feet on y = 0, Z towards the camera; ``recon.video.ground``).
 ``OverlayFrames`` draws the frames of ``overlay.mp4``: every track's body over the frame, side
-by side with a 3D view of the bodies, each standing on its own estimated ground. A body the
+by side with a 3D view of the bodies on the clip's ground. A body the
 track bridges (its person not found in that frame) is drawn fainter, and not at all in a gap
 longer than ``MAX_DRAWN_GAP`` seconds: the files keep the whole track, the picture does not
 pretend to have seen it.
@@ -133,7 +133,7 @@ def write_track(folder: Path, body, m: WorldMotion, fps: float, frame_index: lis
 
 class OverlayFrames:
     """``overlay(rgb, position) -> frame``: the bodies of the tracks at that position over the
-    frame, beside a 3D view of them on the ground of the first track's world frame (a fixed camera
+    frame, beside a 3D view of them on the clip's ground, in its world frame (a fixed camera
     above and in front). Drawn by the fast rasteriser of the synthetic benchmark (flat shading)."""
 
     def __init__(self, body, tracks: list[WorldMotion], k: np.ndarray, size: tuple[int, int], fps: float = 30.0):
@@ -141,11 +141,8 @@ class OverlayFrames:
         self.drawn = [drawn_frames(t.seen, int(round(MAX_DRAWN_GAP * fps))) for t in tracks]
         self.faces = body.faces.cpu().numpy()
         self.raster = Rasterizer(size[1], size[0])
-        self.world = tracks[0].to_world if tracks else (np.eye(3), np.zeros(3))
+        self.world = tracks[0].to_world if tracks else (np.eye(3), np.zeros(3))  # the clip's one world frame
         r, o = self.world
-        # each track on its own ground: the first track's world frame, moved up or down by the height of
-        # the track's own ground there (the grounds are estimated apart; a depth off would float or sink)
-        self.lift = [float(((t.to_world[1] - o) @ r.T)[1]) for t in tracks]
         pelvis = np.concatenate([(t.to_reference(t.translation) - o) @ r.T for t in tracks] or [np.zeros((1, 3))])
         lo, hi = pelvis.min(0), pelvis.max(0)
         centre = np.array([(lo[0] + hi[0]) / 2, 0.9, (lo[2] + hi[2]) / 2])
@@ -162,12 +159,12 @@ class OverlayFrames:
     def __call__(self, rgb: np.ndarray, position: int) -> np.ndarray:
         r, o = self.world
         cam_v, world_v, colours, alpha = [], [], [], []
-        for n, (t, drawn, lift) in enumerate(zip(self.tracks, self.drawn, self.lift, strict=True)):
+        for n, (t, drawn) in enumerate(zip(self.tracks, self.drawn, strict=True)):
             f = position - t.first
             if 0 <= f < len(t.rotmats) and drawn[f]:
                 v = t.to_reference(self._vertices(n, f))
                 cam_v.append(t.reference_to_camera(v, f))
-                world_v.append((v - o) @ r.T - [0.0, lift, 0.0])
+                world_v.append((v - o) @ r.T)
                 colours.append(COLOURS[t.id % len(COLOURS)][:3])
                 alpha.append(ALPHA_SEEN if t.seen[f] else ALPHA_BRIDGED)
         left = rgb.copy()

@@ -12,7 +12,8 @@ an overlay video of the clip.
    could not be measured on most of the clip (too little background in view) is not taken out. A
    camera that moved (parallax on the background) has its turn and move fitted together on the
    ground and the far background, at the people's scale (``recon.video.camera_travel``), and both
-   are taken out.
+   are taken out. All tracks are then written in the clip's one world frame, on one ground
+   (``recon.video.world``).
 4. Outputs (``recon.video.outputs``): ``<out>/track_<id>/`` motion.bvh, animated.glb, motion.json;
    ``<out>/overlay.mp4``; ``<out>/video.json`` last (frames, skipped frames, tracks, timings): it is
    removed before the others are written, so it stands only beside a complete set.
@@ -47,10 +48,12 @@ from recon.version import __version__
 from recon.video.camera_motion import MOVING_DEGREES, CameraRotations, TurnEstimate
 from recon.video.camera_travel import travelling_camera
 from recon.video.frames import FrameRange, FrameSource
+from recon.video.ground import sole_height
 from recon.video.outputs import OverlayFrames, WorldMotion, write_portrait, write_track
 from recon.video.perframe import Detections, FrameLog, PerFrame, ahead, same_work, stamp
-from recon.video.smooth import SmoothConfig, TrackInput, smooth_track, sole_height, to_world
+from recon.video.smooth import SmoothConfig
 from recon.video.track import Detection, Track, TrackerConfig, track
+from recon.video.world import fit_track, one_world
 
 WORK = ".work"
 log_ = logging.getLogger(__name__)
@@ -181,8 +184,8 @@ def video(path: str | Path, out: str | Path, options: VideoOptions | None = None
     t0 = time.perf_counter()
     tracks = track(detections_per_frame(dets, len(frames.index)),
                    replace(options.tracker, max_people=options.max_people))
-    motions = [_world_motion(rec.body, t, dets, k, src.size, options.smooth, rotations if moving else None,
-                             shifts if moving else None) for t in tracks]
+    motions = one_world([fit_track(rec.body, t, dets, k, src.size, options.smooth, rotations if moving else None,
+                               shifts if moving else None) for t in tracks])
     seconds["tracks"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     (out / "video.json").unlink(missing_ok=True)  # present only over a complete set of outputs
@@ -335,36 +338,6 @@ def _write_portraits(out: Path, src: FrameSource, motions: list[WorldMotion], ch
 def camera_centres(rotations: np.ndarray, shifts: np.ndarray) -> np.ndarray:
     """(T, 3) where the camera stood in each frame, in the first frame's camera (-R^T t)."""
     return -np.einsum("tji,tj->ti", rotations, shifts)
-
-
-def _world_motion(body, t: Track, dets: Detections, k: np.ndarray, size, cfg: SmoothConfig,
-                  rotations: np.ndarray | None = None, shifts: np.ndarray | None = None) -> WorldMotion:
-    """The track's one optimisation (``smooth_track``) and its motion in the world frame;
-    ``rotations``: (frames, 3, 3) each frame's camera turn from the first one's, or None (still);
-    ``shifts``: (frames, 3) its move where it travelled (X_f = R_f X_ref + t_f), or None."""
-    rows = np.array([d.index for d in t.detections])
-    first, last = int(dets.frame[rows].min()), int(dets.frame[rows].max())
-    n = last - first + 1
-    pos = dets.frame[rows] - first
-    seen = np.zeros(n, bool)
-    seen[pos] = True
-
-    def spread(a, fill=0.0):
-        x = np.full((n, *a.shape[1:]), fill, np.float64)
-        x[pos] = a[rows]
-        return x
-    rot = spread(dets.rotmats)
-    rot[~seen] = np.eye(3)
-    shape = np.median(dets.shape[rows], 0)
-    turns = None if rotations is None else rotations[first:last + 1]
-    moves = None if shifts is None else shifts[first:last + 1]
-    inp = TrackInput(seen, spread(dets.points2d), spread(dets.points3d), spread(dets.box), rot,
-                     spread(dets.translation), shape, k, tuple(size), turns, moves)
-    m = smooth_track(body, inp, cfg)
-    r, o = to_world(m.ground, m.translation[np.flatnonzero(seen)[0]])
-    rotw = m.rotmats.copy()
-    rotw[:, 0] = r @ m.rotmats[:, 0]
-    return WorldMotion(t.id, first, rotw, (m.translation - o) @ r.T, shape, seen, m.planted, (r, o), turns, moves)
 
 
 def _write_overlay(path: Path, src: FrameSource, body, motions: list[WorldMotion], k, fps: float,

@@ -26,9 +26,7 @@ reference frame is the camera's.
 A track longer than ``SmoothConfig.window`` frames is optimised window by window (overlapping by
 ``overlap`` frames, blended linearly there), so a long clip's memory stays bounded.
 
-The ground is the plane through the planted feet (``ground_plane``, held near the mean direction
-of the torso, pelvis to neck); ``to_world`` gives the frame in which the motion is written: +Y up from the ground,
-feet on y = 0, Z towards the camera.
+The track's ground is the plane through its planted feet (``recon.video.ground``).
 """
 from __future__ import annotations
 
@@ -41,17 +39,12 @@ import torch
 from scipy.ndimage import gaussian_filter1d
 
 from recon import camera
-from recon.body import skeleton
 from recon.fit import linear_rest_geometry
 from recon.video import prior as motion_prior
+from recon.video.ground import FOOT_POINTS, ground_plane, lowest_plane, planted_feet, sole_height, torso_up
 
 CONTACT_FROM = ("image", "prior", "either")
-FOOT_POINTS = {  # per foot: ankle, foot joint, toe tip landmark (J+ indices)
-    "left": (skeleton.JOINT_NAMES.index("left_ankle"), skeleton.JOINT_NAMES.index("left_foot"),
-             skeleton.NUM_JOINTS + skeleton.LANDMARK_NAMES.index("left_toe_tip")),
-    "right": (skeleton.JOINT_NAMES.index("right_ankle"), skeleton.JOINT_NAMES.index("right_foot"),
-              skeleton.NUM_JOINTS + skeleton.LANDMARK_NAMES.index("right_toe_tip")),
-}
+
 
 
 @dataclass
@@ -179,34 +172,6 @@ def planted(inp: TrackInput, cfg: SmoothConfig) -> np.ndarray:
     return out
 
 
-def ground_plane(points: np.ndarray, up: np.ndarray, sole: float, stiffness: float = 0.05
-                 ) -> tuple[np.ndarray, float]:
-    """Plane n . x = d under planted foot joints ``points`` (N, 3): n is the direction of least
-    spread, held near ``up`` (a line of footsteps does not fix the plane's tilt about it); d puts
-    the sole ``sole`` metres under the points' median."""
-    up = up / np.linalg.norm(up)
-    if len(points) < 3:
-        n = up
-    else:
-        c = points - points.mean(0)
-        cov = c.T @ c / len(points) + stiffness * (np.eye(3) - np.outer(up, up))
-        n = np.linalg.eigh(cov)[1][:, 0]
-        n = n if n @ up > 0 else -n
-    d = float(np.median(points @ n)) - sole if len(points) else 0.0
-    return n, d
-
-
-def to_world(ground: tuple[np.ndarray, float], origin: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(R, o): X_world = R @ (X_cam - o). +Y the ground's normal, Z towards the camera (level),
-    the origin on the ground under ``origin``."""
-    n, d = ground
-    fwd = np.array([0.0, 0.0, 1.0]) - n[2] * n
-    z = -fwd / max(np.linalg.norm(fwd), 1e-9)
-    x = np.cross(n, z)
-    r = np.stack([x, n, z])
-    return r, origin - (origin @ n - d) * n
-
-
 def smooth_track(body, inp: TrackInput, cfg: SmoothConfig | None = None) -> TrackMotion:
     """The track's motion (module doc) in the reference frame, and its ground plane."""
     cfg = cfg or SmoothConfig()
@@ -251,12 +216,9 @@ def smooth_track(body, inp: TrackInput, cfg: SmoothConfig | None = None) -> Trac
         out = body(r, transl=torch.tensor(tr), points_only=True, rest=tuple(x.expand(t, -1, -1) for x in rest))
     pts = out.points.numpy().astype(np.float64)
     rot = r.numpy().astype(np.float64)
-    neck = skeleton.JOINT_NAMES.index("neck")
-    torso = pts[:, neck] - pts[:, 0]
-    up = (torso / np.linalg.norm(torso, axis=1, keepdims=True)).mean(0)  # people hold the torso upright
-    feet = np.concatenate([pts[contact[:, s], FOOT_POINTS[side][1]] for s, side in enumerate(("left", "right"))])
-    sole = sole_height(body, shape)
-    ground = ground_plane(feet, up, sole) if len(feet) else _lowest_plane(pts, up)
+    up = torso_up(pts)
+    feet = planted_feet(pts, contact)
+    ground = ground_plane(feet, up, sole_height(body, shape)) if len(feet) else lowest_plane(pts, up)
     return TrackMotion(rot, tr.astype(np.float64), pts[:, :24], pts, contact, ground)
 
 
@@ -357,17 +319,3 @@ def _optimise(body, inp: TrackInput, cfg: SmoothConfig, rot0: np.ndarray, tr0: n
 @functools.lru_cache(maxsize=1)
 def _prior() -> motion_prior.MotionPrior:
     return motion_prior.load()
-
-
-def sole_height(body, shape: torch.Tensor) -> float:
-    """How high the foot joint is above the sole in the rest pose (metres)."""
-    with torch.no_grad():
-        o = body(shape=shape)
-    j = skeleton.JOINT_NAMES.index("left_foot")
-    return float(o.joints[0, j, 1] - o.vertices[0, :, 1].min())
-
-
-def _lowest_plane(points: np.ndarray, up: np.ndarray) -> tuple[np.ndarray, float]:
-    """Without planted feet: the plane normal to ``up`` under the lowest J+ of the track."""
-    n = up / np.linalg.norm(up)
-    return n, float(np.percentile(points.reshape(-1, 3) @ n, 1))
