@@ -27,7 +27,7 @@ from recon import paths
 from recon.body import default_body, skeleton
 from recon.errors import MissingFile, ReconError
 from recon.garment.dress import DressedOutfit, Dresser
-from recon.garment.gltf import write_glb
+from recon.garment.gltf import INFLUENCES, write_glb
 from recon.io import load_image
 from recon.page import try_write_page
 from recon.pipeline import NoPersonFound
@@ -199,13 +199,15 @@ def write_video(path: Path, frames: list[np.ndarray], fps: float) -> Path:
 def animate(source: str | Path, motion: str | Path, out: str | Path, outfit: str | None = None, tightness=None,
             asf: str | Path | None = None, max_seconds: float | None = None, render: str = "mp4",
             size: tuple[int, int] = (480, 640), yaw_deg: float = 20.0, progress: bool = True, log=print,
-            dynamics: bool | None = None, garment_model: str | None = None, page: bool = True) -> dict:
+            dynamics: bool | None = None, garment_model: str | None = None, page: bool = True,
+            all_influences: bool = False) -> dict:
     """Animate a reconstructed person; returns {file kind: path}. ``outfit``: an outfit name (default:
     the one ``recon run`` dressed the person in, if any); ``render``: "mp4", "gif" or "none";
     ``dynamics``: the outfit's NCS (swinging cloth) or not (PBNS); None: NCS where it exists;
     ``garment_model``: "pbns" (PBNS / NCS) or "taylor" (the example-based model, quasi-static);
     None: the one ``recon run`` dressed the person with (else pbns); ``page``: with the folder's
-    results page (``index.html``, recon.page)."""
+    results page (``index.html``, recon.page); ``all_influences``: the .glb keeps every joint
+    influence of a vertex (default: the 4 strongest, which engines read)."""
     check_motion(motion)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -220,7 +222,8 @@ def animate(source: str | Path, motion: str | Path, out: str | Path, outfit: str
     m = on_the_ground(load_motion(motion, body, shape, asf), body, shape).first(max_seconds)  # the whole clip's ground
     dresser = Dresser(outfit, dynamics=dynamics, garment_model=garment_model) if outfit else None
     written = {"glb": write_glb(out / "animated.glb", body, shape, m.rotmats, m.transl, m.fps, dresser,
-                                tightness=tightness, animation_name=m.name)}
+                                tightness=tightness, animation_name=m.name,
+                                influences=None if all_influences else INFLUENCES)}
     if render != "none":
         frames = render_motion(body, shape, m, dresser, tightness, size, yaw_deg, progress)
         written["video"] = write_video(out / f"animated.{render}", frames, m.fps)

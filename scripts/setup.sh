@@ -25,10 +25,12 @@ command -v "$PY" >/dev/null || PY=python3
 .venv/bin/pip install -q --disable-pip-version-check --no-deps PyOpenGL==3.1.10
 
 # MediaPipe Pose (the default keypoint source of `recon run`): its numpy<2/protobuf<5/jax pins
-# conflict with ours, so it is installed without dependencies plus what it needs at run time.
+# conflict with ours, so what it needs at run time goes in first and then it, without
+# dependencies (pip checks a package's pins only where it installs its dependencies: so no
+# resolver "ERROR" about the pins it does not need).
 if ! .venv/bin/python -c "import mediapipe" 2>/dev/null; then
-  .venv/bin/pip install -q --disable-pip-version-check --no-deps mediapipe==0.10.21
   .venv/bin/pip install -q --disable-pip-version-check absl-py attrs flatbuffers "protobuf<5" matplotlib sounddevice
+  .venv/bin/pip install -q --disable-pip-version-check --no-deps mediapipe==0.10.21
 fi
 
 # MediaPipe's lite and heavy landmark models, which the wheel lacks, from the npm package

@@ -88,7 +88,8 @@ def test_animate_a_result_folder(body, tmp_path):
     res.mkdir()
     (res / "result.json").write_text(json.dumps({"shape": dict(zip(body.shape_names, shape.tolist())),
                                                  "outfit": {"name": "top-shorts", "tightness": None}}))
-    w = animate(res, "walk", tmp_path / "anim", max_seconds=0.3, render="gif", size=(96, 128), progress=False)
+    w = animate(res, "walk", tmp_path / "anim", max_seconds=0.3, render="gif", size=(96, 128), progress=False,
+                all_influences=True)
     info = json.loads(w["json"].read_text())
     assert info["outfit"] == "top-shorts" and info["frames"] == 9
     assert info["motion"] == clip_name("walk", MocapPoses.load().clips)

@@ -5,7 +5,7 @@ import pytest
 import roma
 import torch
 import trimesh
-from gltf_check import assert_valid, pose_meshes
+from gltf_check import assert_valid, pose_meshes, read_glb
 from scipy.spatial import cKDTree
 
 import recon.garment.pbns.model as P
@@ -13,7 +13,7 @@ from recon.errors import ReconError
 from recon.garment import losses, mesh, store
 from recon.garment.data import pose_set, posed_bodies
 from recon.garment.dress import Dresser
-from recon.garment.gltf import write_glb
+from recon.garment.gltf import influence_sets, write_glb
 from recon.garment.metrics import collision_pct, penetration, physical_metrics
 from recon.garment.pbns import reference_eval as R
 from recon.garment.pbns import train as T
@@ -260,7 +260,7 @@ def test_animated_glb_reproduces_body_and_cloth(body, tmp_path):
     dresser = Dresser(path=path)
     rot = roma.rotvec_to_rotmat(0.3 * torch.randn(3, 24, 3))
     transl = torch.tensor([[0.0, 0.9, 0.0], [0.1, 0.9, 0.2], [0.2, 1.0, 0.4]])
-    glb = write_glb(tmp_path / "a.glb", body, body.mean_shape, rot, transl, 30.0, dresser)
+    glb = write_glb(tmp_path / "a.glb", body, body.mean_shape, rot, transl, 30.0, dresser, influences=None)
 
     assert len(trimesh.load(glb).geometry) == 2
     assert_valid(glb)
@@ -277,6 +277,40 @@ def test_animated_glb_reproduces_body_and_cloth(body, tmp_path):
     with torch.no_grad():
         first = body(rot[:1], body.mean_shape[None], transl=transl[:1]).vertices[0].numpy()
     assert np.abs(still["body"] - first).max() < 1e-4
+    # the default: each vertex's 4 strongest influences (one set, what engines read), a few mm off at most
+    four = write_glb(tmp_path / "b.glb", body, body.mean_shape, rot, transl, 30.0, dresser)
+    assert_valid(four)
+    for m in read_glb(four)[0]["meshes"]:
+        assert {k for k in m["primitives"][0]["attributes"] if k.startswith(("JOINTS", "WEIGHTS"))} == {"JOINTS_0",
+                                                                                                  "WEIGHTS_0"}
+    off = np.linalg.norm(pose_meshes(four, frame)["body"] - ref, axis=1)
+    assert off.mean() < 1e-3 and off.max() < 0.03  # eval/results/glb-influences.md: 16 mm at most over 300 poses
+    assert (off < 1e-4).mean() > 0.9  # a vertex with 4 influences or fewer lands exactly
+
+
+def test_influence_sets_keep_the_strongest_and_sum_to_one():
+    rng = np.random.default_rng(0)
+    w = rng.random((50, 24)) * (rng.random((50, 24)) < 0.3)
+    w[0] = 0.0
+    w[0, 5] = 1.0  # one influence only
+    w /= w.sum(1, keepdims=True)
+    (j, v), = influence_sets(w)  # default: 4
+    assert j.dtype == np.uint16 and v.dtype == np.float32 and j.shape == v.shape == (50, 4)
+    assert np.allclose(v.sum(1), 1.0, atol=1e-6)
+    for n in range(50):
+        strongest = np.sort(w[n])[::-1][:4]
+        kept = v[n] * w[n, j[n]].sum() * (v[n] > 0)
+        assert np.allclose(np.sort(w[n, j[n]] * (v[n] > 0))[::-1], strongest * (strongest > 1e-6))
+        assert np.allclose(kept[v[n] > 0], w[n, j[n]][v[n] > 0])  # renormalised only
+    assert j[0].tolist() == [5, 0, 0, 0] and v[0].tolist() == [1.0, 0.0, 0.0, 0.0]
+    every = influence_sets(w, None)
+    assert len(every) == int(np.ceil((w > 1e-6).sum(1).max() / 4))
+    dense = np.zeros_like(w)
+    for jj, vv in every:
+        np.add.at(dense, (np.arange(50)[:, None].repeat(4, 1), jj.astype(int)), vv)
+    assert np.allclose(dense, w, atol=1e-6)  # all of them: the weights as they were
+    six = influence_sets(w, 6)
+    assert len(six) == 2 and (six[1][1][:, 2:] == 0).all()
 
 
 def test_a_photos_glb_holds_the_dressers_post_step(body, tmp_path):

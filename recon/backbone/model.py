@@ -42,9 +42,8 @@ def inference_copy(net: StackedHourglass) -> StackedHourglass:
 
 def first_stack(net: StackedHourglass) -> StackedHourglass:
     """Copy that stops after the first hourglass (whose heads are supervised like the last's):
-    half the cost, for the whole-image pass that only locates the person. On synth-val images
-    300-799 the three-pass MPJPE is 135.1 mm with it, 134.7 without (crop factors recalibrated;
-    eval/results/backbone-crop-search.md)."""
+    half the cost, for the whole-image pass that only locates the person (what it costs in
+    accuracy: eval/results/backbone-crop-search.md)."""
     net = copy.deepcopy(net)
     net.hgs = nn.ModuleList(net.hgs[:1])
     return net

@@ -203,70 +203,42 @@ class MediaPipeSMPLRFit(MediaPipeSMPLR):
 
 
 class ReconRun(MediaPipeSMPLR):
-    """``recon run`` with its defaults, whatever they are in this version."""
+    """``recon run`` with its defaults, whatever they are in this version; ``overrides``: the
+    ``ReconstructorConfig`` fields a variant changes (``RECON_RUN_VARIANTS``)."""
 
     name = "recon-run"
     description = "`recon run` defaults: recon.Reconstructor()"
+    overrides: dict = {}
 
     def __init__(self, body):
-        self.rec = Reconstructor(body=body)
+        self.rec = Reconstructor(body=body, **self.overrides)
 
 
-class ReconRunFallbackOnly(MediaPipeSMPLR):
-    """``recon run --backbone-weight 0``: MediaPipe's keypoints, the backbone only where it finds nobody."""
-
-    name = "recon-run-fallback-only"
-    description = ("`recon run --no-search --fallback --backbone-weight 0`: MediaPipe's keypoints alone, the backbone "
-                   "where it finds nobody")
-
-    def __init__(self, body):
-        self.rec = Reconstructor(body=body, search=False, fallback=True, backbone_weight=0.0)
-
-
-class ReconRunMediaPipeOnly(MediaPipeSMPLR):
-    """``recon run --no-fallback --backbone-weight 0``: MediaPipe's people and keypoints alone."""
-
-    name = "recon-run-mediapipe-only"
-    description = "`recon run --no-search`: MediaPipe's detector's people and keypoints, no backbone"
-
-    def __init__(self, body):
-        self.rec = Reconstructor(body=body, search=False, fallback=False, backbone_weight=0.0)
-
-
-class ReconRun011(MediaPipeSMPLR):
-    """``recon run`` as 0.11.0 shipped it: no search, the backbone where MediaPipe finds nobody and
-    as half of each person's J+ where it is confident."""
-
-    name = "recon-run-0.11"
-    description = "`recon run` of 0.11.0: `--no-search --fallback --backbone-weight 0.5`"
-
-    def __init__(self, body):
-        self.rec = Reconstructor(body=body, search=False, fallback=True, backbone_weight=0.5)
+# ``recon run`` with a few options changed: name -> (ReconstructorConfig fields, description)
+RECON_RUN_VARIANTS = {
+    "recon-run-full": (
+        {"keypoint_model": "full", "shape_head": False, "fallback": False, "backbone_weight": 0.0},
+        "`recon run --keypoint-model full --no-shape-head`, no backbone (the default before 0.6)"),
+    "recon-run-no-shape-head": (
+        {"shape_head": False, "fallback": False, "backbone_weight": 0.0},
+        "`recon run --no-shape-head --no-fallback --backbone-weight 0`: gender and build from SMPLR (the keypoints), "
+        "not the mask"),
+    "recon-run-mediapipe-only": (
+        {"search": False, "fallback": False, "backbone_weight": 0.0},
+        "`recon run --no-search`: MediaPipe's detector's people and keypoints, no backbone"),
+    "recon-run-fallback-only": (
+        {"search": False, "fallback": True, "backbone_weight": 0.0},
+        "`recon run --no-search --fallback --backbone-weight 0`: MediaPipe's keypoints alone, the backbone where it "
+        "finds nobody"),
+    "recon-run-0.11": (
+        {"search": False, "fallback": True, "backbone_weight": 0.5},
+        "`recon run` of 0.11.0: `--no-search --fallback --backbone-weight 0.5`"),
+}
 
 
-class ReconRunNoShapeHead(MediaPipeSMPLR):
-    """``recon run --no-shape-head --no-fallback --backbone-weight 0``: the body shape from SMPLR alone
-    (the J+), not the person's mask."""
-
-    name = "recon-run-no-shape-head"
-    description = ("`recon run --no-shape-head --no-fallback --backbone-weight 0`: gender and build from SMPLR (the "
-                   "keypoints), not the mask")
-
-    def __init__(self, body):
-        self.rec = Reconstructor(body=body, shape_head=False, fallback=False, backbone_weight=0.0)
-
-
-class ReconRunFull(MediaPipeSMPLR):
-    """``recon run --keypoint-model full --no-shape-head --no-fallback --backbone-weight 0``: MediaPipe's
-    full landmark model (the wheel's own) with its own adapter and guard; ``recon run``'s default
-    before 0.6."""
-
-    name = "recon-run-full"
-    description = "`recon run --keypoint-model full --no-shape-head`, no backbone (the default before 0.6)"
-
-    def __init__(self, body):
-        self.rec = Reconstructor(body=body, keypoint_model="full", shape_head=False, fallback=False,
-                                 backbone_weight=0.0)
+def recon_run_variant(name: str, overrides: dict, description: str) -> type:
+    """A ``ReconRun`` with ``overrides`` of ``ReconstructorConfig``'s fields."""
+    return type(name, (ReconRun,), {"name": name, "description": description, "overrides": dict(overrides)})
 
 
 class MediaPipeLifterFit(MediaPipeSMPLR):
@@ -336,9 +308,8 @@ def _backbone(crop: str, stage: str, flip: bool = False) -> type:
 
 
 METHODS = {"mean": MeanBaseline, "mediapipe": MediaPipeBaseline, "smplr-gt2d": SMPLROracle2D,
-           "smplr-gt2d-dae2d": SMPLROracle2DOrthographic, "recon-run": ReconRun, "recon-run-full": ReconRunFull,
-           "recon-run-no-shape-head": ReconRunNoShapeHead, "recon-run-mediapipe-only": ReconRunMediaPipeOnly,
-           "recon-run-fallback-only": ReconRunFallbackOnly, "recon-run-0.11": ReconRun011,
+           "smplr-gt2d-dae2d": SMPLROracle2DOrthographic, "recon-run": ReconRun,
+           **{name: recon_run_variant(name, *v) for name, v in RECON_RUN_VARIANTS.items()},
            "mediapipe-lifter-fit": MediaPipeLifterFit, "mediapipe-smplr": MediaPipeSMPLR,
            "mediapipe-smplr-fit-kp": MediaPipeSMPLRFitKeypoints,
            "mediapipe-smplr-fit": MediaPipeSMPLRFit, "backbone-smplr-fit": BackboneSMPLRFit}
@@ -363,11 +334,6 @@ def get_method(name: str) -> type:
     fields = {f.name for f in dataclasses.fields(ReconstructorConfig)}
     if set(overrides) - fields:
         raise ReconError(f"{name}: no ReconstructorConfig field(s) {sorted(set(overrides) - fields)}")
-
-    def init(self, body):
-        cfg = ReconstructorConfig(**overrides)
-        if steps is not None:
-            cfg = replace(cfg, fit=replace(cfg.fit, steps=steps))
-        self.rec = Reconstructor(cfg, body=body)
-
-    return type(name, (ReconRun,), {"name": name, "description": f"`recon run` with {m.group(1)}", "__init__": init})
+    if steps is not None:
+        overrides["fit"] = replace(ReconstructorConfig().fit, steps=steps)
+    return recon_run_variant(name, overrides, f"`recon run` with {m.group(1)}")

@@ -14,6 +14,9 @@ float32 export in the recon cache (``recon body build-cache``, run by scripts/se
 from __future__ import annotations
 
 import logging
+import os
+import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -32,6 +35,7 @@ warp.config.log_level = warp.LOG_WARNING  # anny's warp start-up banner would po
 
 ANNY_VERSION = "0.6.2"
 EXPORT_NAME = f"anny-{ANNY_VERSION}-float32.safetensors"
+NO_GPU_NOTICE = "Warp CUDA warning: Could not find or load the NVIDIA CUDA driver"
 
 # anny frame (Z up, -Y forward, +X left) -> body frame (Y up, +Z forward, +X left).
 ANNY_TO_BODY = torch.tensor([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
@@ -74,10 +78,29 @@ def build_cache(force: bool = False) -> Path:
         return path
     log.info("building anny %s from its MakeHuman assets (one-off, ~3 min)...", ANNY_VERSION)
     t0 = time.time()
+    start_warp()  # anny's build runs Warp kernels on the CPU
     model = anny.Anny().to(torch.float32)
     paths.atomic_write(path, lambda tmp: model.to_model_data().save_safetensors(tmp))
     log.info("anny export written to %s in %.0f s", path, time.time() - t0)
     return path
+
+
+def start_warp() -> None:
+    """Start Warp with its notice of no GPU left out: its native start-up writes "Warp CUDA warning:
+    Could not find or load the NVIDIA CUDA driver" to stderr on any machine without one, where
+    recon runs Warp on the CPU as meant; every other line it writes passes on."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile() as caught:
+        os.dup2(caught.fileno(), 2)
+        try:
+            warp.init()
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+        caught.seek(0)
+        lines = caught.read().decode(errors="replace").splitlines(keepends=True)
+    sys.stderr.write("".join(line for line in lines if not line.startswith(NO_GPU_NOTICE)))
 
 
 class AnnyBody(BodyModel):

@@ -27,9 +27,8 @@ def add_garment(p: Parser) -> None:
     help_outfit = ("preset names, 'all', or your own garment meshes (.obj, .ply, .glb, ...: body frame, metres, "
                    "+Y up; trained into ~/.cache/recon/garments)")
     help_model = ("pbns: quasi-static (ch. 5); ncs: dynamic (ch. 6), trained from the outfit's PBNS; taylor: the "
-                  "example-based model's database (drapes on many bodies at anchor poses; about an hour on 2 cores); "
-                  "author: keyframe authoring (simulations with random fabrics, then the intrinsic-space networks; "
-                  "~1.5 h); "
+                  "example-based model's database (drapes on many bodies at anchor poses); "
+                  "author: keyframe authoring (simulations with random fabrics, then the intrinsic-space networks); "
                   "deepsd: one model for any outfit (drapes of generated outfits, then the network; --outfit "
                   "unused); gcvae: the generative garment space (registered generated garments; --outfit unused)")
     a = action("train", "garment:train", "train outfits (unsupervised, physics energies): PBNS, then NCS")

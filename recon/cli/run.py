@@ -22,6 +22,8 @@ FOCAL = number(float, 0.05, 20.0)  # in units of the longer image side: a fishey
 TIGHTNESS = number(float, -1.0, 1.0)
 
 
+INFLUENCES_HELP = ("the .glb files keep every joint influence of a vertex (default: the 4 strongest, renormalised, "
+                   "which three.js, Unity and most engines read)")
 GARMENT_MODEL_HELP = ("with an outfit: pbns (PBNS, NCS for motions), taylor (example-based: the body-shape dimension "
                       "from drapes on many bodies; `recon garment train --model taylor` builds its database) or "
                       "deepsd (any outfit mesh, no training; what a mesh without PBNS weights gets)")
@@ -48,6 +50,7 @@ def add_run(p: Parser) -> None:
                         f"equivalent, else {known(cfg, 'focal_factor')})")
     p.add_argument("--no-overlay", action="store_true", help="skip overlay.png / side.png rendering")
     p.add_argument("--no-page", action="store_true", help=PAGE_HELP)
+    p.add_argument("--all-influences", action="store_true", help=INFLUENCES_HELP)
     p.add_argument("--max-people", type=number(int, 1, 50), default=known(opts, "max_people"),
                    help="people per image, the largest first (MediaPipe: found one after the other); above 1 every "
                         "image folder holds person_0/, person_1/, ... and one overlay")
@@ -128,6 +131,7 @@ def add_animate(p: Parser) -> None:
                    help="the video (GIF where OpenCV has no MP4 encoder)")
     p.add_argument("--list-motions", action="store_true", help="list the shipped clips and stop")
     p.add_argument("--no-page", action="store_true", help=PAGE_HELP)
+    p.add_argument("--all-influences", action="store_true", help=INFLUENCES_HELP)
 
 
 def add_demo(p: Parser) -> None:

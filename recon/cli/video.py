@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 from recon.cli.parsing import COUNT, NON_NEGATIVE, POSITIVE, STEPS, Parser, add_executor, known, number, run_by
-from recon.cli.run import FOCAL, PAGE_HELP, TIGHTNESS
+from recon.cli.run import FOCAL, INFLUENCES_HELP, PAGE_HELP, TIGHTNESS
 
 
 def add_video(p: Parser) -> None:
@@ -47,6 +47,7 @@ def add_video(p: Parser) -> None:
                    help="with --outfit: looser (> 0) or tighter (< 0) (needs a resizer)")
     p.add_argument("--no-overlay", action="store_true", help="skip overlay.mp4")
     p.add_argument("--no-page", action="store_true", help=PAGE_HELP)
+    p.add_argument("--all-influences", action="store_true", help=INFLUENCES_HELP)
     p.add_argument("--batch", type=COUNT, default=known(opts, "batch"), help="frames per stored batch")
     p.add_argument("--force", action="store_true",
                    help="start again (default: a finished folder is left as it is, an unfinished one continues)")

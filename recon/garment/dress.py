@@ -120,7 +120,8 @@ class Dresser:
             tp = store.taylor_path(self.outfit)
             if not tp.exists():
                 raise MissingFile(f"{self.outfit} has no Taylor database {tp}: run "
-                                  f"`recon garment train --model taylor --outfit {self.outfit}` (~1 h on 2 cores)")
+                                  f"`recon garment train --model taylor --outfit {self.outfit}` (its time: "
+                                  "recon/garment/weights/MODEL_CARD.md)")
             self.taylor, _ = TaylorGarment.load(tp, self.model)
             self.drape_iterations, self._pbns_path, self._solver = int(drape_iterations), path, None
             dynamics = False  # quasi-static; the post-step follows its own penetration handling

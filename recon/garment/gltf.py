@@ -1,6 +1,7 @@
 """Rigged glTF 2.0 (.glb) of a body, dressed or not, in one pose or animated, written without
 extra dependencies: one skeleton (the 24 named joints, SMPL order), the body and the outfit as
-skinned meshes (up to 8 influences per vertex: anny's skinning reproduced exactly), the outfit's
+skinned meshes (the 4 strongest joint influences per vertex, renormalised: what three.js, Unity and
+most engines read; ``influences=None`` keeps every one: anny's skinning exactly), the outfit's
 PBNS deformations as morph targets (the rows of D) whose weights are the embedding X(theta) -
 PBNS is skinning + PSD, which glTF runs natively. Vertex order is the body model's.
 
@@ -27,13 +28,14 @@ import trimesh
 
 from recon import paths
 from recon.body import skeleton
-from recon.garment.pbns.model import pose_features
+from recon.garment.pbns.model import blend_transforms, pose_features
 
 FLOAT, UBYTE, USHORT, UINT = 5126, 5121, 5123, 5125
 ARRAY_BUFFER, ELEMENT_ARRAY_BUFFER = 34962, 34963
 GLB_MAGIC, JSON_CHUNK, BIN_CHUNK = 0x46546C67, 0x4E4F534A, 0x004E4942  # "glTF", "JSON", "BIN\0"
 BODY_RGBA = (0.8, 0.72, 0.66, 1.0)
 OUTFIT_RGBA = (0.3, 0.45, 0.75, 1.0)
+INFLUENCES = 4  # joints per vertex by default: one JOINTS_0 / WEIGHTS_0 set, which every engine reads
 
 
 class BlendAnimation(NamedTuple):
@@ -67,17 +69,30 @@ class _Buffer:
         return len(self.accessors) - 1
 
 
-def influence_sets(weights: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Skinning weights (N, J) -> glTF's JOINTS_n / WEIGHTS_n pairs of 4: as many sets as the
-    most influenced vertex needs (anny: 7 joints, 2 sets), renormalised to sum to 1."""
+def influence_sets(weights: np.ndarray, most: int | None = INFLUENCES) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Skinning weights (N, J) -> glTF's JOINTS_n / WEIGHTS_n pairs of 4: each vertex's ``most``
+    strongest influences (None: all of them; as many sets as the most influenced vertex needs),
+    renormalised to sum to 1."""
     n_inf = int(max(1, (weights > 1e-6).sum(1).max()))
-    k = 4 * math.ceil(n_inf / 4)
-    idx = np.argsort(-weights, 1)[:, :k]
+    k = 4 * math.ceil((n_inf if most is None else min(n_inf, most)) / 4)
+    idx = np.argsort(-weights, 1, kind="stable")[:, :k]
     w = np.take_along_axis(weights, idx, 1)
     w = np.where(w > 1e-6, w, 0.0)
+    if most is not None and most < k:
+        w[:, most:] = 0.0
     w = w / w.sum(1, keepdims=True)
     idx = np.where(w > 0, idx, 0)  # unused slots point at joint 0 with weight 0
     return [(idx[:, s:s + 4].astype(np.uint16), w[:, s:s + 4].astype(np.float32)) for s in range(0, k, 4)]
+
+
+def written_weights(weights: np.ndarray | torch.Tensor, most: int | None = INFLUENCES) -> torch.Tensor:
+    """The (N, J) weights a glTF reader skins with, where ``influence_sets(weights, most)`` wrote them."""
+    weights = np.asarray(weights.detach() if torch.is_tensor(weights) else weights)
+    out = np.zeros(weights.shape, np.float32)
+    rows = np.arange(len(weights))[:, None].repeat(4, 1)
+    for j, w in influence_sets(weights, most):
+        np.add.at(out, (rows, j.astype(np.int64)), w)
+    return torch.from_numpy(out)
 
 
 def _quat_xyzw(r: torch.Tensor) -> np.ndarray:
@@ -85,24 +100,28 @@ def _quat_xyzw(r: torch.Tensor) -> np.ndarray:
 
 
 def post_step_target(body, shape: torch.Tensor, rotmats: torch.Tensor, transl: torch.Tensor, dresser,
-                     rest: np.ndarray, targets: np.ndarray, weights: np.ndarray) -> np.ndarray:
+                     rest: np.ndarray, targets: np.ndarray, weights: np.ndarray,
+                     influences: int | None = INFLUENCES) -> np.ndarray:
     """The Dresser's post-step (recon.garment.collide) on one posed frame as a rest-pose morph
-    target (N, 3): its move taken back through each vertex's blended skinning matrix, so that
-    skinning the outfit with it at weight 1 gives what the Dresser returns."""
+    target (N, 3): its result taken back through each vertex's blended skinning matrix as the
+    file skins (``influences``), so that skinning the outfit with it at weight 1 gives what the
+    Dresser returns."""
     model = dresser.model
     with torch.no_grad():
         out = body(rotmats[:1], shape.reshape(1, -1).to(body.mean_shape), transl=transl[:1])
         x = torch.from_numpy(rest + np.einsum("k,knc->nc", weights[0], targets)).float()
-        blend = model.blend(out.transforms)
-        net = model.apply_blend(x, blend)
+        net = model.apply_blend(x, model.blend(out.transforms))
         post = dresser.resolver(net, out.vertices, body.faces, rest=torch.from_numpy(rest).float())
-        move = torch.linalg.solve(blend[0, :, :, :3].double(), (post - net)[0].double()[..., None])[..., 0]
+        blend = blend_transforms(written_weights(model.weights, influences), out.transforms)
+        move = torch.linalg.solve(blend[0, :, :, :3].double(),
+                                  (post - model.apply_blend(x, blend))[0].double()[..., None])[..., 0]
     return move.float().numpy()
 
 
 def write_glb(path: str | Path, body, shape: torch.Tensor, rotmats: torch.Tensor, transl: torch.Tensor,
               fps: float = 30.0, dresser=None, tightness=None, camera: tuple[np.ndarray, tuple[int, int]] | None = None,
-              animation_name: str = "motion", garment: BlendAnimation | None = None) -> Path:
+              animation_name: str = "motion", garment: BlendAnimation | None = None,
+              influences: int | None = INFLUENCES) -> Path:
     """Write a rigged .glb atomically.
 
     Args:
@@ -116,6 +135,7 @@ def write_glb(path: str | Path, body, shape: torch.Tensor, rotmats: torch.Tensor
         camera: (K, (height, width)): a perspective camera at the origin looking down -Z with the
             vertical field of view of K (glTF has no principal point: it is taken as centred).
         garment: an outfit already animated as skinning plus morph targets (instead of ``dresser``).
+        influences: joints per vertex kept (the strongest, renormalised); None: every one.
     With T = 1 the file holds the pose and no animation, and the Dresser's post-step (when it has
     one) is one more morph target at weight 1: the file's cloth is the Dresser's. A motion's cloth
     is the network's (the post-step differs from frame to frame: no blend shape)."""
@@ -150,7 +170,7 @@ def write_glb(path: str | Path, body, shape: torch.Tensor, rotmats: torch.Tensor
         normals = trimesh.Trimesh(v, f, process=False).vertex_normals.astype(np.float32)
         attrs = {"POSITION": buf.add(v.astype(np.float32), FLOAT, "VEC3", ARRAY_BUFFER, minmax=True),
                  "NORMAL": buf.add(normals, FLOAT, "VEC3", ARRAY_BUFFER)}
-        for s, (j, w) in enumerate(influence_sets(weights)):
+        for s, (j, w) in enumerate(influence_sets(weights, influences)):
             attrs[f"JOINTS_{s}"] = buf.add(j, USHORT, "VEC4", ARRAY_BUFFER)
             attrs[f"WEIGHTS_{s}"] = buf.add(w, FLOAT, "VEC4", ARRAY_BUFFER)
         prim = {"attributes": attrs, "material": len(materials),
@@ -185,7 +205,8 @@ def write_glb(path: str | Path, body, shape: torch.Tensor, rotmats: torch.Tensor
         d = d.numpy().reshape(len(d), -1, 3)
         morph = morph.numpy().astype(np.float32)  # (T, |X|)
         if t == 1 and dresser.resolver is not None:  # a photo: the post-step as one more target, weight 1
-            d = np.concatenate([d, post_step_target(body, shape, rotmats, transl, dresser, rest_c, d, morph)[None]])
+            d = np.concatenate([d, post_step_target(body, shape, rotmats, transl, dresser, rest_c, d, morph,
+                                                    influences)[None]])
             morph = np.concatenate([morph, np.ones((1, 1), np.float32)], 1)
         mesh_nodes.append(skinned_mesh("outfit", rest_c, model.faces.numpy(), model.weights.detach().numpy(),
                                        OUTFIT_RGBA, targets=d, morph0=morph[0]))

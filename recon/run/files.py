@@ -12,7 +12,7 @@ import trimesh
 
 from recon import camera, paths
 from recon.body import skeleton
-from recon.garment.gltf import write_glb
+from recon.garment.gltf import INFLUENCES, write_glb
 from recon.pipeline import Reconstruction
 from recon.poses.bvh import write_bvh
 from recon.viz import draw_meshes, draw_overlay
@@ -36,7 +36,7 @@ def write_pose_bvh(path: Path, body, r: Reconstruction) -> Path:
 
 
 def write_rigged_glb(path: Path, body, r: Reconstruction, image_hw: tuple[int, int], k: np.ndarray, dresser=None,
-                     tightness=None) -> Path:
+                     tightness=None, influences: int | None = INFLUENCES) -> Path:
     """The reconstruction as a rigged .glb (skeleton, skinned body, the outfit with its PBNS blend
     shapes) in the photo camera's view frame (glTF's: +Y up, the camera at the origin looking down
     -Z), with that camera in the file."""
@@ -44,7 +44,7 @@ def write_rigged_glb(path: Path, body, r: Reconstruction, image_hw: tuple[int, i
     rot[0, 0] = torch.as_tensor(camera.rotation_to_view(r.rotmats[0]), dtype=torch.float32)
     transl = torch.tensor(camera.to_view(r.translation)[None], dtype=torch.float32)
     return write_glb(path, body, torch.tensor(r.shape, dtype=torch.float32), rot, transl, dresser=dresser,
-                     tightness=tightness, camera=(k, image_hw), animation_name="photo")
+                     tightness=tightness, camera=(k, image_hw), animation_name="photo", influences=influences)
 
 
 def write_people(folder: Path, src: Path, img, small, s: float, k_small, people: list[Reconstruction], rec,
@@ -73,9 +73,10 @@ def write_person(folder: Path, src: Path, img, small, s: float, k_small, r: Reco
     came from ("exif" or "default"), recorded in result.json."""
     folder.mkdir(parents=True, exist_ok=True)
     faces, tightness = rec.faces, options.tightness
+    influences = None if options.all_influences else INFLUENCES
     mesh = trimesh.Trimesh(r.vertices, faces, process=False)
     paths.atomic_write(folder / "body.obj", lambda t: mesh.export(t, file_type="obj"))
-    write_rigged_glb(folder / "body.glb", rec.body, r, small.shape[:2], k_small)
+    write_rigged_glb(folder / "body.glb", rec.body, r, small.shape[:2], k_small, influences=influences)
     write_pose_bvh(folder / "pose.bvh", rec.body, r)
     meshes = [(r.vertices, faces, BODY_RGBA)]
     if dresser is not None:
@@ -86,7 +87,8 @@ def write_person(folder: Path, src: Path, img, small, s: float, k_small, r: Reco
                     up=torch.tensor(camera.HALF_TURN_X, dtype=torch.float32), tightness=tightness)
         cloth = trimesh.Trimesh(d.vertices[0], d.faces, process=False)
         paths.atomic_write(folder / "outfit.obj", lambda t: cloth.export(t, file_type="obj"))
-        write_rigged_glb(folder / "dressed.glb", rec.body, r, small.shape[:2], k_small, dresser, tightness)
+        write_rigged_glb(folder / "dressed.glb", rec.body, r, small.shape[:2], k_small, dresser, tightness,
+                         influences)
         meshes = [(r.vertices, faces, DRESSED_BODY_RGBA), (d.vertices[0], d.faces, OUTFIT_RGBA)]
     if options.overlay:
         paths.write_image(folder / "overlay.png", draw_overlay(small, meshes, k_small))

@@ -30,7 +30,8 @@ class RunOptions:
     ``person_<i>/`` layout). overlay: write overlay.png and side.png. exif_focal: the focal length
     from the photo's EXIF where it has one (else the config's ``focal_factor``). batch_size: images
     per SMPLR/fit batch. force: make every image again, even those already done. garment_model:
-    "pbns" or "taylor" (recon.garment.Dresser).
+    "pbns" or "taylor" (recon.garment.Dresser). all_influences: the .glb files keep every joint
+    influence of a vertex (default: the 4 strongest, which engines read).
     """
 
     outfit: str | None = None
@@ -41,13 +42,15 @@ class RunOptions:
     batch_size: int = 4
     force: bool = False
     garment_model: str = "pbns"
+    all_influences: bool = False
 
     def to_json(self) -> dict:
         """The options that change the outputs (not batch size or force; the garment model only
         when it is not the default, so that earlier runs' outputs stay theirs)."""
         d = asdict(self)
         d["tightness"] = None if self.tightness is None else [float(t) for t in self.tightness]
-        skip = ("batch_size", "force") + (("garment_model",) if self.garment_model == "pbns" else ())
+        skip = ("batch_size", "force") + (("garment_model",) if self.garment_model == "pbns" else ()) + (
+            () if self.all_influences else ("all_influences",))
         return {k: v for k, v in d.items() if k not in skip}
 
 

@@ -24,7 +24,7 @@ import torch
 
 from recon import paths
 from recon.body import skeleton
-from recon.garment.gltf import write_glb
+from recon.garment.gltf import INFLUENCES, write_glb
 from recon.poses.bvh import write_bvh
 from recon.synth.raster import Rasterizer
 from recon.synth.video import look_at
@@ -93,7 +93,7 @@ class WorldMotion:
 
 
 def write_track(folder: Path, body, m: WorldMotion, fps: float, frame_index: list[int], frame_time: list[float],
-                camera: dict, dresser=None, tightness=None) -> list[str]:
+                camera: dict, dresser=None, tightness=None, all_influences: bool = False) -> list[str]:
     """The track's files (module doc) in ``folder``; motion.json last. Returns their names."""
     folder.mkdir(parents=True, exist_ok=True)
     shape = torch.tensor(m.shape, dtype=torch.float32)
@@ -103,6 +103,7 @@ def write_track(folder: Path, body, m: WorldMotion, fps: float, frame_index: lis
               m.translation, fps=fps)
     write_glb(folder / "animated.glb", body, shape, torch.tensor(m.rotmats, dtype=torch.float32),
               torch.tensor(m.translation, dtype=torch.float32), fps, dresser, tightness=tightness,
+              influences=None if all_influences else INFLUENCES,
               animation_name=f"track_{m.id}")
     with torch.no_grad():
         joints = body(torch.tensor(m.rotmats, dtype=torch.float32), shape[None],

@@ -66,7 +66,8 @@ class VideoOptions:
     how people are followed; outfit / tightness: dress the animated bodies; overlay: write
     overlay.mp4; batch: frames per stored batch; force: start again even if finished;
     static_camera: take the camera as still even where it turned; pipeline: decode and find the
-    keypoints of the next batch on a second thread (the same results)."""
+    keypoints of the next batch on a second thread (the same results); all_influences: the .glb files
+    keep every joint influence of a vertex (default: the 4 strongest, which engines read)."""
 
     frames: FrameRange = field(default_factory=FrameRange)
     max_people: int = 1
@@ -79,6 +80,7 @@ class VideoOptions:
     force: bool = False
     static_camera: bool = False
     pipeline: bool = True
+    all_influences: bool = False
 
     def per_frame_json(self) -> dict:
         """What changes the per-frame pass."""
@@ -193,7 +195,7 @@ def video(path: str | Path, out: str | Path, options: VideoOptions | None = None
     track_files = {}
     for m in motions:
         track_files[m.id] = list(write_track(out / f"track_{m.id}", rec.body, m, fps, frames.index, frames.time, cam,
-                                             dresser, options.tightness))
+                                             dresser, options.tightness, options.all_influences))
     _write_portraits(out, src, motions, _portrait_frames(tracks, dets), track_files)
     for old in out.glob("track_*"):  # an earlier run's tracks beyond this run's
         if old.is_dir() and old.name not in {f"track_{m.id}" for m in motions}:

@@ -27,7 +27,7 @@ def run_images(args) -> int:
                                  **({} if args.focal is None else {"focal_factor": args.focal}))
     options = RunOptions(outfit=args.outfit, tightness=args.tightness, max_people=args.max_people,
                          overlay=not args.no_overlay, exif_focal=args.focal is None, batch_size=args.batch_size,
-                         force=args.force, garment_model=args.garment_model)
+                         force=args.force, garment_model=args.garment_model, all_influences=args.all_influences)
     s = run(args.inputs or example_photos(), Path(args.out), options, config,
             executor=ExecutorConfig(**executor_args(args)), page=not args.no_page)
     if s.interrupted:
@@ -43,7 +43,7 @@ def animate_person(args) -> int:
         raise ReconError("recon animate needs a photo or result folder, --motion and --out (or --list-motions)")
     written = animate(args.source, args.motion, args.out, outfit=args.outfit, tightness=args.tightness, asf=args.asf,
                       max_seconds=args.seconds, render=args.render, dynamics=args.dynamics,
-                      garment_model=args.garment_model, page=not args.no_page)
+                      garment_model=args.garment_model, page=not args.no_page, all_influences=args.all_influences)
     for path in written.values():
         print(path)
     return 0

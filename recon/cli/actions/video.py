@@ -18,7 +18,7 @@ def run_video(args) -> int:
     smooth = replace(SmoothConfig(), steps=args.smooth_steps, contact_from=args.planted_from)
     options = VideoOptions(frames=frames, max_people=args.max_people, smooth=smooth, outfit=args.outfit,
                            tightness=args.tightness, overlay=not args.no_overlay, batch=args.batch, force=args.force,
-                           static_camera=args.static_camera)
+                           static_camera=args.static_camera, all_influences=args.all_influences)
     executor = ExecutorConfig(**executor_args(args))
     if len(args.inputs) > 1:
         s = videos(args.inputs, Path(args.out), options, config, executor, page=not args.no_page)

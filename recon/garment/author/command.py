@@ -26,9 +26,10 @@ from recon.garment import store
 from recon.garment.author.data import teacher_config
 from recon.garment.author.model import AuthorModel, Session, clip_inputs
 from recon.garment.dress import DressedOutfit, Dresser
-from recon.garment.gltf import BlendAnimation, write_glb
+from recon.garment.gltf import BlendAnimation, write_glb, written_weights
 from recon.garment.integrate import unpose
 from recon.garment.ncs.model import smooth_time
+from recon.garment.pbns.model import blend_transforms
 
 MORPH_TARGETS = 64  # principal components of the animation's rest-pose displacements in the .glb
 
@@ -135,14 +136,16 @@ class Authoring:
     @torch.no_grad()
     def blend_animation(self, vertices: torch.Tensor, targets: int = MORPH_TARGETS,
                         chunk: int = 64) -> tuple[BlendAnimation, float]:
-        """The animation as PBNS's skinning plus morph targets: each frame unposed to the rest pose,
-        the displacements' mean and first ``targets`` principal components. Also the largest
-        distance (m) of the re-skinned result from ``vertices``."""
+        """The animation as PBNS's skinning (its weights as the .glb holds them) plus morph targets:
+        each frame unposed to the rest pose, the displacements' mean and first ``targets``
+        principal components. Also the largest distance (m) of the re-skinned result from
+        ``vertices``."""
         rest = self.pbns.rest
+        weights = written_weights(self.pbns.weights)  # as the .glb's reader skins: its 4 strongest, renormalised
         disp, blends = [], []
         for s in range(0, len(vertices), chunk):
             r, tr = self.motion.rotmats[s:s + chunk], self.motion.transl[s:s + chunk]
-            b = self.pbns.blend(self.body(r, self.shape[None].expand(len(r), -1), transl=tr).transforms)
+            b = blend_transforms(weights, self.body(r, self.shape[None].expand(len(r), -1), transl=tr).transforms)
             disp.append(unpose(b[..., :3], vertices[s:s + chunk] - self.pbns.apply_blend(rest, b), 0.2))
             blends.append(b)
         d = torch.cat(disp).reshape(len(vertices), -1)

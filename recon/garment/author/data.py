@@ -3,9 +3,9 @@ of an outfit simulated through mocap chunks with randomly drawn *intrinsic param
 environment, solver damping), the dataset of Wang et al. 2019 (section 3.6) on our outfits.
 
 The simulator is NCS's teacher (``ncs.data.Teacher``: PBNS's energies plus inertia, integrated
-implicitly frame by frame; recon.garment.integrate): the project's own dynamic solver, ~0.5 s a
-frame of the 5k-vertex skirt on one thread where newton's VBD takes minutes, and the solver whose
-default fabric NCS learnt, so "NCS with default parameters" is a fair baseline. Per parameter set
+implicitly frame by frame; recon.garment.integrate): the project's own dynamic solver, much faster
+than newton's VBD on the hanging part (times: the model card), and the solver whose default fabric
+NCS learnt, so "NCS with default parameters" is a fair baseline. Per parameter set
 the fabric's terms are rescaled (``fabric``); friction, which the teacher lacks, enters as a
 velocity filter at contacts (``integrate.contact_friction``).
 

@@ -14,7 +14,8 @@ from recon.garment.templates import RestBody
 def load_model(rb: RestBody) -> GCVAE:
     path = store.gcvae_path()
     if not path.exists():
-        raise MissingFile(f"no GCVAE {path}: run `recon garment train --model gcvae` (~25 min)")
+        raise MissingFile(f"no GCVAE {path}: run `recon garment train --model gcvae` (its time: "
+                          "recon/garment/weights/MODEL_CARD.md)")
     return GCVAE.load(path, rb)[0]
 
 
