@@ -18,7 +18,8 @@ import numpy as np
 import torch
 
 from recon import report
-from recon.backbone.search import CropSearch, calibrate_depth_scale
+from recon.backbone.calibrate import calibrate_depth_scale
+from recon.backbone.search import CropSearch
 from recon.body import default_body
 from recon.synth.dataset import SynthDataset, bench_dir
 

@@ -14,8 +14,8 @@ from pathlib import Path
 
 import torch
 
+import recon.backbone.calibrate as backbone_calibrate
 import recon.backbone.model as backbone_model
-import recon.backbone.search as backbone_search
 import recon.keypoints.adapter as adapter
 import recon.smplr.model as smplr_model
 from recon import report
@@ -69,9 +69,9 @@ def main() -> None:
             ("backbone", backbone_model, {"net"}, ["synth-test", "backbone-crop-search"])):
         shipped = module.WEIGHTS
         sizes = rounded(shipped, tmp / shipped.name, keys)
-        module.WEIGHTS = backbone_search.WEIGHTS = tmp / shipped.name  # (the search names the backbone's file)
+        module.WEIGHTS = backbone_calibrate.WEIGHTS = tmp / shipped.name  # (the check names the backbone's file)
         measure(model, sizes, results)
-        module.WEIGHTS, backbone_search.WEIGHTS = shipped, backbone_model.WEIGHTS
+        module.WEIGHTS, backbone_calibrate.WEIGHTS = shipped, backbone_model.WEIGHTS
     shipped = store.SHIPPED_DIR
     for kind, keep, model, results in (
             ("pbns", ("rest", "D"), "PBNS (but its rest shape; D is float16 already)",

@@ -1,5 +1,6 @@
 """The folder layout is the architecture: stages in order, no module importing from a later
-stage, no import cycle, imports at the top, runtime garment code free of training/evaluation."""
+stage, no import cycle, imports at the top, runtime garment code and the image pipeline free of
+data, training and evaluation code."""
 import ast
 from pathlib import Path
 
@@ -156,6 +157,24 @@ def test_inference_never_imports_training_or_evaluation():
             w = where.get(imported, "")
             assert not w or inference(w), \
                 f"{module}:{line} imports {imported} ({ROOMS.get(w.split('.')[1], 'core training')})"
+
+
+def test_the_image_pipeline_imports_no_data_training_or_evaluation_code():
+    """``recon.pipeline`` and all it imports, module by module: no synthetic-data generator, no
+    trainer, training data, calibration, benchmark or evaluation (what a photo's inference runs
+    is what a user installs it for)."""
+    closure, todo = set(), ["recon.pipeline"]
+    while todo:
+        module = todo.pop()
+        if module in closure or module not in MODULES:
+            continue
+        closure.add(module)
+        todo += [imported for imported, _, _ in imports(MODULES[module])]
+    offline = ("train", "data", "dataset", "calibrate", "eval", "reference_eval", "reference")
+    found = sorted(m for m in closure if m.startswith(("recon.synth", "recon.training", "recon.bench"))
+                   or m.rsplit(".", 1)[-1] in offline)
+    assert "recon.keypoints.sources" in closure and "recon.backbone.search" in closure
+    assert not found, f"recon.pipeline imports {found}"
 
 
 def test_a_family_uses_another_family_only_through_its_inference_rooms():

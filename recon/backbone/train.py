@@ -32,11 +32,11 @@ from torch import nn
 from torch.utils.data import DataLoader
 
 from recon import camera, paths
+from recon.backbone.calibrate import calibrated
 from recon.backbone.crop import grid_to_camera
 from recon.backbone.crops import CropDataset, OnlineCrops, RayCrops, RenderedCrops
 from recon.backbone.hourglass import SIZES, HourglassConfig, StackedHourglass
 from recon.backbone.model import WEIGHTS
-from recon.backbone.search import calibrated
 from recon.backbone.volumetric import soft_argmax_3d, volumetric_ce
 from recon.body import skeleton
 from recon.errors import ReconError

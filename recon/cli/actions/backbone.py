@@ -6,7 +6,7 @@ import json
 import sys
 from pathlib import Path
 
-from recon.backbone import search as backbone_search
+from recon.backbone import calibrate as backbone_calibrate
 from recon.backbone import train as backbone_train
 from recon.backbone.recipe import RecipeConfig, device_default, run_recipe
 from recon.errors import ReconError
@@ -47,5 +47,5 @@ def recipe(args) -> int:
 
 
 def calibrate(args) -> None:
-    print(backbone_search.calibrate(Path(args.weights)))
+    print(backbone_calibrate.calibrate(Path(args.weights)))
 
