@@ -5,7 +5,7 @@ last bits, which a crop search or a person detector can turn into another crop o
 detection. ``pin`` sets the variables that choose one path everywhere (each only if unset, so a
 test can ask for another):
 - torch's own kernels, oneDNN and MKL: AVX2 (what every x86-64 CPU of the last decade has);
-- Mesa's llvmpipe (the synthetic renderer, ``recon.synth.raster``): SSE4.1 and 128-bit vectors,
+- Mesa's llvmpipe (the synthetic renderer, ``recon.render.raster``): SSE4.1 and 128-bit vectors,
   so no FMA contraction and no AVX-512 code.
 MediaPipe's TFLite kernels cannot be pinned: its detections may differ between CPU vendors.
 """

@@ -15,9 +15,9 @@ import trimesh
 
 from recon import camera
 from recon.errors import ReconError
-from recon.synth import look
+from recon.render import look
+from recon.render.raster import Rasterizer
 from recon.synth.clothes import vertex_normals
-from recon.synth.raster import Rasterizer
 
 
 def _pyrender():
@@ -169,7 +169,7 @@ _RASTER: list = []
 
 
 def _raster(w: int, h: int):
-    """The process' rasteriser (``recon.synth.raster``) at this size."""
+    """The process' rasteriser (``recon.render.raster``) at this size."""
     if not _RASTER:
         _RASTER.append(Rasterizer(w, h))
     return _RASTER[0].set_size(w, h)

@@ -17,6 +17,7 @@ STAGES = [
     ("recon.body",),
     ("recon.metrics", "recon.camera"),
     ("recon.poses",),
+    ("recon.render",),  # drawing: the synthetic data, the overlays and the page use it
     ("recon.garment",),  # before synth: the other domain's and the training generator's clothes
     ("recon.smplr",),
     ("recon.synth",),

@@ -9,7 +9,8 @@ import pytest
 
 from recon import camera
 from recon.errors import MissingFile
-from recon.synth import dataset, look, photos
+from recon.render import look
+from recon.synth import dataset, photos
 from recon.synth.dataset import SynthDataset, pack
 
 pytestmark = pytest.mark.skipif(not photos.available(), reason="the photo packages are not extracted "

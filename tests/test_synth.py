@@ -11,9 +11,9 @@ from recon import report
 from recon.bench import runner
 from recon.bench.methods import mediapipe_to_joints
 from recon.errors import ReconError
+from recon.render.raster import Rasterizer, projection, silhouette_iou
 from recon.synth import dataset
 from recon.synth.dataset import SynthDataset, generate
-from recon.synth.raster import Rasterizer, projection, silhouette_iou
 from recon.synth.scene import SceneSampler
 
 

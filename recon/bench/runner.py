@@ -23,8 +23,8 @@ from recon.body import default_body
 from recon.errors import ReconError
 from recon.executor import ExecutorConfig, WorkerLost, WorkerSpec, map_tasks
 from recon.paths import write_text
+from recon.render.raster import Rasterizer, silhouette_iou
 from recon.synth.dataset import BENCHMARKS, GrayView, SynthDataset, bench_sampler, open_bench
-from recon.synth.raster import Rasterizer, silhouette_iou
 
 ABBR = {"head": "Hd", "torso": "Ts", "shoulder": "Sr", "elbow": "Ew", "wrist": "Wt", "hip": "Hp", "knee": "Kn",
         "foot": "Ft"}

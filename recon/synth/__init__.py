@@ -1,2 +1,2 @@
-"""Synthetic benchmark generation: a moderngl rasteriser (RGB, part labels, depth), the
+"""Synthetic benchmark generation (drawn by ``recon.render``): the
 SURREAL-like scene sampler and sharded, resumable, reproducible storage with fixed benchmarks."""

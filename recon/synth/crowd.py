@@ -15,7 +15,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from recon import camera
-from recon.synth import look, photos
+from recon.render import look
+from recon.synth import photos
 from recon.synth.clothes import vertex_normals
 from recon.synth.other import OtherConfig, OtherSceneSampler, double_k
 

@@ -4,7 +4,7 @@ A dataset folder holds ``shard-00000.npz`` ... (``shard_size`` samples each, wri
 images as PNG bytes) and ``manifest.json`` (config, seed, split, per-shard SHA-256). A shard
 that exists is never recomputed, so an interrupted run resumes where it stopped. Sample i
 depends only on (split, seed, i): results are bit-identical for any number of workers, and on
-every x86-64 CPU (``recon.synth.scene`` and ``recon.synth.raster``). ``GENERATOR`` numbers the
+every x86-64 CPU (``recon.synth.scene`` and ``recon.render.raster``). ``GENERATOR`` numbers the
 generator's versions: a folder made by another one is not continued, and the benchmarks' cache
 folders carry it in their name.
 """

@@ -5,7 +5,7 @@ Every choice of the image -> body stage is made on ``other-val`` and reported on
 (``recon.synth.scene``). What differs from it:
 
 - renderer: smooth per-vertex shading under three coloured lights and a sky/ground ambient,
-  highlights, anti-aliasing (``recon.synth.look``); the training renders are flat-shaded faces;
+  highlights, anti-aliasing (``recon.render.look``); the training renders are flat-shaded faces;
 - clothes: draped garments (the five PBNS presets, looser or tighter, and held-out CLOTH3D-style
   outfits animated by DeePSD; ``recon.synth.clothes``) with printed patterns, hair and shoes; the
   training bodies wear painted colours;
@@ -40,9 +40,10 @@ from scipy.spatial.transform import Rotation
 
 from recon import camera
 from recon.poses.sampler import PoseSampler
-from recon.synth import look, photos
+from recon.render import look
+from recon.render.raster import Rasterizer
+from recon.synth import photos
 from recon.synth.clothes import Wardrobe, vertex_normals
-from recon.synth.raster import Rasterizer
 
 GARMENT_LABEL = 24  # the parts image's label of clothes (body parts are 0-23)
 

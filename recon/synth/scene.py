@@ -24,8 +24,8 @@ from scipy.spatial.transform import Rotation
 from recon import camera
 from recon.body import skeleton
 from recon.poses.sampler import PoseSampler, ShapeSampler
+from recon.render.raster import Rasterizer
 from recon.synth.clothes import Wardrobe
-from recon.synth.raster import Rasterizer
 
 BACKGROUNDS = ("brick", "chelsea", "coffee", "grass", "gravel", "rocket", "cat", "clock", "coins", "colorwheel",
                "moon", "page", "text", "hubble_deep_field", "immunohistochemistry", "retina", "checkerboard")

@@ -34,8 +34,8 @@ from scipy.spatial.transform import Rotation
 from recon import camera, paths
 from recon.poses.mocap import FPS, MocapPoses
 from recon.poses.sampler import ShapeSampler
+from recon.render.raster import Rasterizer, look_at
 from recon.synth.photos import load_photo
-from recon.synth.raster import Rasterizer
 from recon.synth.scene import background, vertex_colours
 
 SIZE = (480, 640)  # (H, W)
@@ -176,16 +176,6 @@ class ClipTruth:
             frames = d["joints"].shape[1]
             d["R"], d["t"] = np.repeat(d["R"][None], frames, 0), np.repeat(d["t"][None], frames, 0)
         return cls(**d)
-
-
-def look_at(eye: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """World -> OpenCV camera (R, t) of a camera at ``eye`` looking at ``target``, world +Y up."""
-    fwd = (target - eye) / np.linalg.norm(target - eye)
-    right = np.cross(fwd, [0.0, 1.0, 0.0])
-    right /= np.linalg.norm(right)
-    down = np.cross(fwd, right)
-    r = np.stack([right, down, fwd])
-    return r, -r @ eye
 
 
 class ClipRenderer:

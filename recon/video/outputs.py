@@ -26,8 +26,7 @@ from recon import paths
 from recon.body import skeleton
 from recon.garment.gltf import INFLUENCES, write_glb
 from recon.poses.bvh import write_bvh
-from recon.synth.raster import Rasterizer
-from recon.synth.video import look_at
+from recon.render.raster import Rasterizer, look_at
 
 MAX_DRAWN_GAP = 1.0  # seconds: a longer bridged gap is left out of the overlay
 ALPHA_SEEN, ALPHA_BRIDGED = 0.75, 0.35  # the bodies' opacity over the frame

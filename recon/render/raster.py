@@ -161,6 +161,16 @@ class Rasterizer:
         return rgb.copy(), labels_img.copy(), depth.copy()
 
 
+def look_at(eye: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """World -> OpenCV camera (R, t) of a camera at ``eye`` looking at ``target``, world +Y up."""
+    fwd = (target - eye) / np.linalg.norm(target - eye)
+    right = np.cross(fwd, [0.0, 1.0, 0.0])
+    right /= np.linalg.norm(right)
+    down = np.cross(fwd, right)
+    r = np.stack([right, down, fwd])
+    return r, -r @ eye
+
+
 def silhouette_iou(pred_mask: np.ndarray, gt_mask: np.ndarray) -> float:
     """Intersection over union of two boolean masks (1.0 when both are empty)."""
     if pred_mask.shape != gt_mask.shape:
