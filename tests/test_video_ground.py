@@ -24,11 +24,11 @@ def _standing(x: float, z: float, frames: int = 20, depth_off: float = 1.0) -> T
     pts *= depth_off
     ground = (np.array([0.0, -1.0, 0.0]), -depth_off * (CAMERA_HEIGHT - SOLE) - SOLE)
     rot = np.tile(np.eye(3), (frames, 24, 1, 1))
-    return TrackMotion(rot, pts[:, 0].copy(), pts[:, :24], pts, np.ones((frames, 2), bool), ground)
+    return TrackMotion(rot, pts[:, 0].copy(), pts[:, :24], pts, np.ones((frames, 2), bool), ground, SOLE)
 
 
 def _fitted(track_id: int, m: TrackMotion) -> FittedTrack:
-    return FittedTrack(track_id, 0, np.ones(len(m.points), bool), np.zeros(3), m, SOLE, None, None)
+    return FittedTrack(track_id, 0, np.ones(len(m.points), bool), np.zeros(3), m, None, None)
 
 
 def _feet_height(m, src: TrackMotion) -> np.ndarray:

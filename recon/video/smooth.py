@@ -46,7 +46,6 @@ from recon.video.ground import FOOT_POINTS, ground_plane, lowest_plane, planted_
 CONTACT_FROM = ("image", "prior", "either")
 
 
-
 @dataclass
 class SmoothConfig:
     steps: int = 400  # optimiser iterations over the whole track (0: the per-frame estimates, gaps interpolated)
@@ -129,6 +128,7 @@ class TrackMotion:
     points: np.ndarray  # (T, 42, 3)
     planted: np.ndarray  # (T, 2) bool: left, right foot planted
     ground: tuple[np.ndarray, float]  # plane (n, d): n . x = d, n up
+    sole: float  # how high the foot joint stands over the ground in the rest pose (metres)
 
 
 def fill_gaps(seen: np.ndarray, rotmats: np.ndarray, translation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -218,8 +218,9 @@ def smooth_track(body, inp: TrackInput, cfg: SmoothConfig | None = None) -> Trac
     rot = r.numpy().astype(np.float64)
     up = torso_up(pts)
     feet = planted_feet(pts, contact)
-    ground = ground_plane(feet, up, sole_height(body, shape)) if len(feet) else lowest_plane(pts, up)
-    return TrackMotion(rot, tr.astype(np.float64), pts[:, :24], pts, contact, ground)
+    sole = sole_height(body, shape)
+    ground = ground_plane(feet, up, sole) if len(feet) else lowest_plane(pts, up)
+    return TrackMotion(rot, tr.astype(np.float64), pts[:, :24], pts, contact, ground, sole)
 
 
 def windows(frames: int, window: int, overlap: int) -> list[tuple[int, int]]:

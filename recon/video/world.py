@@ -8,9 +8,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import torch
 
-from recon.video.ground import common_ground, ground_height, sole_height, to_world
+from recon.video.ground import common_ground, ground_height, to_world
 from recon.video.outputs import WorldMotion
 from recon.video.perframe import Detections
 from recon.video.smooth import SmoothConfig, TrackInput, TrackMotion, smooth_track
@@ -26,13 +25,12 @@ class FittedTrack:
     seen: np.ndarray
     shape: np.ndarray
     motion: TrackMotion
-    sole: float
     turns: np.ndarray | None
     moves: np.ndarray | None
 
 
 def fit_track(body, t: Track, dets: Detections, k: np.ndarray, size, cfg: SmoothConfig,
-         rotations: np.ndarray | None = None, shifts: np.ndarray | None = None) -> FittedTrack:
+              rotations: np.ndarray | None = None, shifts: np.ndarray | None = None) -> FittedTrack:
     """The track's one optimisation (``smooth_track``); ``rotations``: (frames, 3, 3) each frame's
     camera turn from the first one's, or None (still); ``shifts``: (frames, 3) its move where it
     travelled (X_f = R_f X_ref + t_f), or None."""
@@ -54,9 +52,7 @@ def fit_track(body, t: Track, dets: Detections, k: np.ndarray, size, cfg: Smooth
     moves = None if shifts is None else shifts[first:last + 1]
     inp = TrackInput(seen, spread(dets.points2d), spread(dets.points3d), spread(dets.box), rot,
                      spread(dets.translation), shape, k, tuple(size), turns, moves)
-    m = smooth_track(body, inp, cfg)
-    return FittedTrack(t.id, first, seen, shape, m, sole_height(body, torch.tensor(shape, dtype=torch.float32)[None]),
-                   turns, moves)
+    return FittedTrack(t.id, first, seen, shape, smooth_track(body, inp, cfg), turns, moves)
 
 
 def one_world(fitted: list[FittedTrack]) -> list[WorldMotion]:
@@ -68,13 +64,13 @@ def one_world(fitted: list[FittedTrack]) -> list[WorldMotion]:
     if not fitted:
         return []
     shared = common_ground([(f.motion.points, f.motion.planted, f.motion.ground) for f in fitted],
-                           [f.sole for f in fitted]) if len(fitted) > 1 else None
+                           [f.motion.sole for f in fitted]) if len(fitted) > 1 else None
     ground = shared or fitted[0].motion.ground
     out = []
     for f in fitted:
         m = f.motion
         at = m.translation if shared is None else \
-            m.translation - ground_height(m.points, m.planted, ground, f.sole) * ground[0]
+            m.translation - ground_height(m.points, m.planted, ground, m.sole) * ground[0]
         if not out:
             r, o = to_world(ground, at[np.flatnonzero(f.seen)[0]])
         rotw = m.rotmats.copy()
