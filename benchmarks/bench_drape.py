@@ -116,13 +116,13 @@ def timed(form: str, fn) -> tuple[float, np.ndarray]:
         drape_module.minimise, integrate_module.minimise, losses.strain, losses.bending = shipped
 
 
-def continued(solver: DrapeSolver, pose: torch.Tensor) -> np.ndarray:
+def continued(draper: data.Draper, solver: DrapeSolver, pose: torch.Tensor) -> np.ndarray:
     """PBNS's cloth at ``pose`` (24, 3, 3) on its body continued by ``solver``, as the Dresser
     continues the Taylor model's on a photo (its rest the outfit, the tether's target it skinned)."""
-    w = data._W
-    bv, bn, bt = posed_bodies(w["body"], pose[None], w["shape0"][None])
-    x = w["pbns"].pose(pose[None], bt)[0]
-    return solver(w["pbns"].rest, x, bv[0], bn[0], carried=w["pbns"].skin(w["pbns"].rest[None], bt)[0]).numpy()
+    bv, bn, bt = posed_bodies(draper.body, pose[None], draper.shape0[None])
+    pbns = draper.pbns
+    x = pbns.pose(pose[None], bt)[0]
+    return solver(pbns.rest, x, bv[0], bn[0], carried=pbns.skin(pbns.rest[None], bt)[0]).numpy()
 
 
 def main() -> None:
@@ -136,20 +136,19 @@ def main() -> None:
     rows = []
     for outfit in args.outfits:
         cfg = TaylorBuildConfig(outfit=outfit)
-        data._worker_init(cfg)  # the build's worker state: body, PBNS, solvers
-        torch.set_num_threads(1)
+        draper = data.Draper(cfg)  # the build's worker: body, PBNS, solvers
         train = data.sample_poses(cfg.frame_step)
         poses = train[torch.linspace(0, len(train) - 1, args.poses).long()]
-        no_bodies = torch.zeros(0, len(data._W["shape0"]))
-        teacher = Teacher(data._W["body"], outfit, NCSTrainConfig())
+        no_bodies = torch.zeros(0, len(draper.shape0))
+        teacher = Teacher(draper.body, outfit, NCSTrainConfig())
         settle = teacher.cfg.settle
         rot, transl = clip_motion(MocapPoses.load("test"), CLIP, CLIP_START, args.frames)
-        continuation = DrapeSolver.continuation(trained_outfit(data._W["body"], store.pbns_path(outfit))[0],
+        continuation = DrapeSolver.continuation(trained_outfit(draper.body, store.pbns_path(outfit))[0],
                                                 DRAPE_ITERATIONS)
-        jobs = {"drape": (lambda: np.stack([data.drape_bodies(p, no_bodies)["posed"][0] for p in poses]),  # noqa: B023
+        jobs = {"drape": (lambda: np.stack([draper.drape_bodies(p, no_bodies)["posed"][0] for p in poses]),  # noqa: B023
                           len(poses)),
                 f"{DRAPE_ITERATIONS} iterations from PBNS (a photo)": (
-                    lambda: np.stack([continued(continuation, p) for p in poses]), len(poses)),  # noqa: B023
+                    lambda: np.stack([continued(draper, continuation, p) for p in poses]), len(poses)),  # noqa: B023
                 "NCS teacher": (lambda: teacher(rot, transl).numpy(), settle + args.frames)}  # noqa: B023
         seconds = {(job, form): [] for job in jobs for form in FORMS}
         out = {}

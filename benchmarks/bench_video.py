@@ -32,7 +32,8 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "eval"))
 from video import clips  # noqa: E402 - eval/video.py renders and caches the benchmark clips
 
-from recon import paths, report  # noqa: E402
+from recon import report  # noqa: E402
+from recon.export import media  # noqa: E402
 from recon.pipeline import Reconstructor, ReconstructorConfig  # noqa: E402
 from recon.synth.video import SIZE  # noqa: E402
 from recon.video import FrameRange, FrameSource, SmoothConfig, VideoOptions, video  # noqa: E402
@@ -72,7 +73,7 @@ def main() -> None:
                 rec = video_reconstructor(cfg, 1)
                 loading = time.perf_counter() - t0
                 opts = {k: v for k, v in options.items() if k != "h264"}
-                encoder = mock.patch.object(paths, "h264_available", return_value=False) \
+                encoder = mock.patch.object(media, "h264_available", return_value=False) \
                     if options.get("h264", True) is False else contextlib.nullcontext()
                 with encoder:
                     res = video(path, Path(tmp) / str(n), VideoOptions(frames=frames, force=True, **opts),

@@ -13,9 +13,10 @@ from pathlib import Path
 
 import torch
 
-from recon.animate import Motion, animate, load_motion, on_the_ground, render_motion, write_video
+from recon.animate import Motion, animate, load_motion, on_the_ground, render_motion
 from recon.body import default_body
 from recon.demo import EXAMPLES
+from recon.export.media import write_video
 from recon.garment.dress import Dresser
 
 

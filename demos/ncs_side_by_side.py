@@ -15,8 +15,9 @@ import cv2
 import numpy as np
 import torch
 
-from recon.animate import BODY_RGBA, OUTFIT_RGBA, write_video
+from recon.animate import BODY_RGBA, OUTFIT_RGBA
 from recon.body import default_body
+from recon.export.media import write_video
 from recon.garment import store
 from recon.garment.ncs.eval import MODELS, run_models
 from recon.garment.ncs.model import NCS

@@ -15,8 +15,9 @@ import torch
 
 from recon.body import default_body
 from recon.demo import dressed_gif
+from recon.export.glb import write_glb
 from recon.garment.dress import Dresser
-from recon.garment.gltf import write_glb
+from recon.garment.morph import outfit_animation
 from recon.poses.mocap import FPS, MocapPoses
 
 
@@ -35,7 +36,8 @@ def main() -> None:
     rot = roma.rotvec_to_rotmat(torch.from_numpy(m.rotvec[sel]).float())
     transl = torch.from_numpy(m.transl[sel]).float()
     dresser = Dresser(a.outfit)
-    print(write_glb(out / f"{a.outfit}-mocap.glb", body, dresser.shape, rot, transl, FPS, dresser))
+    print(write_glb(out / f"{a.outfit}-mocap.glb", body, dresser.shape, rot, transl, FPS,
+                    outfit_animation(body, dresser.shape, rot, transl, dresser, FPS)))
 
 
 if __name__ == "__main__":

@@ -26,11 +26,11 @@ from tqdm import tqdm
 
 from recon import report
 from recon.keypoints.adapter import KeypointAdapter
-from recon.keypoints.mediapipe import DEFAULT_MODEL
 from recon.keypoints.on_boxes import MIN_SCORE, MIN_SCORE_ALONE, LandmarksOnBoxes
 from recon.keypoints.views import same_answer
 from recon.people.boxes import box_iou
 from recon.people.detector import PersonDetector
+from recon.people.mediapipe import DEFAULT_MODEL
 from recon.synth.dataset import open_bench
 
 WEIGHTS = (0.0, 0.5, 1.0, 1.5)

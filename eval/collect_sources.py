@@ -28,9 +28,9 @@ from tqdm import tqdm
 from recon import paths
 from recon.backbone.crop import Crop
 from recon.body import default_body
-from recon.keypoints.mediapipe import MediaPipePose
 from recon.keypoints.sources import BackboneSource, MediaPipeSource
 from recon.keypoints.views import pad_image
+from recon.people.mediapipe import MediaPipePose
 from recon.synth.dataset import BENCHMARKS, SynthDataset, bench_dir
 
 # The first four are the retries `MediaPipeSource` ships (``RETRIES``, in that order); "retries" =

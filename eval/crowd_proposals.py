@@ -24,11 +24,11 @@ from tqdm import tqdm
 
 from recon import report
 from recon.keypoints.adapter import KeypointAdapter
-from recon.keypoints.mediapipe import DEFAULT_MODEL
 from recon.keypoints.on_boxes import DETECTOR_REF, MIN_SCORE, MULTIPOSE_REF, LandmarksOnBoxes, Reading, is_person, logit
 from recon.keypoints.views import same_answer
 from recon.people.boxes import box_iou
 from recon.people.detector import PersonDetector
+from recon.people.mediapipe import DEFAULT_MODEL
 from recon.people.multipose import OVERLAP, SIZE, MultiPoseDetector
 from recon.synth.dataset import open_bench
 

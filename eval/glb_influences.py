@@ -4,7 +4,7 @@ where every influence puts it (anny's skinning exactly, what ``--all-influences`
 The body (anny, its mean shape) and every shipped outfit's cloth (its PBNS weights, and its NCS
 weights where they differ; the rest mesh resized to the body, its blend shapes left out: they add
 to the rest mesh and are skinned by the same weights) are skinned over balanced poses of the mocap's
-test split, once with their weights as written by ``recon.garment.gltf.influence_sets`` (4, float32,
+test split, once with their weights as written by ``recon.export.glb.influence_sets`` (4, float32,
 renormalised) and once with every weight.
 
     .venv/bin/python eval/glb_influences.py [--poses 300]
@@ -19,10 +19,10 @@ import torch
 
 from recon import report
 from recon.body import default_body, lbs
+from recon.export.glb import INFLUENCES, written_weights
 from recon.garment import store
 from recon.garment.data import pose_set
 from recon.garment.dress import Dresser
-from recon.garment.gltf import INFLUENCES, written_weights
 from recon.garment.templates import PRESETS
 
 OUT = report.RESULTS / "glb-influences"

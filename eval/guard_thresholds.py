@@ -4,7 +4,7 @@ memoised, so a setting costs only the guard's own work.
 
 Counts bodies on the person-free sets of eval/phantoms.py (30 images of the error budget, 600
 generator images), the bundled photos kept, and people found on the first 1,000 synth-val images
-(tuning set). The score's weights are the model's guard's (``recon.keypoints.guard.for_model``).
+(tuning set). The score's weights are the model's guard's (``recon.people.guard.for_model``).
 Writes eval/results/guard-thresholds-<model>.{json,md}.
 
     .venv/bin/python eval/guard_thresholds.py --keypoint-model heavy   # ~25 min the first time, 6 after
@@ -23,9 +23,9 @@ from phantoms import bodies, person_free_sets  # eval/ sibling
 from tqdm import tqdm
 
 from recon import paths, report
-from recon.keypoints import guard
-from recon.keypoints.mediapipe import MODELS, MediaPipePose
 from recon.keypoints.sources import RETRIES, MediaPipeSource
+from recon.people import guard
+from recon.people.mediapipe import MODELS, MediaPipePose
 from recon.synth.dataset import SynthDataset, bench_dir
 
 GRID = {"image": (-1.0, -0.5), "retry": (2.0, 2.5, 3.0), "confirmed": (-1.0, 0.0, 1.0)}

@@ -1,4 +1,4 @@
-"""Choosing the faceless search's thresholds (``recon.keypoints.proposals``): its answers on people
+"""Choosing the faceless search's thresholds (``recon.people.search``): its answers on people
 MediaPipe's detector misses against its answers on person-free frames.
 
 People: the other-val images that `recon run` finds only with the search (``recon-run`` against
@@ -22,8 +22,8 @@ import numpy as np
 import torch
 
 from recon import kernels, report
-from recon.keypoints import guard as person_guard
-from recon.keypoints.proposals import MIN_SCORE, MIRROR_AGREE, SETTLE, PersonSearch, proposals, settled
+from recon.people import guard as person_guard
+from recon.people.search import MIN_SCORE, MIRROR_AGREE, SETTLE, PersonSearch, proposals, settled
 from recon.synth.crowd import EmptySampler
 from recon.synth.dataset import open_bench
 

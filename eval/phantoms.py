@@ -1,7 +1,7 @@
 """No phantom bodies (issue 28): what separates MediaPipe's people from its phantoms.
 
 Collects, for every detection MediaPipe makes (its first answer, else the retries of
-``recon.keypoints.sources.RETRIES``), the evidence ``recon.keypoints.guard`` scores:
+``recon.keypoints.sources.RETRIES``), the evidence ``recon.people.guard`` scores:
 - people: synth-val (2,000 renders of the val subjects; tuning set, never a test number);
 - phantoms for tuning: person-free images from the synthetic generator's own background
   sampler (photos without people and procedural images, with its occluder shapes painted on),
@@ -31,11 +31,11 @@ from tqdm import tqdm
 
 from recon import camera, paths, report
 from recon.io import load_image, scan_inputs
-from recon.keypoints import guard
-from recon.keypoints.mediapipe import MODELS, MediaPipePose
 from recon.keypoints.sources import RETRIES, MediaPipeSource
 from recon.keypoints.train import rgb_rows
 from recon.keypoints.views import pad_image, unview
+from recon.people import guard
+from recon.people.mediapipe import MODELS, MediaPipePose
 from recon.synth.dataset import SynthDataset, bench_dir
 from recon.synth.scene import background, occlude
 
@@ -226,7 +226,7 @@ def write(out: Path, model: str, tuning: list | None, measured: list, refit: dic
     md = [f"# No phantom bodies: the person guard (issue 28){title}", "",
           note + "`eval/phantoms.py`. MediaPipe Pose proposes a full skeleton on coffee cups, rockets, a horse or "
           "a logo; "
-          f"`recon.keypoints.guard` scores each answer ({g.describe()}) from its visibilities, its box, "
+          f"`recon.people.guard` scores each answer ({g.describe()}) from its visibilities, its box, "
           "the support of MediaPipe's own person mask under the landmarks and whether its metric 3D landmarks "
           "form a body that projects onto its 2D ones. `recon run` applies it by default (`--no-guard`: off); "
           "a refused first answer goes on to the retry views, as a miss does.", "",

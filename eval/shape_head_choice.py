@@ -22,7 +22,7 @@ from recon.bench import runner
 from recon.bench.methods import METHODS, MediaPipeSMPLR
 from recon.body import default_body
 from recon.keypoints import make_source
-from recon.keypoints.mediapipe import DEFAULT_MODEL, resolve_model
+from recon.people.mediapipe import DEFAULT_MODEL, resolve_model
 from recon.pipeline import Reconstructor
 from recon.synth.dataset import SynthDataset, bench_dir
 

@@ -6,7 +6,7 @@ an ASF/AMC pair, or a clip of the shipped pose set by name or category (``recon 
 --list-motions``; a category takes its first held-out clip).
 The clip is retargeted to the person's own skeleton (recon.poses.retarget), resampled to
 30 fps and put on the ground (its lowest point at y = 0). Outputs: ``animated.glb`` (skeleton,
-skinned body and outfit, per-frame blend-shape weights; recon.garment.gltf) and a render,
+skinned body and outfit, per-frame blend-shape weights; recon.export.glb) and a render,
 ``animated.mp4`` (``animated.gif`` where OpenCV has no MP4 encoder, or when asked for).
 Frames are in the body frame: +Y up, metres.
 """
@@ -20,14 +20,16 @@ from pathlib import Path
 import numpy as np
 import roma
 import torch
-from PIL import Image
 from tqdm import tqdm
 
-from recon import paths
 from recon.body import default_body, skeleton
+from recon.body.base import BodyModel
 from recon.errors import MissingFile, ReconError
+from recon.export.glb import INFLUENCES, write_glb
+from recon.export.media import write_video
+from recon.export.records import write_json
 from recon.garment.dress import DressedOutfit, Dresser
-from recon.garment.gltf import INFLUENCES, write_glb
+from recon.garment.morph import outfit_animation
 from recon.io import load_image
 from recon.page import try_write_page
 from recon.pipeline import NoPersonFound
@@ -73,7 +75,7 @@ def shipped_clips() -> list[dict]:
     return _pose_set(poses_path()).clips
 
 
-def _retargeter(body, shape: torch.Tensor) -> Retargeter:
+def _retargeter(body: BodyModel, shape: torch.Tensor) -> Retargeter:
     """The retargeter to the body of ``shape``: its rest joints and landmarks."""
     with torch.no_grad():
         rest = body(shape=shape.reshape(1, -1))
@@ -112,7 +114,7 @@ def check_motion(spec: str | Path) -> None:
         clip_name(str(spec), shipped_clips())
 
 
-def load_motion(spec: str | Path, body, shape: torch.Tensor, asf: str | Path | None = None) -> Motion:
+def load_motion(spec: str | Path, body: BodyModel, shape: torch.Tensor, asf: str | Path | None = None) -> Motion:
     """A clip for the body of ``shape``: a .bvh, an .amc (with ``asf`` or the one .asf beside it),
     or a shipped clip's name or category."""
     p = Path(spec)
@@ -182,20 +184,6 @@ def person_from(source: str | Path, out: Path, outfit: str | None = None, log=pr
     return json.loads((out / "reconstruction" / key / "result.json").read_text())
 
 
-def write_video(path: Path, frames: list[np.ndarray], fps: float) -> Path:
-    """MP4 (OpenCV, MPEG-4 part 2) or, for a .gif path or where OpenCV cannot encode MP4, GIF.
-    Written atomically; returns the path written."""
-    if path.suffix.lower() == ".mp4":
-        try:
-            return paths.write_mp4(path, frames, fps, frames[0].shape[:2], browser=True)
-        except OSError:
-            path = path.with_suffix(".gif")
-    images = [Image.fromarray(f) for f in frames]
-    paths.atomic_write(path, lambda t: images[0].save(t, format="GIF", save_all=True, append_images=images[1:],
-                                                      duration=round(1000 / fps), loop=0))
-    return path
-
-
 def animate(source: str | Path, motion: str | Path, out: str | Path, outfit: str | None = None, tightness=None,
             asf: str | Path | None = None, max_seconds: float | None = None, render: str = "mp4",
             size: tuple[int, int] = (480, 640), yaw_deg: float = 20.0, progress: bool = True, log=print,
@@ -221,25 +209,25 @@ def animate(source: str | Path, motion: str | Path, out: str | Path, outfit: str
         garment_model = (person.get("outfit") or {}).get("garment_model", "pbns")
     m = on_the_ground(load_motion(motion, body, shape, asf), body, shape).first(max_seconds)  # the whole clip's ground
     dresser = Dresser(outfit, dynamics=dynamics, garment_model=garment_model) if outfit else None
-    written = {"glb": write_glb(out / "animated.glb", body, shape, m.rotmats, m.transl, m.fps, dresser,
-                                tightness=tightness, animation_name=m.name,
-                                influences=None if all_influences else INFLUENCES)}
+    influences = None if all_influences else INFLUENCES
+    dressed = None if dresser is None else outfit_animation(body, shape, m.rotmats, m.transl, dresser, m.fps,
+                                                           tightness, influences)
+    written = {"glb": write_glb(out / "animated.glb", body, shape, m.rotmats, m.transl, m.fps, dressed,
+                                animation_name=m.name, influences=influences)}
     if render != "none":
         frames = render_motion(body, shape, m, dresser, tightness, size, yaw_deg, progress)
         written["video"] = write_video(out / f"animated.{render}", frames, m.fps)
     info = {"source": str(source), "motion": m.name, "frames": len(m), "fps": m.fps, "outfit": outfit,
-            "garment_model": None if dresser is None else (
-                {"taylor": "Taylor", "deepsd": "DeePSD"}.get(dresser.garment_model)
-                or ("NCS" if dresser.dynamic else "PBNS")),
+            "garment_model": None if dresser is None else dresser.garment.label,
             "tightness": None if tightness is None else [float(t) for t in tightness],
             "files": {k: v.name for k, v in written.items()}}
-    written["json"] = paths.write_text(out / "animation.json", json.dumps(info, indent=1))
+    written["json"] = write_json(out / "animation.json", info)
     if page and (index := try_write_page(out, log, kind="animate")):
         written["page"] = index
     return written
 
 
-def on_the_ground(m: Motion, body, shape: torch.Tensor) -> Motion:
+def on_the_ground(m: Motion, body: BodyModel, shape: torch.Tensor) -> Motion:
     """The clip moved up or down so that the body's lowest point over the clip is at y = 0 (the
     retargeted root height is the source's, off by the difference in leg and foot geometry)."""
     every = m.rotmats[::5]
@@ -250,7 +238,7 @@ def on_the_ground(m: Motion, body, shape: torch.Tensor) -> Motion:
     return Motion(m.rotmats, transl, m.fps, m.name)
 
 
-def render_motion(body, shape: torch.Tensor, m: Motion, dresser=None, tightness=None, size=(480, 640),
+def render_motion(body: BodyModel, shape: torch.Tensor, m: Motion, dresser=None, tightness=None, size=(480, 640),
                   yaw_deg: float = 20.0, progress: bool = True, batch: int = 16, every: int = 1,
                   dressed: DressedOutfit | None = None) -> list[np.ndarray]:
     """Frames of the (dressed) body following the clip, every ``every``-th (the outfit is dressed

@@ -13,11 +13,12 @@ import cv2
 import numpy as np
 import roma
 import torch
-import trimesh
 from PIL import Image
 
 from recon import paths
 from recon.body import default_body
+from recon.export.media import write_image
+from recon.export.mesh import write_mesh
 from recon.garment.dress import Dresser
 from recon.poses.mocap import MocapPoses
 from recon.poses.sampler import PoseSampler, ShapeSampler
@@ -47,10 +48,9 @@ def body_demo(out: Path, seed: int = 0, n: int = 4) -> list[Path]:
     grid = np.concatenate(tiles, 1)
     out.mkdir(parents=True, exist_ok=True)
     png, obj, glb = out / "bodies.png", out / "body0.obj", out / "body0.glb"
-    paths.write_image(png, grid)
-    mesh = trimesh.Trimesh(o.vertices[0].numpy(), faces, process=False)
-    paths.atomic_write(obj, lambda t: mesh.export(t, file_type="obj"))
-    paths.atomic_write(glb, lambda t: mesh.export(t, file_type="glb"))
+    write_image(png, grid)
+    write_mesh(obj, o.vertices[0].numpy(), faces)
+    write_mesh(glb, o.vertices[0].numpy(), faces)
     written = [png, obj, glb]
     if SMPLR_WEIGHTS.exists():  # ground truth (grey) next to SMPLR from noisy J+ (blue)
         model = SMPLR.load(body)
@@ -63,7 +63,7 @@ def body_demo(out: Path, seed: int = 0, n: int = 4) -> list[Path]:
             tiles.append(render_meshes([(gt_v, faces, (0.7, 0.7, 0.7, 1.0)), (rec_v, faces, (0.45, 0.6, 0.9, 1.0))],
                                        size=(480, 400)))
         sm = out / "smplr.png"
-        paths.write_image(sm, np.concatenate(tiles, 1))
+        write_image(sm, np.concatenate(tiles, 1))
         written.append(sm)
     return written
 
@@ -91,7 +91,7 @@ def photo_demo(out: Path, outfit: str | None = None) -> list[Path]:
     w = max(r.shape[1] for r in rows)
     sheet = np.concatenate([np.pad(r, ((0, 0), (0, w - r.shape[1]), (0, 0)), constant_values=255) for r in rows], 0)
     path = out / "examples.png"
-    paths.write_image(path, sheet[..., ::-1])
+    write_image(path, sheet[..., ::-1])
     return [path, out / "photos"]
 
 

@@ -19,6 +19,7 @@ import torch
 from scipy.spatial import cKDTree
 
 from recon import camera
+from recon.body.base import BodyModel
 from recon.keypoints.base import Keypoints
 
 
@@ -96,7 +97,8 @@ class SilhouetteTarget:
         return loss * self.scale ** 2  # ~ squared distance for small errors
 
 
-def linear_rest_geometry(body, shape: torch.Tensor, ids: torch.Tensor | None, with_jacobian: bool, eps: float = 1e-2):
+def linear_rest_geometry(body: BodyModel, shape: torch.Tensor, ids: torch.Tensor | None, with_jacobian: bool,
+                         eps: float = 1e-2):
     """The body's rest geometry (landmarks, then ``ids``) at ``shape`` (1, S) and, if asked, its
     Jacobian in the shape parameters by central differences in one batched call: a fitting
     loop then skips the shape blendshapes (most of a body call). anny's phenotype blends are
@@ -130,7 +132,7 @@ def mask_weight(cfg: FitConfig, kp: Keypoints) -> float:
     return cfg.silhouette if kp.mask[y0:y1, x0:x1].sum() >= 0.1 * area else 0.0
 
 
-def fit_body(body, cfg: FitConfig, rot: torch.Tensor, shape: torch.Tensor, t: np.ndarray, kp: Keypoints,
+def fit_body(body: BodyModel, cfg: FitConfig, rot: torch.Tensor, shape: torch.Tensor, t: np.ndarray, kp: Keypoints,
              k: np.ndarray, image_shape, device="cpu", fixed: np.ndarray | None = None) -> FittedBody:
     """Fit the body (local rotations ``rot`` (24, 3, 3) with the root in the camera frame,
     ``shape`` (S,), pelvis ``t``) to the detected 2D J+ that lie inside the image and, when the

@@ -16,6 +16,7 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import asdict, dataclass, field, replace
+from typing import Literal, get_args
 
 import numpy as np
 import roma
@@ -23,11 +24,12 @@ import torch
 
 from recon import camera
 from recon.body import default_body, skeleton
+from recon.body.base import BodyModel
 from recon.errors import ReconError
 from recon.fit import FitConfig, fit_body
 from recon.keypoints import Keypoints, make_source
-from recon.keypoints.mediapipe import DEFAULT_MODEL, MODELS, available, resolve_model
 from recon.people import models as people_models
+from recon.people.mediapipe import DEFAULT_MODEL, LandmarkModel, available, resolve_model
 from recon.shape import FROM_MASK, PHENOTYPES, ShapeHead
 from recon.smplr import SMPLR
 from recon.smplr.lifter import Lifter
@@ -35,7 +37,9 @@ from recon.smplr.lifter import Lifter
 log = logging.getLogger(__name__)
 _WARNED: set[str] = set()  # missing models already reported: one line per process
 
-LIFTS = ("camera", "source", "blend")
+Lift = Literal["camera", "source", "blend"]
+Gender = Literal["auto", "female", "male", "neutral"]
+LIFTS = get_args(Lift)
 GENDERS = {"female": 1.0, "male": 0.0, "neutral": 0.5}  # anny's gender phenotype; "auto": read from the image
 
 
@@ -133,7 +137,7 @@ class ReconstructorConfig:
     multipose: with ``detect``, MoveNet MultiPose's boxes as well where NanoDet's give nobody or more
     than one person is wanted (``recon.people.multipose``: people NanoDet misses or boxes as one).
     search: where MediaPipe's detector (and its retries) finds nobody, look for a person without a
-    face (``recon.keypoints.proposals``: back views, people cut by a border, small people).
+    face (``recon.people.search``: back views, people cut by a border, small people).
     keypoint_model: MediaPipe's landmark model, "lite", "full" or "heavy" (its own adapter and guard;
     "full" when the file asked for is not installed). fallback: where MediaPipe finds nobody, our
     backbone answers when it is confident; backbone_weight: the weight of our backbone's J+ on
@@ -154,11 +158,11 @@ class ReconstructorConfig:
     device: str = "cpu"
     fit: FitConfig = field(default_factory=FitConfig)
     flip: bool | None = None
-    lift: str = "blend"
+    lift: Lift = "blend"
     denoise: bool = True
     retry: bool = True
     guard: bool = True
-    keypoint_model: str = DEFAULT_MODEL
+    keypoint_model: LandmarkModel = DEFAULT_MODEL
     fallback: bool = False
     backbone_weight: float = 0.0
     search: bool = True
@@ -166,11 +170,20 @@ class ReconstructorConfig:
     movenet: float = 1.0
     multipose: bool = True
     shape_head: bool = True
-    gender: str = "auto"
+    gender: Gender = "auto"
     height_cm: float | None = None
     smplr_path: str | None = None
     lifter_path: str | None = None
     shape_head_path: str | None = None
+
+    def __post_init__(self):
+        """The options with a fixed set of values, checked once: every command and the API meet one check."""
+        for name, allowed in (("lift", LIFTS), ("keypoint_model", get_args(LandmarkModel)),
+                              ("gender", get_args(Gender))):
+            if getattr(self, name) not in allowed:
+                raise ReconError(f"{name} must be one of {allowed}, got {getattr(self, name)!r}")
+        if self.height_cm is not None and not 50 <= self.height_cm <= 250:
+            raise ReconError(f"height_cm must lie between 50 and 250, got {self.height_cm}")
 
     def as_installed(self) -> ReconstructorConfig:
         """This config with the MediaPipe landmark model that will run ("full" when the one asked for
@@ -198,7 +211,7 @@ class Reconstructor:
     ``ReconstructorConfig`` and/or its fields as keywords (``Reconstructor(source="backbone")``).
     ``body``: the body model (default anny); ``source`` may also be a ``KeypointSource`` object."""
 
-    def __init__(self, config: ReconstructorConfig | None = None, body=None, **overrides):
+    def __init__(self, config: ReconstructorConfig | None = None, body: BodyModel | None = None, **overrides):
         source = overrides.pop("source", None)
         if source is not None and not isinstance(source, str):
             overrides["source"] = getattr(source, "name", type(source).__name__)
@@ -206,15 +219,7 @@ class Reconstructor:
                 overrides["keypoint_model"] = source.model
         elif source is not None:
             overrides["source"] = source
-        cfg = replace(config or ReconstructorConfig(), **overrides)
-        if cfg.lift not in LIFTS:
-            raise ReconError(f"lift must be one of {LIFTS}, got {cfg.lift!r}")
-        if cfg.keypoint_model not in MODELS:
-            raise ReconError(f"keypoint_model must be one of {tuple(MODELS)}, got {cfg.keypoint_model!r}")
-        if cfg.gender != "auto" and cfg.gender not in GENDERS:
-            raise ReconError(f"gender must be auto or one of {tuple(GENDERS)}, got {cfg.gender!r}")
-        if cfg.height_cm is not None and not 50 <= cfg.height_cm <= 250:
-            raise ReconError(f"height_cm must lie between 50 and 250, got {cfg.height_cm}")
+        cfg = replace(config or ReconstructorConfig(), **overrides)  # checked in ReconstructorConfig.__post_init__
         self.config = cfg.as_installed()
         self.body = body or default_body()
         self.device = torch.device(cfg.device)

@@ -13,8 +13,9 @@ from recon.animate import animate, clip_name, load_motion, on_the_ground
 from recon.body import skeleton
 from recon.cli import main
 from recon.errors import ReconError
+from recon.export.bvh import write_bvh
 from recon.keypoints import available as mediapipe_available
-from recon.poses.bvh import read_bvh, write_bvh
+from recon.poses.bvh import read_bvh
 from recon.poses.mocap import MocapPoses
 
 BVH = MOCAP_CLIPS / "cmu_bvh_3dsmax_bvh11" / "131" / "131_01.bvh"

@@ -3,7 +3,6 @@ author.train; recon.garment.author.command): U-block mixing, the motion descript
 signature, motion invariance on a toy system, keyframes matched exactly after propagation, the
 latent interpolation, the descriptor's start as PCA, friction, and the command's files."""
 import json
-from concurrent.futures import Future
 from dataclasses import asdict, replace
 
 import numpy as np
@@ -380,22 +379,14 @@ def test_the_report_states_the_claim_the_curve_and_old_ablations():
     assert "ours 3.0 mm against 4.0 mm, met" in render([r])
 
 
-class InProcessPool:
-    """ProcessPoolExecutor's part that ``generate`` uses, run in this process."""
+class FakeSimulator:
+    """The data job's worker without the simulation: zero offsets of the run's shape."""
 
-    def __init__(self, workers, mp_context=None, initializer=None, initargs=()):
+    def __init__(self, outfit, settle):
         pass
 
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        return False
-
-    def submit(self, fn, sim):
-        fut = Future()
-        fut.set_result(np.zeros((sim.chunk.frames + 1, 2, 3), np.float16))
-        return fut
+    def __call__(self, sim):
+        return np.zeros((sim.chunk.frames + 1, 2, 3), np.float16)
 
 
 def stopped_after(n: int):
@@ -410,8 +401,9 @@ def stopped_after(n: int):
 
 def test_the_data_job_is_stopped_and_continued_keeping_its_runs_and_time(tmp_path, monkeypatch):
     monkeypatch.setenv("RECON_CACHE_DIR", str(tmp_path))
-    monkeypatch.setattr(author_data, "ProcessPoolExecutor", InProcessPool)
-    cfg = AuthorDataConfig(train_sets=3, val_sets=1, val_windows=1, test_sets=1, test_windows=1, window=30)
+    monkeypatch.setattr(author_data, "Simulator", FakeSimulator)
+    cfg = AuthorDataConfig(train_sets=3, val_sets=1, val_windows=1, test_sets=1, test_windows=1, window=30,
+                           workers=1)  # in this process: the fake worker
     folder, sims = sim_folder(cfg), plan(cfg)
     monkeypatch.setattr(author_data, "tqdm", stopped_after(2))
     with pytest.raises(KeyboardInterrupt):

@@ -11,13 +11,14 @@ import trimesh
 from gltf_check import assert_valid, pose_meshes
 
 from recon.errors import ReconError
+from recon.export.glb import write_glb
 from recon.garment import store
 from recon.garment.data import posed_bodies
 from recon.garment.deepsd.data import shuffled
 from recon.garment.deepsd.model import DeePSD, DeePSDConfig, OutfitGraph, mean_adjacency
 from recon.garment.deepsd.train import PhysicsConfig, Sample, collision_loss, physics_loss
 from recon.garment.dress import Dresser
-from recon.garment.gltf import write_glb
+from recon.garment.morph import outfit_animation
 from recon.garment.outfits import HELD_OUT_BANDS, HELD_OUT_FAMILIES, OutfitSampler
 from recon.garment.templates import GarmentSpec, Outfit, RestBody, make_outfit
 
@@ -169,7 +170,8 @@ def test_an_untrained_garment_mesh_is_dressed_by_deepsd_into_a_valid_glb(body, t
     rot = roma.rotvec_to_rotmat(0.3 * torch.randn(3, 24, 3))
     rot[:, 0] = torch.eye(3)
     transl = torch.tensor([[0.0, 0.9, 0.0], [0.1, 0.9, 0.2], [0.2, 1.0, 0.4]])
-    glb = write_glb(tmp_path / "a.glb", body, body.mean_shape, rot, transl, 30.0, dresser)
+    glb = write_glb(tmp_path / "a.glb", body, body.mean_shape, rot, transl, 30.0,
+                    outfit_animation(body, body.mean_shape, rot, transl, dresser, 30.0))
     assert_valid(glb)
     posed = pose_meshes(glb, 2)
     # the network's cloth (the post-step is no blend shape): W as skin weights, D as morph targets

@@ -10,6 +10,7 @@ import time
 from pathlib import Path
 
 import pytest
+import torch
 
 from recon import executor as ex
 from recon.cli import main
@@ -66,6 +67,34 @@ def test_in_process_runs_every_task_in_order(tmp_path):
     out = list(ex.map_tasks(spec, [3, 1, 2], prepare=lambda t: t + 1))
     assert [(i, r[0]) for i, r in out] == [(0, 8), (1, 4), (2, 6)]
     assert {r[1] for _, r in out} == {os.getpid()}
+
+
+class Threads:
+    """A test worker: the torch threads it runs with."""
+
+    def __call__(self, task):
+        return torch.get_num_threads()
+
+
+def test_a_job_sets_its_workers_threads_and_gives_this_process_its_own_back():
+    before = torch.get_num_threads()
+    wanted = 2 if before == 1 else 1
+    assert ex.in_order(ex.WorkerSpec(Threads), [0, 1], ex.ExecutorConfig(threads=wanted)) == [wanted, wanted]
+    assert torch.get_num_threads() == before
+    assert ex.in_order(ex.WorkerSpec(Threads), [0, 1, 2], ex.ExecutorConfig(workers=2, threads=wanted)) == [wanted] * 3
+    with pytest.raises(ReconError, match="threads"):
+        ex.ExecutorConfig(threads=0)
+
+
+def test_a_stateless_function_runs_as_a_worker_and_results_keep_the_tasks_order():
+    assert ex.in_order(ex.WorkerSpec(ex.Call, (abs,)), [-3, 2, -1], ex.ExecutorConfig(workers=2)) == [3, 2, 1]
+
+
+@pytest.mark.slow
+def test_a_strict_job_stops_on_a_task_that_kills_every_worker(tmp_path):
+    spec = ex.WorkerSpec(Doubler, (str(tmp_path / "marker"),), {"die_on": 2, "always": True})
+    with pytest.raises(ex.WorkerLost):
+        dict(ex.map_strict(spec, list(range(4)), ex.ExecutorConfig(workers=2, retries=0)))
 
 
 def test_local_workers_replace_a_killed_worker_and_lose_nothing(tmp_path):

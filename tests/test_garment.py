@@ -10,11 +10,12 @@ from scipy.spatial import cKDTree
 
 import recon.garment.pbns.model as P
 from recon.errors import ReconError
+from recon.export.glb import influence_sets, write_glb
 from recon.garment import losses, mesh, store
 from recon.garment.data import pose_set, posed_bodies
 from recon.garment.dress import Dresser
-from recon.garment.gltf import influence_sets, write_glb
 from recon.garment.metrics import collision_pct, penetration, physical_metrics
+from recon.garment.morph import outfit_animation
 from recon.garment.pbns import reference_eval as R
 from recon.garment.pbns import train as T
 from recon.garment.pbns.model import (
@@ -260,7 +261,9 @@ def test_animated_glb_reproduces_body_and_cloth(body, tmp_path):
     dresser = Dresser(path=path)
     rot = roma.rotvec_to_rotmat(0.3 * torch.randn(3, 24, 3))
     transl = torch.tensor([[0.0, 0.9, 0.0], [0.1, 0.9, 0.2], [0.2, 1.0, 0.4]])
-    glb = write_glb(tmp_path / "a.glb", body, body.mean_shape, rot, transl, 30.0, dresser, influences=None)
+    glb = write_glb(tmp_path / "a.glb", body, body.mean_shape, rot, transl, 30.0,
+                    outfit_animation(body, body.mean_shape, rot, transl, dresser, 30.0, influences=None),
+                    influences=None)
 
     assert len(trimesh.load(glb).geometry) == 2
     assert_valid(glb)
@@ -278,7 +281,8 @@ def test_animated_glb_reproduces_body_and_cloth(body, tmp_path):
         first = body(rot[:1], body.mean_shape[None], transl=transl[:1]).vertices[0].numpy()
     assert np.abs(still["body"] - first).max() < 1e-4
     # the default: each vertex's 4 strongest influences (one set, what engines read), a few mm off at most
-    four = write_glb(tmp_path / "b.glb", body, body.mean_shape, rot, transl, 30.0, dresser)
+    four = write_glb(tmp_path / "b.glb", body, body.mean_shape, rot, transl, 30.0,
+                     outfit_animation(body, body.mean_shape, rot, transl, dresser, 30.0))
     assert_valid(four)
     for m in read_glb(four)[0]["meshes"]:
         assert {k for k in m["primitives"][0]["attributes"] if k.startswith(("JOINTS", "WEIGHTS"))} == {"JOINTS_0",
@@ -319,7 +323,8 @@ def test_a_photos_glb_holds_the_dressers_post_step(body, tmp_path):
     dresser = Dresser("top-shorts")
     rot = pose_set("test", 500, 0.5, seed=123)[3:4]
     transl = torch.tensor([[0.1, 0.9, -0.2]])
-    glb = write_glb(tmp_path / "p.glb", body, dresser.shape, rot, transl, 30.0, dresser)
+    glb = write_glb(tmp_path / "p.glb", body, dresser.shape, rot, transl, 30.0,
+                    outfit_animation(body, dresser.shape, rot, transl, dresser, 30.0))
     assert_valid(glb)
     posed = pose_meshes(glb)["outfit"]
     want = dresser(body, rot, dresser.shape, transl).vertices[0]

@@ -7,11 +7,11 @@ from recon import camera, io
 from recon.body import default_body
 from recon.demo import EXAMPLES
 from recon.keypoints import available as mediapipe_available
-from recon.keypoints import guard
 from recon.keypoints.adapter import WEIGHTS as ADAPTER_WEIGHTS
 from recon.keypoints.base import Keypoints
-from recon.keypoints.mediapipe import MODELS, MPPose
 from recon.keypoints.sources import TRUSTED_CONFIDENCE, MediaPipeSource
+from recon.people import guard
+from recon.people.mediapipe import MODELS, MPPose
 from recon.pipeline import ReconstructorConfig
 from recon.synth.dataset import BENCHMARKS
 from recon.synth.scene import SceneSampler

@@ -18,11 +18,10 @@ from recon.fit import FitConfig
 from recon.garment import store
 from recon.keypoints import MediaPipeSource
 from recon.keypoints import available as mediapipe_available
-from recon.keypoints.adapter import MP_MIRROR
 from recon.keypoints.adapter import WEIGHTS as ADAPTER_WEIGHTS
-from recon.keypoints.mediapipe import MPPose
 from recon.keypoints.views import pad_image, unview, windows
 from recon.people.boxes import box_overlap
+from recon.people.mediapipe import MP_MIRROR, MPPose
 from recon.pipeline import Reconstructor, ReconstructorConfig
 from recon.poses.bvh import read_bvh
 from recon.run import RunOptions, run

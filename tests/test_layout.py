@@ -1,6 +1,12 @@
-"""The folder layout is the architecture: stages in order, no module importing from a later
-stage, no import cycle, imports at the top, runtime garment code and the image pipeline free of
-data, training and evaluation code."""
+"""The folder layout is the architecture (docs/architecture.md): stages in order, no module
+importing from a later stage, no import cycle, imports at the top, runtime garment code and the
+image pipeline free of data, training and evaluation code.
+
+A photo's path: people -> keypoints (MediaPipe + adapter, or the backbone) -> smplr -> shape ->
+fit -> pipeline -> garment (Dresser) -> export -> page / run. ``STAGES`` orders the folders so
+that each imports only what comes before it: foundations (errors, paths, executor, ...), the body,
+geometry, drawing and file formats, then the people, the models with their training data
+(garment, smplr, synth, backbone), the rest of the path, and the commands."""
 import ast
 from pathlib import Path
 
@@ -18,11 +24,12 @@ STAGES = [
     ("recon.metrics", "recon.camera"),
     ("recon.poses",),
     ("recon.render",),  # drawing: the synthetic data, the overlays and the page use it
+    ("recon.export",),  # every file format written: the commands choose the files, export writes them
+    ("recon.people",),  # a photo's path starts here: where every person is (imports no other stage)
     ("recon.garment",),  # before synth: the other domain's and the training generator's clothes
     ("recon.smplr",),
     ("recon.synth",),
     ("recon.backbone",),
-    ("recon.people",),  # finding people: the detector, before anyone's keypoints
     ("recon.keypoints",),
     ("recon.shape",),
     ("recon.fit",),
@@ -38,15 +45,17 @@ STAGES = [
 ]
 # recon.garment: a core, and a district per model family with the same rooms
 GARMENT_FAMILIES = ("pbns", "ncs", "deepsd", "gcvae", "taylor", "author")
-ROOMS = {"model": "inference", "sample": "inference", "data": "training data", "config": "training settings",
+ROOMS = {"model": "inference", "sample": "inference", "garment_model": "inference: the family's GarmentModel",
+         "data": "training data", "config": "training settings",
          "losses": "training losses", "train": "training", "eval": "evaluation",
          "reference_eval": "evaluation against the reference simulator", "command": "a CLI command",
          "curves": "evaluation curves and checks beside a family's table"}
 # the drape solver (drape, on integrate's minimiser) runs at inference too: it continues the Taylor
 # model's cloth on a photo
-GARMENT_CORE_RUNTIME = ("templates", "outfits", "mesh", "store", "dress", "resize", "collide", "losses", "metrics",
-                        "gltf", "self_intersection", "drape", "integrate")
+GARMENT_CORE_RUNTIME = ("templates", "outfits", "mesh", "store", "family", "dress", "resize", "collide", "losses",
+                        "metrics", "morph", "self_intersection", "drape", "integrate")
 GARMENT_CORE_TRAINING = ("data", "reference")
+INFERENCE_ROOMS = ("model", "sample", "garment_model")
 # a family uses another's inference rooms only; author's data is NCS's teacher run on its own parameters
 CROSS_FAMILY = {("author", "ncs.data"), ("author", "ncs.config")}
 
@@ -96,6 +105,14 @@ def test_no_import_from_a_later_stage_and_imports_at_the_top(module):
     for name, line, at_top in imports(MODULES[module]):
         assert at_top, f"{module}:{line} imports {name} inside a function"
         assert stage(name) <= stage(module), f"{module}:{line} imports {name}, a later stage"
+
+
+def test_finding_people_needs_no_other_stage():
+    """The path's first step: a detector or MediaPipe's own answers, nothing of bodies or models."""
+    for m, p in MODULES.items():
+        if m.startswith("recon.people"):
+            for name, line, _ in imports(p):
+                assert name.startswith("recon.people") or stage(name) == 0, f"{m}:{line} imports {name}"
 
 
 def test_the_module_graph_has_no_cycle():
@@ -149,7 +166,7 @@ def test_inference_never_imports_training_or_evaluation():
     core = {f"core.{n}" for n in GARMENT_CORE_RUNTIME}
 
     def inference(w: str) -> bool:
-        return w.split(".")[1] in ("model", "sample") or w in core
+        return w.split(".")[1] in INFERENCE_ROOMS or w in core
 
     runtime = {m for m, w in where.items() if inference(w)}
     assert "recon.garment.dress" in runtime and "recon.garment.pbns.model" in runtime
@@ -186,7 +203,7 @@ def test_a_family_uses_another_family_only_through_its_inference_rooms():
             continue
         for imported, line, _ in imports(MODULES[module]):
             other = where.get(imported, "core.").split(".")
-            if other[0] not in ("core", family) and other[1] not in ("model", "sample"):
+            if other[0] not in ("core", family) and other[1] not in INFERENCE_ROOMS:
                 assert (family, ".".join(other)) in CROSS_FAMILY, f"{module}:{line} imports {imported}"
 
 

@@ -13,9 +13,10 @@ import torch
 from recon import paths
 from recon.cli import build_parser
 from recon.errors import MissingFile, ReconError
-from recon.keypoints import guard, mediapipe, train
+from recon.keypoints import train
 from recon.keypoints.adapter import KeypointAdapter, weights_for
 from recon.keypoints.sources import MediaPipeSource
+from recon.people import guard, mediapipe
 from recon.pipeline import Reconstructor, ReconstructorConfig
 
 needs_mediapipe = pytest.mark.skipif(not mediapipe.available(), reason="needs mediapipe (scripts/setup.sh)")
@@ -143,8 +144,8 @@ def test_building_each_mediapipe_graph_writes_nothing_to_stderr():
     """The C++ graphs log (INFO, W0000) from their own threads once their calculators open: each model
     is built and run once inside the quiet window, so nothing reaches the terminal afterwards either."""
     code = ("import time, numpy as np\n"
-            "from recon.keypoints.mediapipe import MediaPipeLandmarks, MediaPipePose\n"
-            "from recon.keypoints.proposals import PersonMask\n"
+            "from recon.people.mediapipe import MediaPipeLandmarks, MediaPipePose\n"
+            "from recon.people.search import PersonMask\n"
             "models = [MediaPipeLandmarks(), MediaPipePose(), PersonMask()]\n"
             "time.sleep(1.0)\n"
             "print('built', len(models))\n")

@@ -12,11 +12,12 @@ from gltf_check import assert_valid, pose_meshes
 from recon.body import lbs, skeleton
 from recon.body.lbs import forward_kinematics
 from recon.errors import ReconError
+from recon.export.glb import write_glb
 from recon.garment import losses, store
 from recon.garment.data import pose_set, posed_bodies
 from recon.garment.dress import Dresser
-from recon.garment.gltf import write_glb
 from recon.garment.integrate import IntegrateConfig, Preconditioner, integrate, minimise, settle, unpose
+from recon.garment.morph import outfit_animation
 from recon.garment.ncs import model as ncs
 from recon.garment.ncs.config import NCSTrainConfig
 from recon.garment.ncs.data import (
@@ -495,12 +496,13 @@ def test_animated_glb_holds_the_dynamic_model(body, tmp_path):
     path = tmp_path / "pbns_skirt.pt"
     dresser = Dresser(path=path, resolve_collisions=False)
     assert not dresser.dynamic
-    dresser.ncs = ncs.NCS.from_pbns(dresser.model)
+    dresser.garment.ncs = ncs.NCS.from_pbns(dresser.model)
     with torch.no_grad():
-        dresser.ncs.D[128:].normal_(0, 1e-3)  # the rows the dynamic code reaches
+        dresser.garment.ncs.D[128:].normal_(0, 1e-3)  # the rows the dynamic code reaches
     rot, glob, joints = _sequence(body, t=5)
     transl = joints[0, :, 0] - joints[0, :1, 0] + torch.tensor([0.0, 0.9, 0.0])
-    glb = write_glb(tmp_path / "a.glb", body, body.mean_shape, rot[0], transl, 30.0, dresser,
+    glb = write_glb(tmp_path / "a.glb", body, body.mean_shape, rot[0], transl, 30.0,
+                    outfit_animation(body, body.mean_shape, rot[0], transl, dresser, 30.0, influences=None),
                     influences=None)  # every influence: the file's cloth is the Dresser's exactly
     assert_valid(glb)
     moving = dresser.animate(body, rot[0], body.mean_shape, transl).vertices
@@ -546,7 +548,7 @@ def test_a_network_trained_at_15_fps_dresses_a_30_fps_motion(body, tmp_path):
     the shared frames (every second one) the codes are those of the network run at 15 fps."""
     pbns, _ = _skirt_pbns(body, tmp_path)
     dresser = Dresser(path=tmp_path / "pbns_skirt.pt", resolve_collisions=False)
-    dresser.ncs = ncs.NCS(pbns.rest, pbns.faces, pbns.weights.detach(), ncs.NCSConfig(fps=15.0))
+    dresser.garment.ncs = ncs.NCS(pbns.rest, pbns.faces, pbns.weights.detach(), ncs.NCSConfig(fps=15.0))
     rot, _, joints = _sequence(body, t=9)
     transl = joints[0, :, 0] - joints[0, :1, 0]
     _, z30 = dresser.sequence_codes(body, rot[0], body.mean_shape, transl, fps=30.0)

@@ -16,7 +16,9 @@ import trimesh
 
 from recon import page as rpage
 from recon.cli import main
-from recon.garment.gltf import write_glb
+from recon.export.glb import write_glb
+from recon.export.media import write_mp4
+from recon.garment.morph import outfit_animation
 from recon.page import build, models
 from recon.page.chromium import Chromium, find_chromium
 from tests.gltf_check import assert_valid, read_glb
@@ -91,7 +93,8 @@ def test_slim_model_keeps_skeleton_and_motion_drops_blend_shapes(body, tmp_path)
     torch.manual_seed(0)
     rot = roma.rotvec_to_rotmat(0.2 * torch.randn(4, 24, 3))
     transl = torch.tensor([[0.3 * i, 0.9 + 0.01 * i, -0.2 * i] for i in range(4)])  # walking
-    full = write_glb(tmp_path / "a.glb", body, body.mean_shape, rot, transl, 30.0, dresser)
+    full = write_glb(tmp_path / "a.glb", body, body.mean_shape, rot, transl, 30.0,
+                     outfit_animation(body, body.mean_shape, rot, transl, dresser, 30.0))
     slim = tmp_path / "slim.glb"
     slim.write_bytes(models.slim_glb(full.read_bytes()))
     assert slim.stat().st_size < 0.5 * full.stat().st_size
@@ -298,12 +301,11 @@ def test_a_page_of_a_thousand_results_stays_light(tmp_path):
 
 
 def test_a_video_page_plays_an_h264_overlay_and_only_links_an_mpeg4_one(tmp_path):
-    from recon import paths
     frames = [np.full((31, 41, 3), 40 * i, np.uint8) for i in range(6)]
     for codec in ("h264", "mpeg4"):
         out = tmp_path / codec
         out.mkdir()
-        paths.write_mp4(out / "overlay.mp4", iter(frames), 30.0, (31, 41), browser=codec == "h264")
+        write_mp4(out / "overlay.mp4", iter(frames), 30.0, (31, 41), browser=codec == "h264")
         (out / "video.json").write_text(json.dumps({"source": "clip.mp4", "frames": 6, "tracks": [],
                                                     "overlay_codec": codec}))
         rpage.write_page(out)

@@ -189,8 +189,8 @@ def test_two_people_side_by_side_are_both_read_and_a_wall_gives_nobody():
 
 
 def test_fusion_weighs_each_keypoint_by_its_models_confidence_and_hands_follow_wrists():
-    from recon.keypoints.mediapipe import MPPose
     from recon.keypoints.movenet import FOLLOW, TO_MEDIAPIPE, fuse
+    from recon.people.mediapipe import MPPose
 
     rng = np.random.default_rng(0)
     r = MPPose(rng.uniform(0, 100, (33, 2)), np.full(33, 0.5), rng.normal(0, 1, (33, 3)), None)

@@ -1,4 +1,4 @@
-"""The faceless person search (recon.keypoints.proposals): regions, their order, the settling
+"""The faceless person search (recon.people.search): regions, their order, the settling
 rule, and that it finds a person the face-anchored detector is made to miss, but no phantom."""
 import numpy as np
 import pytest
@@ -7,11 +7,10 @@ import skimage.data
 from recon import camera, io
 from recon.demo import EXAMPLES
 from recon.keypoints import available as mediapipe_available
-from recon.keypoints.adapter import MP_MIRROR
 from recon.keypoints.adapter import WEIGHTS as ADAPTER_WEIGHTS
-from recon.keypoints.mediapipe import MPPose
-from recon.keypoints.proposals import MIRROR_AGREE, blob_regions, grid_regions, proposals, settled
 from recon.keypoints.sources import MediaPipeSource
+from recon.people.mediapipe import MP_MIRROR, MPPose
+from recon.people.search import MIRROR_AGREE, blob_regions, grid_regions, proposals, settled
 
 needs_mediapipe = pytest.mark.skipif(not (mediapipe_available() and ADAPTER_WEIGHTS.exists()),
                                      reason="needs mediapipe (scripts/setup.sh) and the adapter weights")

@@ -11,11 +11,12 @@ import torch
 import trimesh
 from gltf_check import assert_valid
 
+from recon.export.glb import write_glb
 from recon.garment import store
 from recon.garment.data import posed_bodies
 from recon.garment.drape import DrapeSolver, DrapeSolverConfig
 from recon.garment.dress import Dresser
-from recon.garment.gltf import write_glb
+from recon.garment.morph import outfit_animation
 from recon.garment.pbns.model import PBNS, PBNSConfig, initial_weights, pose_features
 from recon.garment.resize import Transfer
 from recon.garment.taylor import eval as taylor_eval
@@ -385,13 +386,15 @@ def test_dresser_with_the_taylor_model_poses_animates_and_exports(body, top, tmp
     got = posted(body, rot[:2], shape[None].expand(2, -1), transl[:2]).vertices
     ref = posted.resolver(torch.from_numpy(one), out.vertices, body.faces, rest=m.graded)
     assert np.abs(got - ref.numpy()).mean() < 1e-4 and np.abs(got - one).mean() > 1e-6
-    photo = write_glb(tmp_path / "p.glb", body, shape, rot[:1], transl[:1], 30.0, posted)  # post-step as a target
+    photo = write_glb(tmp_path / "p.glb", body, shape, rot[:1], transl[:1], 30.0,
+                      outfit_animation(body, shape, rot[:1], transl[:1], posted, 30.0))  # post-step as a target
     assert_valid(photo)
     loaded = TaylorGarment.load(store.taylor_path(str(path)), dresser.model)[0].set_shape(body, shape)
     assert np.abs(one - loaded.pose(rot[:2], out.transforms, out.vertices).numpy()).max() < 1e-5
     motion = dresser.animate(body, rot, shape, transl).vertices
     assert motion.shape == (5, len(outfit.vertices), 3) and np.isfinite(motion).all()
-    glb = write_glb(tmp_path / "a.glb", body, shape, rot, transl + torch.tensor([0.0, 0.9, 0.0]), 30.0, dresser)
+    glb = write_glb(tmp_path / "a.glb", body, shape, rot, transl + torch.tensor([0.0, 0.9, 0.0]), 30.0,
+                    outfit_animation(body, shape, rot, transl + torch.tensor([0.0, 0.9, 0.0]), dresser, 30.0))
     assert_valid(glb)
     scene = trimesh.load(glb)
     assert len(scene.geometry) == 2
@@ -416,7 +419,8 @@ def test_dresser_continues_a_taylor_pose_with_the_drape_solver_in_the_gravity_fr
     path = tmp_path / "mytop.pt"
     model.save(path, {"meta_json": json.dumps({"garments": ["top"]}), "layer": torch.zeros(len(outfit.vertices)),
                       "garment_id": torch.zeros(len(outfit.vertices), dtype=torch.long), "shape": body.mean_shape})
-    monkeypatch.setattr("recon.garment.dress.trained_outfit", lambda b, p: (outfit, body.mean_shape, "mytop"))
+    monkeypatch.setattr("recon.garment.taylor.garment_model.trained_outfit",
+                        lambda b, p: (outfit, body.mean_shape, "mytop"))
     shapes = torch.cat([body.mean_shape[None], database_shapes(6, seed=1)])
     m = toy_model(body, model, poses(4), shapes, shifted_drape(model, amplitude=0.01))
     m.save(store.taylor_path(str(path)), json.dumps({"outfit": "mytop"}))

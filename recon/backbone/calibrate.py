@@ -13,6 +13,7 @@ from recon import paths
 from recon.backbone.model import WEIGHTS, Backbone
 from recon.backbone.search import CropSearch, crop_from_keypoints, whole_image_crop
 from recon.body import default_body
+from recon.body.base import BodyModel
 from recon.smplr.features import template_distances
 from recon.synth.dataset import BENCHMARKS, SynthDataset, bench_dir
 from recon.synth.scene import SceneSampler
@@ -39,7 +40,7 @@ def calibrate_depth_scale(search: CropSearch, samples, passes: int = 2) -> tuple
     return tuple(scale)
 
 
-def calibrated(ck: dict, calibrate_on: int = 300, body=None) -> dict:
+def calibrated(ck: dict, calibrate_on: int = 300, body: BodyModel | None = None) -> dict:
     """``ck`` (a weights checkpoint) with crop-depth factors for ``DEPTH_METHOD`` calibrated on
     the first ``calibrate_on`` images of the stored synth-val benchmark."""
     ck = ck | {"crop_depth_method": DEPTH_METHOD, "crop_depth_scale": (1.0, 1.0)}

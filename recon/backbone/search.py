@@ -18,6 +18,7 @@ from recon import camera
 from recon.backbone.crop import EXTENT_M, Crop
 from recon.backbone.model import Backbone
 from recon.body import default_body
+from recon.body.base import BodyModel
 from recon.smplr.features import template_distances
 
 
@@ -57,7 +58,8 @@ class CropSearch:
         self.passes, self.quick_locate, self.flip = passes, quick_locate, flip
 
     @classmethod
-    def load(cls, body=None, weights=None, device: str = "cpu", jit: bool = True, **kwargs) -> CropSearch:
+    def load(cls, body: BodyModel | None = None, weights=None, device: str = "cpu", jit: bool = True,
+             **kwargs) -> CropSearch:
         return cls(Backbone.load(weights, device, jit), template_distances(body or default_body()).cpu().numpy(),
                    **kwargs)
 

@@ -17,6 +17,7 @@ import torch
 from recon import camera
 from recon.backbone.crop import Crop
 from recon.body import skeleton
+from recon.body.base import BodyModel
 from recon.errors import ReconError
 from recon.fit import FitConfig, fit_body
 from recon.keypoints import BackboneSource, Keypoints, MediaPipePose
@@ -46,7 +47,7 @@ class MeanBaseline:
     description = "mean pose + mean shape, facing the camera"
     detects = False
 
-    def __init__(self, body):
+    def __init__(self, body: BodyModel):
         self.body = body
         rv = torch.tensor(MocapPoses.load().split("train").rotvec[::10])
         mean = roma.special_procrustes(roma.rotvec_to_rotmat(rv).sum(0))
@@ -96,7 +97,7 @@ class MediaPipeBaseline:
     description = "MediaPipe Pose 3D world landmarks mapped to our joints"
     detects = True
 
-    def __init__(self, body=None):
+    def __init__(self, body: BodyModel | None = None):
         self.pose = MediaPipePose("full", segmentation=True)
 
     def __call__(self, rgb: np.ndarray, k: np.ndarray) -> Prediction | None:
@@ -122,7 +123,7 @@ class SMPLROracle2D:
     detects = False
     fit = FitConfig(silhouette=0.0)
 
-    def __init__(self, body):
+    def __init__(self, body: BodyModel):
         self.body = body
         self.model = SMPLR.load(body)
         self.lifter = Lifter.load()
@@ -150,7 +151,7 @@ class SMPLROracle2DOrthographic:
     description = "oracle: GT 2D J+ -> metric orthographic 2D -> DAE-2D -> SMPLR (before 0.3)"
     detects = False
 
-    def __init__(self, body):
+    def __init__(self, body: BodyModel):
         self.model = SMPLR.load(body)
         self.needs_gt = True
 
@@ -177,7 +178,7 @@ class MediaPipeSMPLR:
                                                        False, False, "full")
     shape_head, fallback, backbone_weight = False, False, 0.0
 
-    def __init__(self, body):
+    def __init__(self, body: BodyModel):
         self.rec = Reconstructor(body=body, source=self.source, fit=replace(self.fit), lift=self.lift, retry=self.retry,
                                  guard=self.guard, keypoint_model=self.keypoint_model, shape_head=self.shape_head,
                                  fallback=self.fallback, backbone_weight=self.backbone_weight)
@@ -210,7 +211,7 @@ class ReconRun(MediaPipeSMPLR):
     description = "`recon run` defaults: recon.Reconstructor()"
     overrides: dict = {}
 
-    def __init__(self, body):
+    def __init__(self, body: BodyModel):
         self.rec = Reconstructor(body=body, **self.overrides)
 
 
@@ -270,7 +271,7 @@ class BackboneMethod:
 
     crop, stage, flip = "gt", "net", False
 
-    def __init__(self, body):
+    def __init__(self, body: BodyModel):
         self.source = BackboneSource(body, flip=self.flip)
         self.smplr = SMPLR.load(body) if self.stage != "net" else None
         self.needs_gt = self.crop == "gt"

@@ -20,6 +20,7 @@ from tqdm import tqdm
 from recon import metrics, report
 from recon.bench.methods import get_method
 from recon.body import default_body
+from recon.body.base import BodyModel
 from recon.errors import ReconError
 from recon.executor import ExecutorConfig, WorkerLost, WorkerSpec, map_tasks
 from recon.paths import write_text
@@ -39,7 +40,7 @@ CHECK_TOLERANCE = {"rtol": 2e-3, "atol": 1e-6}
 class MethodScorer:
     """One method's scores per sample (a worker: built once per process or Ray actor)."""
 
-    def __init__(self, name: str, body=None):
+    def __init__(self, name: str, body: BodyModel | None = None):
         self.body = body if body is not None else default_body()
         self.method = get_method(name)(self.body)
         self.faces = self.body.faces.numpy()
@@ -84,7 +85,7 @@ class MethodScorer:
         return row
 
 
-def run_method(name: str, ds, body, n: int | None = None, progress: bool = True,
+def run_method(name: str, ds, body: BodyModel, n: int | None = None, progress: bool = True,
                executor: ExecutorConfig | None = None) -> dict:
     """Scores of one method on the first ``n`` samples of ``ds`` (a SynthDataset or a list of
     samples). ``executor``: where chunks of ``EVAL_CHUNK`` samples are scored (default this
@@ -203,7 +204,7 @@ def per_image(scores: list) -> dict:
 BODY_DENSITY = 985.0  # kg / m^3, a human body's average
 
 
-def body_size(body, shape) -> tuple[float, float]:
+def body_size(body: BodyModel, shape) -> tuple[float, float]:
     """Standing height (m: the vertical extent of the rest mesh) and weight (kg: the closed rest
     mesh's volume times BODY_DENSITY) of a body shape, from one pass of the body model."""
     with torch.no_grad():

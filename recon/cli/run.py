@@ -32,7 +32,7 @@ PAGE_HELP = "no results page (index.html: the folder's results in a browser, off
 
 
 def add_run(p: Parser) -> None:
-    models = tuple(known("recon.keypoints.mediapipe:MODELS"))
+    models = tuple(known("recon.people.mediapipe:MODELS"))
     opts = "recon.run:RunOptions"
     cfg = "recon.pipeline:ReconstructorConfig"
     p.set_defaults(func=run_by("run:run_images"))

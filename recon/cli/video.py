@@ -6,7 +6,7 @@ from recon.cli.run import FOCAL, INFLUENCES_HELP, PAGE_HELP, TIGHTNESS
 
 
 def add_video(p: Parser) -> None:
-    models = tuple(known("recon.keypoints.mediapipe:MODELS"))
+    models = tuple(known("recon.people.mediapipe:MODELS"))
     opts = "recon.video:VideoOptions"
     cfg = "recon.pipeline:ReconstructorConfig"
     p.set_defaults(func=run_by("video:run_video"))

@@ -49,7 +49,9 @@ class ExecutorConfig:
     Ray default: every CPU of the cluster). address: the Ray cluster to join (default
     ``$RAY_ADDRESS``; none: a local Ray with this machine's cores). retries: how many more times a
     task lost with its worker is tried. in_flight: tasks queued at each worker (keeps it busy
-    while the driver handles results). start_timeout: seconds to wait for a first Ray worker."""
+    while the driver handles results). start_timeout: seconds to wait for a first Ray worker.
+    threads: torch threads of each worker (default: this process's; in this process too, for
+    the job's time)."""
 
     kind: str = "local"
     workers: int | None = None
@@ -57,12 +59,15 @@ class ExecutorConfig:
     retries: int = 2
     in_flight: int = 2
     start_timeout: float = 300.0
+    threads: int | None = None
 
     def __post_init__(self):
         if self.kind not in EXECUTORS:
             raise ReconError(f"executor must be one of {EXECUTORS}, got {self.kind!r}")
         if self.workers is not None and self.workers < 1:
             raise ReconError("workers must be at least 1")
+        if self.threads is not None and self.threads < 1:
+            raise ReconError("threads must be at least 1")
         if self.kind == "local" and self.address:
             raise ReconError("--ray-address needs --executor ray")
         if self.kind == "ray" and not ray_available():
@@ -104,13 +109,46 @@ def map_tasks(spec: WorkerSpec, tasks: Sequence, config: ExecutorConfig | None =
     config = config or ExecutorConfig()
     prepare = prepare or (lambda t: t)
     if config.in_process:
-        worker = spec.build()
-        for i, task in enumerate(tasks):
-            yield i, worker(prepare(task))
+        before = torch.get_num_threads()
+        torch.set_num_threads(config.threads or before)
+        try:
+            worker = spec.build()
+            for i, task in enumerate(tasks):
+                yield i, worker(prepare(task))
+        finally:
+            torch.set_num_threads(before)
     elif config.kind == "local":
         yield from _local(spec, tasks, config, prepare)
     else:  # Ray loads only here (a second in every process otherwise)
         yield from importlib.import_module("recon.executor.cluster").map_actors(spec, tasks, config, prepare)
+
+
+def map_strict(spec: WorkerSpec, tasks: Sequence, config: ExecutorConfig | None = None,
+               prepare: Callable[[Any], Any] | None = None) -> Iterator[tuple[int, Any]]:
+    """``map_tasks`` for a job that cannot leave a task out (training data, a results table): a
+    task whose worker died on every try stops it (its ``WorkerLost`` is raised)."""
+    for i, r in map_tasks(spec, tasks, config, prepare):
+        if isinstance(r, WorkerLost):
+            raise r
+        yield i, r
+
+
+def in_order(spec: WorkerSpec, tasks: Sequence, config: ExecutorConfig | None = None) -> list:
+    """Every task's result, in the tasks' order (``map_strict``)."""
+    out = [None] * len(tasks)
+    for i, r in map_strict(spec, tasks, config):
+        out[i] = r
+    return out
+
+
+class Call:
+    """A worker with no state of its own: ``Call(fn)(task) = fn(task)`` (``fn`` a top-level function)."""
+
+    def __init__(self, fn: Callable[[Any], Any]):
+        self.fn = fn
+
+    def __call__(self, task):
+        return self.fn(task)
 
 
 def stream_results(spec_of: Callable[[int], WorkerSpec], actors: int, address: str | None = None,
@@ -190,7 +228,7 @@ def _local(spec: WorkerSpec, tasks: Sequence, cfg: ExecutorConfig, prepare) -> I
     todo, ctx = Retries(len(tasks), cfg.retries), mp.get_context("spawn")
     while todo:
         pool = ProcessPoolExecutor(cfg.workers, mp_context=ctx, initializer=_init_local,
-                                   initargs=(spec, torch.get_num_threads()))
+                                   initargs=(spec, cfg.threads or torch.get_num_threads()))
         running: dict = {}
         try:
             while todo or running:

@@ -73,7 +73,7 @@ def map_actors(spec: WorkerSpec, tasks: Sequence, cfg: ExecutorConfig, prepare) 
     replaced (on any node with a free CPU) and its tasks go to the live ones."""
     started = connect(cfg.address)
     n = cfg.workers or cluster_cpus()
-    threads = torch.get_num_threads()
+    threads = cfg.threads or torch.get_num_threads()
     todo = Retries(len(tasks), cfg.retries)
     starting: dict = {}  # ready-call -> actor not yet known to be alive
     load: dict = {}  # live actor -> tasks in flight

@@ -3,8 +3,8 @@
 Core, inference: ``templates`` (CLOTH3D-style outfits on the rest body), ``outfits`` (a
 distribution of generated outfits with held-out styles), ``mesh``, ``resize`` (body shape +
 tightness), ``dress`` (any body shape and pose: ``Dresser``), ``collide`` (collision resolution),
-``gltf`` (animated .glb), ``store`` (where weights live), ``losses`` (the cloth energies),
-``metrics``, ``self_intersection``. Core, training: ``data`` (pose sets, posed bodies),
+``morph`` (an outfit as skinning + morph targets for a .glb), ``store`` (where weights live),
+``losses`` (the cloth energies), ``metrics``, ``self_intersection``. Core, training: ``data`` (pose sets, posed bodies),
 ``integrate`` (the implicit cloth integrator), ``drape`` (the quasi-static drape), ``reference``
 (a newton cloth drape, an optional extra).
 

@@ -6,6 +6,7 @@ import numpy as np
 import roma
 import torch
 
+from recon.body.base import BodyModel
 from recon.garment.mesh import vertex_normals
 from recon.poses.mocap import MocapPoses
 
@@ -36,7 +37,7 @@ def pose_set(split: str, n: int, min_distance: float, seed: int) -> torch.Tensor
     return roma.rotvec_to_rotmat(torch.from_numpy(m.rotvec[idx]).float())
 
 
-def posed_bodies(body, rotmats: torch.Tensor, shape: torch.Tensor, chunk: int = 64,
+def posed_bodies(body: BodyModel, rotmats: torch.Tensor, shape: torch.Tensor, chunk: int = 64,
                  transl: torch.Tensor | None = None):
     """Body vertices, vertex normals and joint transforms for all poses (no gradient)."""
     vs, ns, ts = [], [], []

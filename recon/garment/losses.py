@@ -15,7 +15,7 @@ from torch import nn
 from recon.garment import mesh
 from recon.garment.mesh import nearest, nearest_among
 from recon.garment.metrics import bending, penetration, strain
-from recon.garment.ncs.model import FPS
+from recon.poses.mocap import FPS
 
 
 @dataclass

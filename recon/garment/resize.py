@@ -27,6 +27,8 @@ from scipy.spatial import cKDTree
 from torch import nn
 
 from recon import paths
+from recon.body.base import BodyModel
+from recon.errors import ReconError
 from recon.garment import losses
 from recon.garment.mesh import neighbour_mean, smooth_vertex_values
 
@@ -78,7 +80,7 @@ class Transfer:
     body of shape ``shape0``, to other shapes: the rest-body displacement of each cloth vertex's
     nearest body vertex, Laplacian-smoothed so body detail does not print through."""
 
-    def __init__(self, body, rest: np.ndarray, faces: np.ndarray, shape0: torch.Tensor, smooth: int = 10):
+    def __init__(self, body: BodyModel, rest: np.ndarray, faces: np.ndarray, shape0: torch.Tensor, smooth: int = 10):
         self.body, self.rest, self.faces, self.smooth = body, rest, faces, smooth
         with torch.no_grad():
             self.v0 = body.rest_geometry(shape0.reshape(1, -1).to(body.mean_shape))[0][0].numpy()
@@ -111,7 +113,7 @@ class Transfer:
 class OutfitResizer:
     """Trained resizer: ``rest(shape, tightness)`` -> (B, N, 3) rest outfit on that body."""
 
-    def __init__(self, body, path: Path, rest: np.ndarray, faces: np.ndarray):
+    def __init__(self, body: BodyModel, path: Path, rest: np.ndarray, faces: np.ndarray):
         ck = paths.load_checkpoint(path, "recon garment resize")
         meta = json.loads(ck["meta_json"])
         net_keys = ("hidden", "layers", "embedding", "smooth")
@@ -126,3 +128,34 @@ class OutfitResizer:
         tightness = torch.zeros(len(shape), 2) if tightness is None else tightness.reshape(-1, 2).float()
         base = torch.from_numpy(self.transfer(shape, tightness))
         return base + self.net(shape, tightness) if corrected else base
+
+
+class RestResizer:
+    """An outfit's rest vertices for any body shape, remembered per shape: its trained resizer
+    (``OutfitResizer``, a tightness allowed) where ``resizer_path`` is given, else the transfer.
+    ``rest``/``faces``: the outfit's, on the body shape ``shape`` it was made on."""
+
+    def __init__(self, rest: torch.Tensor, faces: torch.Tensor, shape: torch.Tensor, resizer_path: Path | None):
+        self.rest, self.faces, self.shape, self.path = rest, faces, shape, resizer_path
+        self.resizer: OutfitResizer | None = None
+        self.transfer: Transfer | None = None
+        self._resized: dict[bytes, torch.Tensor] = {}
+
+    def __call__(self, body: BodyModel, shape: torch.Tensor, smooth: int = 10, tightness=None) -> torch.Tensor:
+        """(N, 3) for ``shape`` (S,); ``tightness`` (2,) needs the resizer (> 0 looser)."""
+        if self.path is not None:
+            if self.resizer is None:
+                self.resizer = OutfitResizer(body, self.path, self.rest.numpy(), self.faces.numpy())
+            t = torch.zeros(2) if tightness is None else torch.as_tensor(tightness, dtype=torch.float32)
+            key = shape.detach().cpu().numpy().tobytes() + t.numpy().tobytes()
+            if key not in self._resized:
+                self._resized[key] = self.resizer.rest(shape.detach().cpu(), t)[0]
+            return self._resized[key]
+        if tightness is not None:
+            raise ReconError("tightness needs a trained resizer: run `recon garment resize`")
+        key = shape.detach().cpu().numpy().tobytes()
+        if key not in self._resized:
+            if self.transfer is None or self.transfer.smooth != smooth:
+                self.transfer = Transfer(body, self.rest.numpy(), self.faces.numpy(), self.shape, smooth)
+            self._resized[key] = torch.from_numpy(self.transfer.resize(shape.detach().cpu().reshape(1, -1))[0])
+        return self._resized[key]

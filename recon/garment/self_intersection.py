@@ -18,6 +18,7 @@ import numpy as np
 import torch
 import warp as wp
 
+from recon.body.base import BodyModel
 from recon.body.skeleton import JOINT_NAMES
 from recon.garment.mesh import largest_component_faces, vertex_normals
 
@@ -40,7 +41,7 @@ class SkinSelfIntersection:
     ``body``: a ``recon.body.BodyModel`` (faces, skinning weights, rest pose of ``shape``).
     """
 
-    def __init__(self, body, shape: torch.Tensor | None = None, offset: float = 0.002):
+    def __init__(self, body: BodyModel, shape: torch.Tensor | None = None, offset: float = 0.002):
         # the outer skin only: anny also has eyes and a mouth inside the head (closed meshes of their own)
         self.faces = np.ascontiguousarray(largest_component_faces(body.faces.cpu().numpy())).astype(np.int32)
         covered = [j for j, n in enumerate(JOINT_NAMES) if not any(s in n for s in UNCOVERED)]

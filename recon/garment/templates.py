@@ -22,6 +22,7 @@ import trimesh
 from scipy.spatial import cKDTree
 
 from recon.body import skeleton
+from recon.body.base import BodyModel
 from recon.errors import MissingFile, ReconError
 from recon.garment import mesh
 
@@ -126,7 +127,7 @@ class Outfit:
 class RestBody:
     """The rest body a template is cut from: vertices, faces, normals, joints, dominant joints."""
 
-    def __init__(self, body, shape: torch.Tensor | None = None):
+    def __init__(self, body: BodyModel, shape: torch.Tensor | None = None):
         shape = body.mean_shape[None] if shape is None else shape.reshape(1, -1)
         with torch.no_grad():
             v, j = body.rest_geometry(shape.to(body.mean_shape))
@@ -178,7 +179,7 @@ def outfit_name(outfit: str) -> str:
     return outfit if outfit in PRESETS else Path(outfit).stem
 
 
-def make_outfit(body, specs: list[GarmentSpec] | str, shape: torch.Tensor | None = None) -> Outfit:
+def make_outfit(body: BodyModel, specs: list[GarmentSpec] | str, shape: torch.Tensor | None = None) -> Outfit:
     rb = RestBody(body, shape)
     if isinstance(specs, str):
         specs = outfit_specs(specs)

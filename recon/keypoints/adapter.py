@@ -23,7 +23,7 @@ from torch import nn
 
 from recon import camera, paths
 from recon.body import skeleton
-from recon.keypoints.mediapipe import DEFAULT_MODEL, NUM_MP, MPPose
+from recon.people.mediapipe import DEFAULT_MODEL, NUM_MP, MPPose
 from recon.smplr.networks import NormResidualBlock
 
 WEIGHTS = Path(__file__).resolve().parent / "weights" / "mp_adapter.pt"  # trained on the full model's answers
@@ -32,11 +32,9 @@ WEIGHTS_BY_MODEL = {"full": WEIGHTS, "heavy": WEIGHTS.with_name("mp_adapter_heav
 
 
 def weights_for(model: str) -> Path:
-    """The shipped adapter for MediaPipe's ``model`` (``recon.keypoints.mediapipe.MODELS``)."""
+    """The shipped adapter for MediaPipe's ``model`` (``recon.people.mediapipe.MODELS``)."""
     return WEIGHTS_BY_MODEL.get(model, WEIGHTS)
 
-# Left/right flip map of MediaPipe Pose's 33 landmarks.
-MP_MIRROR = (0, 4, 5, 6, 1, 2, 3, 8, 7, 10, 9) + tuple(i + 1 if i % 2 else i - 1 for i in range(11, 33))
 MP_HIPS = (23, 24)
 IN_DIM = NUM_MP * 6  # xy (2) + world (3) + visibility (1)
 OUT_DIM = skeleton.NUM_POINTS * 5  # 3D (3) + 2D (2)

@@ -16,7 +16,7 @@ class Keypoints:
     confidence: float  # [0, 1]
     box: tuple[float, float, float, float]  # person box x0, y0, x1, y1 (pixels)
     mask: np.ndarray | None = None  # (H, W) bool person mask, when the source segments
-    person_score: float | None = None  # log-odds that this is a person (recon.keypoints.guard), when scored
+    person_score: float | None = None  # log-odds that this is a person (recon.people.guard), when scored
     found_by: str = ""  # the source that found this person ("mediapipe", "backbone")
 
 

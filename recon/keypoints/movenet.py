@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 import torch
 
-from recon.keypoints.mediapipe import MPPose
+from recon.people.mediapipe import MPPose
 from recon.people.models import model_path
 from recon.people.tfjs import TFJSGraph
 

@@ -4,7 +4,7 @@ The people stage (``recon.people``) says where each person is; MediaPipe's own d
 wants a face and finds one person per call, is not needed. For each box the landmark model looks
 at the square around it, then again at the region its first answer implies (MediaPipe's tracking
 rule: centred on the hips, turned with the torso); an answer is a person where three independent
-votes agree: the guard (``recon.keypoints.guard``), the detector's box score and MoveNet's
+votes agree: the guard (``recon.people.guard``), the detector's box score and MoveNet's
 keypoint scores on the answer's box (``recon.keypoints.movenet``, a second pose model that sees no
 body in a wall); with ``movenet`` MoveNet's keypoints are also fused in, and with ``flip`` the
 mirrored image's answer on the mirrored region is averaged in (left and right swapped) where it agrees.
@@ -15,13 +15,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from recon.keypoints import guard as person_guard
 from recon.keypoints.adapter import KeypointAdapter
 from recon.keypoints.base import Keypoints
-from recon.keypoints.mediapipe import MediaPipeLandmarks, MPPose
 from recon.keypoints.movenet import MoveNet, fuse
 from recon.keypoints.views import mirrored_camera, unmirror
+from recon.people import guard as person_guard
 from recon.people import models as people_models
+from recon.people.mediapipe import MediaPipeLandmarks, MPPose
 
 BOX_GROWTH = 1.25  # the first region's side: the box's longer side times this (MediaPipe's own margin)
 AGREE = 0.25  # the mirrored answer is averaged in where its median keypoint lies within this share of the box

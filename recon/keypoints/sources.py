@@ -16,12 +16,10 @@ import numpy as np
 
 from recon import camera
 from recon.backbone.search import CropSearch, crop_from_keypoints
-from recon.keypoints import guard as person_guard
+from recon.body.base import BodyModel
 from recon.keypoints.adapter import KeypointAdapter
 from recon.keypoints.base import Keypoints
-from recon.keypoints.mediapipe import DEFAULT_MODEL, MediaPipePose, MPPose
 from recon.keypoints.on_boxes import LandmarksOnBoxes
-from recon.keypoints.proposals import MIN_SCORE, PersonSearch
 from recon.keypoints.views import (
     GRAY_SMALL,
     blank_person,
@@ -37,8 +35,11 @@ from recon.keypoints.views import (
     unview,
     windows,
 )
+from recon.people import guard as person_guard
 from recon.people.detector import PersonDetector
+from recon.people.mediapipe import DEFAULT_MODEL, MediaPipePose, MPPose
 from recon.people.multipose import MultiPoseDetector, new_boxes
+from recon.people.search import MIN_SCORE, PersonSearch
 
 # When MediaPipe finds nobody, it is asked again on these views of the image, in order (view,
 # zero-padding factor, detection threshold): its detector misses people behind occluders or cut by
@@ -69,9 +70,9 @@ class MediaPipeSource:
     (its gain: eval/results/pipeline-fit-choices.md; its cost: eval/results/bench-pipeline.md).
     ``retry``: when MediaPipe finds nobody, ask it again on the views of ``RETRIES`` (only then:
     no cost on images where it finds the person at once). ``guard``: refuse answers that
-    ``recon.keypoints.guard`` takes for phantoms (as if MediaPipe had found nobody there).
+    ``recon.people.guard`` takes for phantoms (as if MediaPipe had found nobody there).
     ``people(rgb, K, n)``: up to n people, one after the other. ``model``: MediaPipe's landmark
-    model (``recon.keypoints.mediapipe.MODELS``). Our backbone (``BackboneSource``, loaded at its
+    model (``recon.people.mediapipe.MODELS``). Our backbone (``BackboneSource``, loaded at its
     first use) where it is confident (mean peak confidence >= ``TRUSTED_CONFIDENCE``; on photos it
     stays far lower: it learnt our renders): ``fallback``: where MediaPipe finds nobody, its own
     crop search answers instead (people behind occluders; no person mask); ``backbone_weight``:
@@ -346,8 +347,8 @@ class BackboneSource:
 
     name = "backbone"
 
-    def __init__(self, body=None, weights=None, passes: int = 3, min_confidence: float = 0.05, device: str = "cpu",
-                 jit: bool = True, quick_locate: bool = True, flip: bool = False):
+    def __init__(self, body: BodyModel | None = None, weights=None, passes: int = 3, min_confidence: float = 0.05,
+                 device: str = "cpu", jit: bool = True, quick_locate: bool = True, flip: bool = False):
         self.search = CropSearch.load(body, weights, device, jit, passes=passes, quick_locate=quick_locate, flip=flip)
         self.min_confidence = min_confidence
 

@@ -19,8 +19,8 @@ from tqdm import tqdm
 from recon import camera, paths
 from recon.body import skeleton
 from recon.errors import MissingFile
-from recon.keypoints.adapter import MP_MIRROR, WEIGHTS, AdapterConfig, KeypointAdapter, assemble_features, normalise_2d
-from recon.keypoints.mediapipe import DEFAULT_MODEL, NUM_MP, MediaPipePose, model_file
+from recon.keypoints.adapter import WEIGHTS, AdapterConfig, KeypointAdapter, assemble_features, normalise_2d
+from recon.people.mediapipe import DEFAULT_MODEL, MP_MIRROR, NUM_MP, MediaPipePose, model_file
 from recon.synth.dataset import SynthDataset
 from recon.training import Schedule, Trainer, epoch_batches
 

@@ -22,13 +22,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from recon.keypoints import guard as person_guard
 from recon.keypoints.adapter import KeypointAdapter
 from recon.keypoints.base import Keypoints
-from recon.keypoints.mediapipe import DEFAULT_MODEL, MediaPipePose
 from recon.keypoints.sources import TRUSTED_CONFIDENCE, BackboneSource, MediaPipeSource, blend_backbone
 from recon.keypoints.views import blank_person, same_person, windows
+from recon.people import guard as person_guard
 from recon.people.boxes import box_iou
+from recon.people.mediapipe import DEFAULT_MODEL, MediaPipePose
 
 PROBE_MISSES, PROBE_EVERY = 3, 30
 SEARCH_EVERY = 3

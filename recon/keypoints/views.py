@@ -8,10 +8,9 @@ import cv2
 import numpy as np
 
 from recon.body import skeleton
-from recon.keypoints.adapter import MP_MIRROR
 from recon.keypoints.base import Keypoints
-from recon.keypoints.mediapipe import MPPose
 from recon.people.boxes import box_iou, box_overlap
+from recon.people.mediapipe import MP_MIRROR, MPPose
 
 GRAY_TINT = (1.05, 0.85, 0.85)  # a warm tint for grayscale images; the choice: CHANGELOG 0.5.0
 GRAY_SMALL = 256  # grayscale images are also searched at this longer side

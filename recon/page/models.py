@@ -25,7 +25,7 @@ import numpy as np
 import trimesh
 
 from recon import paths
-from recon.garment.gltf import BIN_CHUNK, GLB_MAGIC, JSON_CHUNK, glb_bytes
+from recon.export.glb import BIN_CHUNK, GLB_MAGIC, JSON_CHUNK, glb_bytes
 
 CAMERA_TO_GLTF = np.diag([1.0, -1.0, -1.0])  # OpenCV camera axes -> glTF's (a 180 degree turn about x)
 FORMAT = 3  # part of every model's id: a page written by a recon that makes models differently remakes them

@@ -14,12 +14,13 @@ import torch
 from scipy.spatial import cKDTree
 
 from recon.body import lbs, skeleton
+from recon.body.base import BodyModel
 
 FRACTIONS = (0.15, 0.5, 0.85)
 
 
 class SelfIntersection:
-    def __init__(self, body, tol: float = 0.015):
+    def __init__(self, body: BodyModel, tol: float = 0.015):
         self.body, self.tol = body, tol
         with torch.no_grad():
             v, j = body.rest_geometry(body.mean_shape[None])

@@ -26,6 +26,7 @@ from tqdm import tqdm
 
 from recon import paths
 from recon.body import default_body
+from recon.body.base import BodyModel
 from recon.errors import MissingFile, ReconError
 from recon.poses.asfamc import read_asf_amc
 from recon.poses.bvh import read_bvh
@@ -91,7 +92,8 @@ def poses_path() -> Path:
     return Path(os.environ.get("RECON_POSES", SHIPPED))
 
 
-def build(body=None, mocap_root: Path | None = None, out: Path | None = None, limit: int | None = None) -> Path:
+def build(body: BodyModel | None = None, mocap_root: Path | None = None, out: Path | None = None,
+          limit: int | None = None) -> Path:
     """Retarget every supported clip of ``mocap_root`` (default ``$RECON_SHARED_DIR/data/mocap``;
     clips listed in its ``metadata/clips.csv``) and write the pose set atomically to ``out``
     (default ``built_path()``). Returns its path."""

@@ -18,6 +18,7 @@ from anny.shape_distribution import SimpleShapeDistribution
 from scipy.spatial.transform import Rotation
 
 from recon.body import lbs, skeleton
+from recon.body.base import BodyModel
 from recon.errors import ReconError
 from recon.poses.collision import SelfIntersection
 from recon.poses.mocap import MocapPoses
@@ -49,7 +50,7 @@ class JointLimits:
 
 
 class PoseSampler:
-    def __init__(self, body, split: str = "train", noise_deg: float = 8.0, mirror: bool = True,
+    def __init__(self, body: BodyModel, split: str = "train", noise_deg: float = 8.0, mirror: bool = True,
                  random_yaw: bool = False, seed: int = 0, mocap: MocapPoses | None = None,
                  tol: float = 0.015, max_rounds: int = 20):
         mocap = mocap or MocapPoses.load()
@@ -96,7 +97,7 @@ class PoseSampler:
 
 
 class ShapeSampler:
-    def __init__(self, body, seed: int = 0, age_range: tuple[float, float] = (18.0, 70.0)):
+    def __init__(self, body: BodyModel, seed: int = 0, age_range: tuple[float, float] = (18.0, 70.0)):
         self.body = body
         self.gen = torch.Generator().manual_seed(seed)
         self.seed = seed

@@ -27,9 +27,9 @@ import uuid
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from recon import paths
 from recon.errors import ReconError
 from recon.executor import ExecutorConfig, WorkerLost, WorkerSpec, run_job
+from recon.export.records import write_json
 from recon.io import file_digest, scan_inputs
 from recon.page import try_write_page
 from recon.pipeline import Reconstructor, ReconstructorConfig
@@ -150,7 +150,7 @@ def run(inputs: list[str | Path], out: str | Path, options: RunOptions | None = 
         with contextlib.suppress(OSError):
             staging.parent.rmdir()  # when no other run is writing here
         try:
-            paths.write_text(out / "summary.json", json.dumps(summary.to_json(), indent=1))
+            write_json(out / "summary.json", summary.to_json())
         except OSError:
             pass
     if page:

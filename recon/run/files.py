@@ -3,18 +3,21 @@
 ``result.json`` last (``people.json`` over ``person_<i>/`` folders with several people)."""
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 import torch
-import trimesh
 
-from recon import camera, paths
+from recon import camera
 from recon.body import skeleton
-from recon.garment.gltf import INFLUENCES, write_glb
+from recon.body.base import BodyModel
+from recon.export.bvh import write_bvh
+from recon.export.glb import INFLUENCES, write_glb
+from recon.export.media import write_image
+from recon.export.mesh import write_mesh
+from recon.export.records import write_json
+from recon.garment.morph import outfit_animation
 from recon.pipeline import Reconstruction
-from recon.poses.bvh import write_bvh
 from recon.viz import draw_meshes, draw_overlay
 
 BODY_RGBA = (0.45, 0.62, 0.92, 1.0)
@@ -24,7 +27,7 @@ OVERLAY_COLOURS = (BODY_RGBA, (0.92, 0.55, 0.45, 1.0), (0.5, 0.82, 0.5, 1.0), (0
                    (0.7, 0.5, 0.85, 1.0))
 
 
-def write_pose_bvh(path: Path, body, r: Reconstruction) -> Path:
+def write_pose_bvh(path: Path, body: BodyModel, r: Reconstruction) -> Path:
     """The estimated pose as a one-frame BVH on the reconstructed body's own skeleton (its shape's
     rest joints), centimetres, in the view frame of the photo's camera (y up, z towards the camera)."""
     with torch.no_grad():
@@ -35,16 +38,19 @@ def write_pose_bvh(path: Path, body, r: Reconstruction) -> Path:
                      camera.to_view(r.translation)[None])
 
 
-def write_rigged_glb(path: Path, body, r: Reconstruction, image_hw: tuple[int, int], k: np.ndarray, dresser=None,
-                     tightness=None, influences: int | None = INFLUENCES) -> Path:
+def write_rigged_glb(path: Path, body: BodyModel, r: Reconstruction, image_hw: tuple[int, int], k: np.ndarray,
+                     dresser=None, tightness=None, influences: int | None = INFLUENCES) -> Path:
     """The reconstruction as a rigged .glb (skeleton, skinned body, the outfit with its PBNS blend
     shapes) in the photo camera's view frame (glTF's: +Y up, the camera at the origin looking down
     -Z), with that camera in the file."""
     rot = torch.tensor(r.rotmats[None], dtype=torch.float32)
     rot[0, 0] = torch.as_tensor(camera.rotation_to_view(r.rotmats[0]), dtype=torch.float32)
     transl = torch.tensor(camera.to_view(r.translation)[None], dtype=torch.float32)
-    return write_glb(path, body, torch.tensor(r.shape, dtype=torch.float32), rot, transl, dresser=dresser,
-                     tightness=tightness, camera=(k, image_hw), animation_name="photo", influences=influences)
+    shape = torch.tensor(r.shape, dtype=torch.float32)
+    outfit = None if dresser is None else outfit_animation(body, shape, rot, transl, dresser, tightness=tightness,
+                                                          influences=influences)
+    return write_glb(path, body, shape, rot, transl, outfit=outfit, camera=(k, image_hw), animation_name="photo",
+                     influences=influences)
 
 
 def write_people(folder: Path, src: Path, img, small, s: float, k_small, people: list[Reconstruction], rec,
@@ -54,12 +60,12 @@ def write_people(folder: Path, src: Path, img, small, s: float, k_small, people:
         write_person(folder / f"person_{i}", src, img, small, s, k_small, r, rec, options, dresser, focal_from, stamp)
     if options.overlay:
         meshes = [(r.vertices, rec.faces, OVERLAY_COLOURS[i % len(OVERLAY_COLOURS)]) for i, r in enumerate(people)]
-        paths.write_image(folder / "overlay.png", draw_overlay(small, meshes, k_small))
+        write_image(folder / "overlay.png", draw_overlay(small, meshes, k_small))
     index = {"source": str(src), "image_size": list(img.shape[:2]), "count": len(people),
              "people": [{"folder": f"person_{i}", "box": np.round(np.asarray(r.keypoints.box) / s, 1).tolist(),
                          "confidence": round(r.keypoints.confidence, 4)} for i, r in enumerate(people)],
              "made_from": stamp}
-    paths.write_text(folder / "people.json", json.dumps(index, indent=1))
+    write_json(folder / "people.json", index)
 
 
 def write_one(folder: Path, src: Path, img, small, s: float, k_small, people: list[Reconstruction], rec,
@@ -74,8 +80,7 @@ def write_person(folder: Path, src: Path, img, small, s: float, k_small, r: Reco
     folder.mkdir(parents=True, exist_ok=True)
     faces, tightness = rec.faces, options.tightness
     influences = None if options.all_influences else INFLUENCES
-    mesh = trimesh.Trimesh(r.vertices, faces, process=False)
-    paths.atomic_write(folder / "body.obj", lambda t: mesh.export(t, file_type="obj"))
+    write_mesh(folder / "body.obj", r.vertices, faces)
     write_rigged_glb(folder / "body.glb", rec.body, r, small.shape[:2], k_small, influences=influences)
     write_pose_bvh(folder / "pose.bvh", rec.body, r)
     meshes = [(r.vertices, faces, BODY_RGBA)]
@@ -85,17 +90,16 @@ def write_person(folder: Path, src: Path, img, small, s: float, k_small, r: Reco
         d = dresser(rec.body, torch.tensor(r.rotmats[None], dtype=torch.float32),
                     torch.tensor(r.shape, dtype=torch.float32), torch.tensor(r.translation[None], dtype=torch.float32),
                     up=torch.tensor(camera.HALF_TURN_X, dtype=torch.float32), tightness=tightness)
-        cloth = trimesh.Trimesh(d.vertices[0], d.faces, process=False)
-        paths.atomic_write(folder / "outfit.obj", lambda t: cloth.export(t, file_type="obj"))
+        write_mesh(folder / "outfit.obj", d.vertices[0], d.faces)
         write_rigged_glb(folder / "dressed.glb", rec.body, r, small.shape[:2], k_small, dresser, tightness,
                          influences)
         meshes = [(r.vertices, faces, DRESSED_BODY_RGBA), (d.vertices[0], d.faces, OUTFIT_RGBA)]
     if options.overlay:
-        paths.write_image(folder / "overlay.png", draw_overlay(small, meshes, k_small))
+        write_image(folder / "overlay.png", draw_overlay(small, meshes, k_small))
         if min(small.shape[:2]) >= 64:
             side = draw_meshes([(camera.to_view(m[0]), m[1], m[2]) for m in meshes],
                                size=(small.shape[0] // 2 * 2, ) * 2, yaw_deg=90)
-            paths.write_image(folder / "side.png", side)
+            write_image(folder / "side.png", side)
     js = r.to_json()
     if s != 1.0:  # back to the original image's pixels: same 3D, focal and 2D scaled by 1/s
         k = r.K.copy()
@@ -116,4 +120,4 @@ def write_person(folder: Path, src: Path, img, small, s: float, k_small, r: Reco
             js["outfit"]["garment_model"] = dresser.garment_model
     js["files"] = sorted(p.name for p in folder.iterdir() if not p.name.startswith("."))
     js["made_from"] = stamp
-    paths.write_text(folder / "result.json", json.dumps(js, indent=1))
+    write_json(folder / "result.json", js)

@@ -145,8 +145,8 @@ def dresser_for(options: RunOptions) -> Dresser | None:
             raise ReconError("--tightness needs --outfit")
         return None
     dresser = Dresser(options.outfit, garment_model=options.garment_model)
-    if options.tightness is not None and dresser.taylor is not None:
-        raise ReconError("--tightness is the resizer's: the Taylor garment model has none")
+    if options.tightness is not None and not dresser.garment.resizes:
+        raise ReconError(f"--tightness is the resizer's: the {dresser.garment.label} garment model has none")
     if options.tightness is not None and not dresser.has_resizer:
         raise ReconError(f"--tightness needs a trained resizer for {options.outfit}: "
                          f"run `recon garment resize --outfit {options.outfit}`")

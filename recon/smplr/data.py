@@ -16,6 +16,7 @@ from tqdm import tqdm
 
 from recon import paths
 from recon.body import lbs
+from recon.body.base import BodyModel
 from recon.poses.sampler import PoseSampler, ShapeSampler
 
 log = logging.getLogger(__name__)
@@ -28,7 +29,8 @@ def view_rotations(n: int, rng: np.random.Generator) -> np.ndarray:
     return Rotation.from_euler("YXZ", np.stack([yaw, pitch, roll], 1), degrees=True).as_matrix()
 
 
-def generate(body, split: str, n: int, seed: int, noise_deg: float, chunk: int = 2048) -> dict[str, torch.Tensor]:
+def generate(body: BodyModel, split: str, n: int, seed: int, noise_deg: float, chunk: int = 2048) -> dict[str,
+             torch.Tensor]:
     ps = PoseSampler(body, split=split, noise_deg=noise_deg, seed=seed)
     ss = ShapeSampler(body, seed=seed + 1)
     rng = np.random.default_rng(seed + 2)
@@ -46,7 +48,7 @@ def generate(body, split: str, n: int, seed: int, noise_deg: float, chunk: int =
     return {"points": torch.cat(pts), "rotmats": torch.cat(rots), "shape": torch.cat(shapes)}
 
 
-def load_or_generate(body, split: str, n: int, seed: int, noise_deg: float) -> dict[str, torch.Tensor]:
+def load_or_generate(body: BodyModel, split: str, n: int, seed: int, noise_deg: float) -> dict[str, torch.Tensor]:
     path = paths.cache_dir() / f"smplr-data-{split}-{n}-s{seed}-n{noise_deg:g}.pt"
     if path.exists():
         return torch.load(path, weights_only=True)

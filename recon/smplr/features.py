@@ -9,6 +9,7 @@ from __future__ import annotations
 import torch
 
 from recon.body import skeleton
+from recon.body.base import BodyModel
 
 CHILDREN = torch.arange(1, skeleton.NUM_POINTS)
 PARENTS = torch.tensor(skeleton.KINTREE_PLUS[1:])
@@ -32,7 +33,7 @@ def relative_distances(points: torch.Tensor, template: torch.Tensor) -> torch.Te
     return relative_vectors(points).norm(dim=-1) - template
 
 
-def template_distances(body) -> torch.Tensor:
+def template_distances(body: BodyModel) -> torch.Tensor:
     with torch.no_grad():
         return relative_vectors(body(points_only=True).points).norm(dim=-1)[0]
 

@@ -15,6 +15,7 @@ from torch import nn
 
 from recon import camera, paths
 from recon.body import BodyOutput, default_body
+from recon.body.base import BodyModel
 from recon.errors import ReconError
 from recon.metrics import similarity_transform
 from recon.smplr import features
@@ -45,14 +46,14 @@ class PlacedBodies:
 
 
 class SMPLR(nn.Module):
-    def __init__(self, body, omega: PoseNet, psi: ShapeNet, dae3d: DenoisingAutoencoder | None = None,
+    def __init__(self, body: BodyModel, omega: PoseNet, psi: ShapeNet, dae3d: DenoisingAutoencoder | None = None,
                  dae2d: DenoisingAutoencoder | None = None):
         super().__init__()
         self.body, self.omega, self.psi, self.dae3d, self.dae2d = body, omega, psi, dae3d, dae2d
         self.register_buffer("template", features.template_distances(body), persistent=False)
 
     @classmethod
-    def load(cls, body=None, path: str | Path | None = None) -> SMPLR:
+    def load(cls, body: BodyModel | None = None, path: str | Path | None = None) -> SMPLR:
         """Load trained weights (``torch.load(weights_only=True)``; float16 files are read as float32)."""
         body = body or default_body()
         ck = paths.load_checkpoint(path or WEIGHTS, "recon smplr train")

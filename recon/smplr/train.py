@@ -19,6 +19,7 @@ from torch import nn
 
 from recon import paths
 from recon.body import default_body
+from recon.body.base import BodyModel
 from recon.errors import MissingFile
 from recon.smplr import features, noise
 from recon.smplr.data import load_or_generate
@@ -73,7 +74,7 @@ def _augment(points, gen, sigma_mm):
 class Stage:
     """One training stage: builds its networks, computes its loss, evaluates on val."""
 
-    def __init__(self, name, cfg: TrainConfig, body, template):
+    def __init__(self, name, cfg: TrainConfig, body: BodyModel, template):
         self.name, self.cfg, self.body, self.template = name, cfg, body, template
         self.nets: dict[str, nn.Module] = {}
         if name in ("dae3d", "dae2d"):
@@ -112,7 +113,7 @@ class Stage:
         return total
 
 
-def train_stage(name: str, cfg: TrainConfig, body, train, val, progress: bool = True) -> dict:
+def train_stage(name: str, cfg: TrainConfig, body: BodyModel, train, val, progress: bool = True) -> dict:
     """Train one stage (resuming from ``work_dir()/name`` if it was interrupted); returns its log."""
     torch.manual_seed(cfg.seed)
     gen = torch.Generator().manual_seed(cfg.seed + zlib.crc32(name.encode()) % 1000)
@@ -147,7 +148,7 @@ def train_stage(name: str, cfg: TrainConfig, body, train, val, progress: bool = 
     return {"stage": name, "best_val_loss": log["best"], "steps": log["steps"], "history": log["history"]}
 
 
-def export(cfg: TrainConfig, body, out: Path) -> Path:
+def export(cfg: TrainConfig, body: BodyModel, out: Path) -> Path:
     """Bundle the best networks of every stage into one weights file (loaded by SMPLR.load):
     Omega and Psi from the fine-tuning stage when it ran, else from their own stages."""
     ck = {"num_shape": body.num_shape_params, "train_config": json.dumps(asdict(cfg)),

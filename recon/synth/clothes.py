@@ -18,6 +18,7 @@ import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
+from recon.body.base import BodyModel
 from recon.garment import mesh, store
 from recon.garment.deepsd.model import DeePSD, OutfitGraph
 from recon.garment.outfits import OutfitSampler
@@ -67,7 +68,7 @@ class Wardrobe:
     each), of the held-out distribution (``held_out``: the other domain's) or the training one (the
     training generator's). ``body``: the float64 body model."""
 
-    def __init__(self, body, seed: int, n_random: int = 8, presets: bool = True, held_out: bool = True):
+    def __init__(self, body: BodyModel, seed: int, n_random: int = 8, presets: bool = True, held_out: bool = True):
         self.body = body
         self.outfits: list[Outfit64] = []
         for name in PRESETS if presets else ():

@@ -15,6 +15,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from recon import camera
+from recon.body.base import BodyModel
 from recon.render import look
 from recon.synth import photos
 from recon.synth.clothes import vertex_normals
@@ -26,7 +27,7 @@ MAX_PEOPLE = 10
 class EmptySampler:
     """Sample i: a person-free other-domain frame (rgb, its JPEG, K)."""
 
-    def __init__(self, body, split: str, seed: int, cfg: OtherConfig | None = None):
+    def __init__(self, body: BodyModel, split: str, seed: int, cfg: OtherConfig | None = None):
         self.seed, self.cfg = seed, cfg or OtherConfig()
         self.names = photos.other_photo_names()
 
@@ -66,7 +67,7 @@ class CrowdConfig:
 class CrowdSampler(OtherSceneSampler):
     """Sample i: a street scene of the other domain with several people."""
 
-    def __init__(self, body, split: str, seed: int, cfg: CrowdConfig | None = None, pool: int = 2048,
+    def __init__(self, body: BodyModel, split: str, seed: int, cfg: CrowdConfig | None = None, pool: int = 2048,
                  random_outfits: int = OtherConfig.random_outfits):
         super().__init__(body, split, seed, OtherConfig(occluder_prob=0.0, random_outfits=random_outfits), pool)
         self.crowd = cfg or CrowdConfig()

@@ -23,6 +23,7 @@ from tqdm import tqdm
 
 from recon import paths
 from recon.body import default_body
+from recon.body.base import BodyModel
 from recon.errors import MissingFile, ReconError
 from recon.executor import ExecutorConfig, WorkerLost, WorkerSpec, map_tasks
 from recon.synth.crowd import CrowdConfig, CrowdSampler, EmptySampler
@@ -70,12 +71,12 @@ def bench_config(name: str):
     return KINDS[bench_kind(name)][1](**BENCHMARKS[name].get("config", {}))
 
 
-def make_sampler(kind: str, body, split: str, seed: int, cfg):
+def make_sampler(kind: str, body: BodyModel, split: str, seed: int, cfg):
     """The scene sampler of a generator kind (``KINDS``)."""
     return KINDS[kind][0](body, split, seed, cfg)
 
 
-def bench_sampler(name: str, body):
+def bench_sampler(name: str, body: BodyModel):
     """The sampler that renders sample i of a fixed benchmark on the fly."""
     b = BENCHMARKS[BENCHMARKS[name].get("view", name)]
     return make_sampler(bench_kind(name), body, b["split"], b["seed"], bench_config(name))

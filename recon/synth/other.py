@@ -39,6 +39,7 @@ from anny.shape_distribution import SimpleShapeDistribution
 from scipy.spatial.transform import Rotation
 
 from recon import camera
+from recon.body.base import BodyModel
 from recon.poses.sampler import PoseSampler
 from recon.render import look
 from recon.render.raster import Rasterizer
@@ -76,7 +77,7 @@ class OtherSceneSampler:
     """Draws and renders sample ``i`` of the other domain's (split, seed) stream; ``body`` is the
     body model (anny)."""
 
-    def __init__(self, body, split: str, seed: int, cfg: OtherConfig | None = None, pool: int = 2048):
+    def __init__(self, body: BodyModel, split: str, seed: int, cfg: OtherConfig | None = None, pool: int = 2048):
         cfg = cfg or OtherConfig()
         self.split, self.seed, self.cfg = split, seed, cfg
         self.body = copy.deepcopy(body).double()

@@ -23,6 +23,7 @@ from scipy.spatial.transform import Rotation
 
 from recon import camera
 from recon.body import skeleton
+from recon.body.base import BodyModel
 from recon.poses.sampler import PoseSampler, ShapeSampler
 from recon.render.raster import Rasterizer
 from recon.synth.clothes import Wardrobe
@@ -173,7 +174,7 @@ class SceneSampler:
     poses, 4,096 shapes), batch-sampled for speed; sample i picks from them with its own RNG
     and adds a random yaw, so it stays reproducible on its own."""
 
-    def __init__(self, body, split: str, seed: int, cfg: SynthConfig | None = None, pool: int = 4096):
+    def __init__(self, body: BodyModel, split: str, seed: int, cfg: SynthConfig | None = None, pool: int = 4096):
         cfg = cfg or SynthConfig()
         self.split, self.seed, self.cfg = split, seed, cfg
         # the geometry in float64: rounded to float32 it is the same on every CPU's float kernels

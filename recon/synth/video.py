@@ -32,6 +32,8 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from recon import camera, paths
+from recon.body.base import BodyModel
+from recon.export.media import write_mp4
 from recon.poses.mocap import FPS, MocapPoses
 from recon.poses.sampler import ShapeSampler
 from recon.render.raster import Rasterizer, look_at
@@ -181,7 +183,7 @@ class ClipTruth:
 class ClipRenderer:
     """Renders ``ClipSpec`` clips with one body model and rasteriser (reuse it across clips)."""
 
-    def __init__(self, body, poses: MocapPoses | None = None):
+    def __init__(self, body: BodyModel, poses: MocapPoses | None = None):
         self.body = copy.deepcopy(body).double()  # float64 geometry, as the image generator
         self.poses = poses or MocapPoses.load()
         self.by_name = {c["name"]: i for i, c in enumerate(self.poses.clips)}
@@ -343,4 +345,4 @@ def laid_on_ground(img: np.ndarray, photo: np.ndarray, centre: np.ndarray, k: np
 
 def write_clip(frames: list[np.ndarray], path: Path, fps: float = FPS) -> Path:
     """The frames as an MP4 (OpenCV's MPEG-4 part 2 at high quality), atomically."""
-    return paths.write_mp4(path, frames, fps, frames[0].shape[:2], quality=100)
+    return write_mp4(path, frames, fps, frames[0].shape[:2], quality=100)

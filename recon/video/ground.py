@@ -13,6 +13,7 @@ import numpy as np
 import torch
 
 from recon.body import skeleton
+from recon.body.base import BodyModel
 
 FOOT_POINTS = {  # per foot: ankle, foot joint, toe tip landmark (J+ indices)
     "left": (skeleton.JOINT_NAMES.index("left_ankle"), skeleton.JOINT_NAMES.index("left_foot"),
@@ -23,7 +24,7 @@ FOOT_POINTS = {  # per foot: ankle, foot joint, toe tip landmark (J+ indices)
 NECK = skeleton.JOINT_NAMES.index("neck")
 
 
-def sole_height(body, shape: torch.Tensor) -> float:
+def sole_height(body: BodyModel, shape: torch.Tensor) -> float:
     """How high the foot joint is above the sole in the rest pose (metres)."""
     with torch.no_grad():
         o = body(shape=shape)

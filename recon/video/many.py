@@ -10,14 +10,13 @@ input: done, unchanged (finished earlier from the same file and options) and fai
 """
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from recon import paths
 from recon.errors import ReconError
 from recon.executor import ExecutorConfig, WorkerLost, WorkerSpec, run_job
+from recon.export.records import write_json
 from recon.pipeline import Reconstructor, ReconstructorConfig
 from recon.run import check_writable
 from recon.version import __version__
@@ -118,6 +117,6 @@ def videos(inputs: list[str | Path], out: str | Path, options: VideoOptions | No
     finally:
         summary.seconds = time.time() - t0
         summary.done = dict(sorted(summary.done.items(), key=lambda kv: keys.index(kv[0])))
-        paths.write_text(out / "videos.json", json.dumps(summary.to_json(), indent=1))
+        write_json(out / "videos.json", summary.to_json())
     log(summary.line())
     return summary

@@ -13,7 +13,6 @@ pretend to have seen it.
 """
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -22,10 +21,13 @@ import numpy as np
 import roma
 import torch
 
-from recon import paths
 from recon.body import skeleton
-from recon.garment.gltf import INFLUENCES, write_glb
-from recon.poses.bvh import write_bvh
+from recon.body.base import BodyModel
+from recon.export.bvh import write_bvh
+from recon.export.glb import INFLUENCES, write_glb
+from recon.export.media import write_image
+from recon.export.records import write_json
+from recon.garment.morph import outfit_animation
 from recon.render.raster import Rasterizer, look_at
 
 MAX_DRAWN_GAP = 1.0  # seconds: a longer bridged gap is left out of the overlay
@@ -52,7 +54,7 @@ class WorldMotion:
     # (T, 3) its move where it travelled (X_f = R_f X_ref + t_f for a point); None: it did not
     camera_shifts: np.ndarray | None = None
 
-    def vertices(self, body, f: int, stop: int | None = None) -> np.ndarray:
+    def vertices(self, body: BodyModel, f: int, stop: int | None = None) -> np.ndarray:
         """The body's vertices (V, 3) in frame ``f``, world frame; with ``stop``: frames f..stop-1
         (stop - f, V, 3) in one call."""
         last = f + 1 if stop is None else stop
@@ -91,7 +93,8 @@ class WorldMotion:
         return turns @ r.T, turns @ o + shifts
 
 
-def write_track(folder: Path, body, m: WorldMotion, fps: float, frame_index: list[int], frame_time: list[float],
+def write_track(folder: Path, body: BodyModel, m: WorldMotion, fps: float, frame_index: list[int],
+                frame_time: list[float],
                 camera: dict, dresser=None, tightness=None, all_influences: bool = False) -> list[str]:
     """The track's files (module doc) in ``folder``; motion.json last. Returns their names."""
     folder.mkdir(parents=True, exist_ok=True)
@@ -100,9 +103,11 @@ def write_track(folder: Path, body, m: WorldMotion, fps: float, frame_index: lis
         rest = body(shape=shape[None]).joints[0].numpy()
     write_bvh(folder / "motion.bvh", list(skeleton.JOINT_NAMES), list(skeleton.JOINT_PARENTS), rest, m.rotmats,
               m.translation, fps=fps)
-    write_glb(folder / "animated.glb", body, shape, torch.tensor(m.rotmats, dtype=torch.float32),
-              torch.tensor(m.translation, dtype=torch.float32), fps, dresser, tightness=tightness,
-              influences=None if all_influences else INFLUENCES,
+    rotmats, transl = torch.tensor(m.rotmats, dtype=torch.float32), torch.tensor(m.translation, dtype=torch.float32)
+    influences = None if all_influences else INFLUENCES
+    outfit = None if dresser is None else outfit_animation(body, shape, rotmats, transl, dresser, fps, tightness,
+                                                          influences)
+    write_glb(folder / "animated.glb", body, shape, rotmats, transl, fps, outfit, influences=influences,
               animation_name=f"track_{m.id}")
     with torch.no_grad():
         joints = body(torch.tensor(m.rotmats, dtype=torch.float32), shape[None],
@@ -127,7 +132,7 @@ def write_track(folder: Path, body, m: WorldMotion, fps: float, frame_index: lis
         "translation": r(m.translation),
         "files": ["motion.bvh", "animated.glb", "motion.json"],
     }
-    paths.write_text(folder / "motion.json", json.dumps(info, indent=1))
+    write_json(folder / "motion.json", info)
     return info["files"]
 
 
@@ -136,7 +141,8 @@ class OverlayFrames:
     frame, beside a 3D view of them on the clip's ground, in its world frame (a fixed camera
     above and in front). Drawn by the fast rasteriser of the synthetic benchmark (flat shading)."""
 
-    def __init__(self, body, tracks: list[WorldMotion], k: np.ndarray, size: tuple[int, int], fps: float = 30.0):
+    def __init__(self, body: BodyModel, tracks: list[WorldMotion], k: np.ndarray, size: tuple[int, int],
+                 fps: float = 30.0):
         self.body, self.tracks, self.k = body, tracks, np.asarray(k, float)
         self.drawn = [drawn_frames(t.seen, int(round(MAX_DRAWN_GAP * fps))) for t in tracks]
         self.faces = body.faces.cpu().numpy()
@@ -230,7 +236,7 @@ def write_portrait(path: Path, rgb: np.ndarray, box) -> None:
     scale = min(1.0, PORTRAIT_HEIGHT / crop.shape[0])
     if scale < 1.0:
         crop = cv2.resize(crop, (max(1, round(crop.shape[1] * scale)), PORTRAIT_HEIGHT), interpolation=cv2.INTER_AREA)
-    paths.write_image(path, np.ascontiguousarray(crop))
+    write_image(path, np.ascontiguousarray(crop))
 
 
 def drawn_frames(seen: np.ndarray, max_gap: int) -> np.ndarray:

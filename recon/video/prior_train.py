@@ -36,6 +36,7 @@ import torch
 
 from recon import metrics, report
 from recon.body import default_body
+from recon.body.base import BodyModel
 from recon.poses.mocap import MocapPoses
 from recon.poses.sampler import ShapeSampler
 from recon.video import prior as motion_prior
@@ -66,7 +67,7 @@ class Motions:
     """Windows of the mocap clips of one split, posed on random bodies: clean, and as the
     per-frame pass would see them (``Noise``), as world J+."""
 
-    def __init__(self, body, split: str, frames: int, seed: int):
+    def __init__(self, body: BodyModel, split: str, frames: int, seed: int):
         mocap = MocapPoses.load(split)
         self.body, self.frames = body, frames
         self.shapes = ShapeSampler(body, seed=seed)

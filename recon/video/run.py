@@ -36,7 +36,10 @@ import torch
 from tqdm import tqdm
 
 from recon import camera, paths
+from recon.body.base import BodyModel
 from recon.errors import ReconError
+from recon.export import media
+from recon.export.records import write_json
 from recon.fit import FitConfig
 from recon.garment.dress import Dresser
 from recon.io import file_digest
@@ -214,7 +217,7 @@ def video(path: str | Path, out: str | Path, options: VideoOptions | None = None
                     "seen": int(m.seen.sum()), "files": track_files[m.id]} for m in motions],
         "seconds": {k_: round(v, 2) for k_, v in seconds.items()},
         "frames_per_second": round(len(frames.index) / max(sum(seconds.values()), 1e-9), 2),
-        "overlay_codec": ("h264" if paths.h264_available() else "mpeg4") if options.overlay else None,
+        "overlay_codec": ("h264" if media.h264_available() else "mpeg4") if options.overlay else None,
         "static_camera": not moving, "camera": note,
         "camera_turned_degrees": round(estimate.degrees, 2) if estimate.known else None,
         "camera_turn_measured": round(estimate.measured_share, 3),
@@ -223,7 +226,7 @@ def video(path: str | Path, out: str | Path, options: VideoOptions | None = None
         "camera_parallax": round(float(np.median(estimate.parallax)), 3) if len(estimate.parallax) else None,
         "made_from": made_from,
     }
-    paths.write_text(out / "video.json", json.dumps(summary, indent=1))
+    write_json(out / "video.json", summary)
     if page:
         try_write_page(out, log, kind="video")
     log(f"{len(frames.index)} frames, {len(motions)} track(s), {summary['frames_per_second']} frames/s -> {out}")
@@ -342,7 +345,7 @@ def camera_centres(rotations: np.ndarray, shifts: np.ndarray) -> np.ndarray:
     return -np.einsum("tji,tj->ti", rotations, shifts)
 
 
-def _write_overlay(path: Path, src: FrameSource, body, motions: list[WorldMotion], k, fps: float,
+def _write_overlay(path: Path, src: FrameSource, body: BodyModel, motions: list[WorldMotion], k, fps: float,
                    progress: bool) -> None:
     h, w = src.size
     draw = OverlayFrames(body, motions, k, (h, w), fps)
@@ -355,7 +358,7 @@ def _write_overlay(path: Path, src: FrameSource, body, motions: list[WorldMotion
             yield draw(last, position)
             bar.update(1)
     try:
-        paths.write_mp4(path, ahead(frames(), 2), fps, (h, 2 * w), browser=True)  # drawn while encoded
+        media.write_mp4(path, ahead(frames(), 2), fps, (h, 2 * w), browser=True)  # drawn while encoded
     finally:
         bar.close()
         draw.close()

@@ -39,6 +39,7 @@ import torch
 from scipy.ndimage import gaussian_filter1d
 
 from recon import camera
+from recon.body.base import BodyModel
 from recon.fit import linear_rest_geometry
 from recon.video import prior as motion_prior
 from recon.video.ground import FOOT_POINTS, ground_plane, lowest_plane, planted_feet, sole_height, torso_up
@@ -172,7 +173,7 @@ def planted(inp: TrackInput, cfg: SmoothConfig) -> np.ndarray:
     return out
 
 
-def smooth_track(body, inp: TrackInput, cfg: SmoothConfig | None = None) -> TrackMotion:
+def smooth_track(body: BodyModel, inp: TrackInput, cfg: SmoothConfig | None = None) -> TrackMotion:
     """The track's motion (module doc) in the reference frame, and its ground plane."""
     cfg = cfg or SmoothConfig()
     if cfg.overlap < 2 or cfg.window <= cfg.overlap:
@@ -237,8 +238,8 @@ def windows(frames: int, window: int, overlap: int) -> list[tuple[int, int]]:
         a = b - overlap
 
 
-def _optimise(body, inp: TrackInput, cfg: SmoothConfig, rot0: np.ndarray, tr0: np.ndarray, contact: np.ndarray,
-              rest: tuple[torch.Tensor, torch.Tensor], target: np.ndarray | None = None
+def _optimise(body: BodyModel, inp: TrackInput, cfg: SmoothConfig, rot0: np.ndarray, tr0: np.ndarray,
+              contact: np.ndarray, rest: tuple[torch.Tensor, torch.Tensor], target: np.ndarray | None = None
               ) -> tuple[np.ndarray, np.ndarray]:
     """One window's optimisation (module doc), started from the per-frame ``rot0``, ``tr0``, with
     the body's ``rest`` geometry (1, ...), the foot points pinned (``contact``: (T, 2, 3), per foot

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from recon.body.base import BodyModel
 from recon.video.ground import common_ground, ground_height, to_world
 from recon.video.outputs import WorldMotion
 from recon.video.perframe import Detections
@@ -29,7 +30,7 @@ class FittedTrack:
     moves: np.ndarray | None
 
 
-def fit_track(body, t: Track, dets: Detections, k: np.ndarray, size, cfg: SmoothConfig,
+def fit_track(body: BodyModel, t: Track, dets: Detections, k: np.ndarray, size, cfg: SmoothConfig,
               rotations: np.ndarray | None = None, shifts: np.ndarray | None = None) -> FittedTrack:
     """The track's one optimisation (``smooth_track``); ``rotations``: (frames, 3, 3) each frame's
     camera turn from the first one's, or None (still); ``shifts``: (frames, 3) its move where it

@@ -6,10 +6,9 @@ import sys
 from pathlib import Path
 
 import torch
-import trimesh
 
-from recon import paths
 from recon.body import anny_model, create
+from recon.export.mesh import write_mesh
 from recon.poses import mocap
 
 
@@ -32,10 +31,7 @@ def body_export(args) -> None:
     body = create(args.model)
     with torch.no_grad():
         v = body.rest_geometry(body.mean_shape[None])[0][0].numpy()
-    mesh = trimesh.Trimesh(v, body.faces.numpy(), process=False)
-    out = Path(args.out)
-    paths.atomic_write(out, lambda t: mesh.export(t, file_type=out.suffix[1:].lower()))
-    print(out)
+    print(write_mesh(args.out, v, body.faces.numpy()))
 
 
 def poses_build(args) -> None:

@@ -18,15 +18,18 @@ import roma
 import torch
 import trimesh
 
-from recon import paths
-from recon.animate import Motion, load_motion, on_the_ground, render_motion, write_video
+from recon.animate import Motion, load_motion, on_the_ground, render_motion
 from recon.body import default_body
+from recon.body.base import BodyModel
 from recon.errors import MissingFile, ReconError
+from recon.export.glb import BlendAnimation, write_glb, written_weights
+from recon.export.media import write_video
+from recon.export.mesh import write_mesh
+from recon.export.records import write_json
 from recon.garment import store
 from recon.garment.author.data import teacher_config
 from recon.garment.author.model import AuthorModel, Session, clip_inputs
 from recon.garment.dress import DressedOutfit, Dresser
-from recon.garment.gltf import BlendAnimation, write_glb, written_weights
 from recon.garment.integrate import unpose
 from recon.garment.ncs.model import smooth_time
 from recon.garment.pbns.model import blend_transforms
@@ -62,7 +65,7 @@ class Authoring:
     -> (T, N, 3); ``set_motion`` after a body-motion edit; ``fps``: the last propagation's rate."""
 
     def __init__(self, outfit: str, motion: Motion | str | Path, loop: bool = False, fade: int | None = None,
-                 body=None, max_seconds: float | None = None):
+                 body: BodyModel | None = None, max_seconds: float | None = None):
         """``motion``: a clip (``recon.animate.Motion``), or what ``load_motion`` reads (a .bvh, an .amc,
         a shipped clip's name), retargeted to the model's character; its first ``max_seconds``."""
         path = store.author_path(outfit)
@@ -181,11 +184,10 @@ def author(outfit: str, motion: str | Path, out: str | Path, keys: list[str] = (
     for frame in export:
         if not 0 <= frame < len(a):
             raise ReconError(f"--export {frame}: the clip {m.name} has frames 0..{len(a) - 1}")
-        mesh = trimesh.Trimesh(vertices[frame].numpy(), faces, process=False)
-        written[f"frame_{frame}"] = paths.write_text(out / f"frame_{frame:04d}.obj", mesh.export(file_type="obj"))
+        written[f"frame_{frame}"] = write_mesh(out / f"frame_{frame:04d}.obj", vertices[frame].numpy(), faces)
     anim, worst = a.blend_animation(vertices)
     written["glb"] = write_glb(out / "authored.glb", body, a.shape, m.rotmats, m.transl, m.fps,
-                               garment=anim, animation_name=m.name)
+                               outfit=anim, animation_name=m.name)
     if render != "none":
         frames = render_motion(body, a.shape, m, size=size, progress=progress, dressed=a.dressed(vertices))
         written["video"] = write_video(out / f"authored.{render}", frames, m.fps)
@@ -195,6 +197,6 @@ def author(outfit: str, motion: str | Path, out: str | Path, keys: list[str] = (
             "source": "keyframes" if parsed else "NCS (no keyframe: the default material)",
             "propagation_frames_per_second": None if not parsed else round(a.fps, 1),
             "glb_max_error_mm": round(worst * 1000, 2), "files": {k: v.name for k, v in written.items()}}
-    written["json"] = paths.write_text(out / "authoring.json", json.dumps(info, indent=1))
+    written["json"] = write_json(out / "authoring.json", info)
     log(json.dumps(info, indent=1))
     return written

@@ -24,20 +24,19 @@ from __future__ import annotations
 
 import hashlib
 import json
-import multiprocessing as mp
 import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
-import torch
 from scipy.stats import qmc
 from tqdm import tqdm
 
 from recon import paths
 from recon.body import default_body
+from recon.body.base import BodyModel
+from recon.executor import ExecutorConfig, WorkerSpec, map_strict
 from recon.garment import losses, store
 from recon.garment.ncs.config import NCSTrainConfig
 from recon.garment.ncs.data import Chunk, Motions, Teacher, chunks_of
@@ -176,27 +175,29 @@ def sim_folder(cfg: AuthorDataConfig) -> Path:
     return paths.cache_dir() / "author-sims" / f"{cfg.outfit}-{hashlib.sha256(key.encode()).hexdigest()[:12]}"
 
 
-_WORKER: dict = {}
-
-
-def _worker_init(outfit: str, settle: int) -> None:
-    torch.set_num_threads(1)
-    _WORKER.update(body=default_body(), outfit=outfit, base=replace(teacher_config(outfit), settle=settle))
-
-
-def simulate(body, outfit: str, base: NCSTrainConfig, sim: Sim, motions: Motions | None = None) -> np.ndarray:
+def simulate(body: BodyModel, outfit: str, base: NCSTrainConfig, sim: Sim,
+             motions: Motions | None = None) -> np.ndarray:
     """One simulation's hanging part as posed offsets from PBNS's drape (T, n, 3) float16."""
     teacher = Teacher(body, outfit, fabric(base, sim.params), friction=sim.params.friction)
     motions = motions or Motions(body, teacher.shape, base.smooth_motion)
     return teacher(*motions.motion(sim.chunk)).detach().numpy().astype(np.float16)
 
 
-def _worker_run(sim: Sim) -> np.ndarray:
-    w = _WORKER
-    if "motions" not in w:  # on the body the outfit's PBNS was trained on, as the teacher's
-        shape = PBNS.load(store.trained_pbns(w["outfit"]))[1]["shape"][None]
-        w["motions"] = Motions(w["body"], shape, w["base"].smooth_motion)
-    return simulate(w["body"], w["outfit"], w["base"], sim, w["motions"])
+class Simulator:
+    """A worker (``recon.executor``) running the teacher's simulations of one outfit: the body
+    made once per process, the motions on the body the outfit's PBNS was trained on (as the
+    teacher's) at its first run; ``simulator(sim)`` is ``simulate``."""
+
+    def __init__(self, outfit: str, settle: int):
+        self.body, self.outfit = default_body(), outfit
+        self.base = replace(teacher_config(outfit), settle=settle)
+        self.motions: Motions | None = None
+
+    def __call__(self, sim: Sim) -> np.ndarray:
+        if self.motions is None:
+            shape = PBNS.load(store.trained_pbns(self.outfit))[1]["shape"][None]
+            self.motions = Motions(self.body, shape, self.base.smooth_motion)
+        return simulate(self.body, self.outfit, self.base, sim, self.motions)
 
 
 def generate(cfg: AuthorDataConfig, log=print) -> Path:
@@ -215,14 +216,11 @@ def generate(cfg: AuthorDataConfig, log=print) -> Path:
     if todo:
         log(f"simulating {len(todo)} of {len(sims)} runs ({sum(s.chunk.frames + cfg.settle for s in todo)} frames) "
             f"in {cfg.workers} processes -> {folder}")
-        ctx = mp.get_context("spawn")
         try:  # the time spent counts even when the job is stopped (the runs it finished are kept)
-            with ProcessPoolExecutor(cfg.workers, mp_context=ctx, initializer=_worker_init,
-                                     initargs=(cfg.outfit, cfg.settle)) as pool:
-                futures = {pool.submit(_worker_run, s): s for s in todo}
-                for fut in tqdm(as_completed(futures), total=len(futures), desc="simulations", unit="run"):
-                    s, x = futures[fut], fut.result()
-                    paths.atomic_write(folder / f"{s.name}.npy", lambda t, x=x: _save_npy(t, x))
+            jobs = map_strict(WorkerSpec(Simulator, (cfg.outfit, cfg.settle)), todo,
+                             ExecutorConfig(workers=cfg.workers, threads=1))
+            for k, x in tqdm(jobs, total=len(todo), desc="simulations", unit="run"):
+                paths.atomic_write(folder / f"{todo[k].name}.npy", lambda t, x=x: _save_npy(t, x))
         finally:
             add_seconds(folder / "timing.json", time.time() - t0, cfg.workers)
     return folder

@@ -31,6 +31,7 @@ import torch
 
 from recon import report
 from recon.body import default_body
+from recon.body.base import BodyModel
 from recon.garment import store
 from recon.garment.author.data import AuthorDataConfig, sim_folder, teacher_config, train_frames
 from recon.garment.author.model import (
@@ -139,7 +140,7 @@ def interpolate(values: torch.Tensor, frames: list[int], t: int) -> torch.Tensor
     return interpolate_latents(flat, frames, t).reshape(t, *values.shape[1:])
 
 
-def propagation(model: AuthorModel, sims, folder: Path, lead: int, body, pbns: PBNS, shape: torch.Tensor,
+def propagation(model: AuthorModel, sims, folder: Path, lead: int, body: BodyModel, pbns: PBNS, shape: torch.Tensor,
                 log=print, baselines: bool = True) -> dict:
     """Per ratio and method the mean vertex error (mm) of the hanging part over the frames after the
     lead, over all windows x parameter sets; and material carried from another window.
@@ -218,7 +219,8 @@ def propagation(model: AuthorModel, sims, folder: Path, lead: int, body, pbns: P
             "material_from_other_clip_mm": float(np.mean(carried)) if carried else None}
 
 
-def speed(model: AuthorModel, body, pbns: PBNS, shape: torch.Tensor, frames: int = 300, repeats: int = 5) -> dict:
+def speed(model: AuthorModel, body: BodyModel, pbns: PBNS, shape: torch.Tensor, frames: int = 300,
+          repeats: int = 5) -> dict:
     """Frames a second of re-propagating a ``frames``-frame test clip with 2 keyframes after a
     keyframe edit (the motion's inputs kept) and after a motion edit (signatures and the base cloth
     redone), on one thread."""
@@ -230,7 +232,7 @@ def speed(model: AuthorModel, body, pbns: PBNS, shape: torch.Tensor, frames: int
         torch.set_num_threads(threads)
 
 
-def _speed(model: AuthorModel, body, pbns: PBNS, shape: torch.Tensor, frames: int, repeats: int) -> dict:
+def _speed(model: AuthorModel, body: BodyModel, pbns: PBNS, shape: torch.Tensor, frames: int, repeats: int) -> dict:
     m = Motions(body, shape[None], teacher_config(model.outfit).smooth_motion)
     clips = MocapPoses.load("test")
     c = int(max(np.unique(clips.clip), key=lambda k: (clips.clip == k).sum()))
@@ -263,8 +265,8 @@ def ensure_variant(outfit: str, variant: str, log=print) -> AuthorModel:
     return AuthorModel.load(model_path(cfg))[0]
 
 
-def learning_curve(outfit: str, sims, folder: Path, lead: int, done: dict, body, pbns: PBNS, shape: torch.Tensor,
-                   log=print) -> dict:
+def learning_curve(outfit: str, sims, folder: Path, lead: int, done: dict, body: BodyModel, pbns: PBNS,
+                   shape: torch.Tensor, log=print) -> dict:
     """The model's propagation errors per ratio on the held-out ``sims`` for each train-set count of
     ``CURVE_SETS`` whose model is trained on the current simulations (``done``: {sets: errors}
     already measured); the other counts listed."""

@@ -34,6 +34,7 @@ from torch import nn
 
 from recon import paths
 from recon.body import skeleton
+from recon.body.base import BodyModel
 from recon.garment import store
 from recon.garment.ncs.model import NCS
 
@@ -103,7 +104,7 @@ def base_ncs(outfit: str, cfg: AuthorConfig) -> NCS | None:
 
 
 @torch.no_grad()
-def clip_inputs(body, pbns, shape: torch.Tensor, rotmats: torch.Tensor, transl: torch.Tensor, ncs=None,
+def clip_inputs(body: BodyModel, pbns, shape: torch.Tensor, rotmats: torch.Tensor, transl: torch.Tensor, ncs=None,
                 chunk: int = 64) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """What a ``Session`` needs of a motion (T, 24, 3, 3), (T, 3) on the body of ``shape``: the
     cloth of the whole outfit the model's offsets are taken from (T, N, 3): PBNS's drape, or with

@@ -18,6 +18,7 @@ import scipy.sparse as sp
 import torch
 
 from recon.body import default_body
+from recon.body.base import BodyModel
 from recon.garment import store
 from recon.garment.author.data import (
     AuthorDataConfig,
@@ -77,7 +78,7 @@ class Outfit(NamedTuple):
     shape: torch.Tensor
 
 
-def hanging_outfit(body, outfit: str) -> Outfit:
+def hanging_outfit(body: BodyModel, outfit: str) -> Outfit:
     cfg = teacher_config(outfit)
     full, shape, _ = trained_outfit(body, store.trained_pbns(outfit))
     hanging, _ = moving_part(body, full, shape[None], cfg)
@@ -85,7 +86,7 @@ def hanging_outfit(body, outfit: str) -> Outfit:
     return Outfit(torch.from_numpy(idx), part_outfit(full, idx).faces, shape)
 
 
-def clip_motion(body, motions: Motions, sim: Sim, cfg: AuthorConfig):
+def clip_motion(body: BodyModel, motions: Motions, sim: Sim, cfg: AuthorConfig):
     """A simulation's motion: rotations, translation, heading (T, 3, 3), joints (T, 24, 3), signatures."""
     rot, transl = motions.motion(sim.chunk)
     with torch.no_grad():
@@ -94,7 +95,7 @@ def clip_motion(body, motions: Motions, sim: Sim, cfg: AuthorConfig):
     return rot, transl, yaw, joints, cfg.signature(joints, yaw)
 
 
-def load_frames(cfg: AuthorDataConfig, split: str, model: AuthorConfig, body=None, log=print,
+def load_frames(cfg: AuthorDataConfig, split: str, model: AuthorConfig, body: BodyModel | None = None, log=print,
                 dtype: torch.dtype = torch.float32) -> tuple[Frames, list[Sim], int]:
     """Every frame after the lead of ``split``'s simulations of ``plan(cfg)`` (the train split: of
     its ``train_sets`` first sets), the offsets from ``model.base``'s cloth in ``dtype`` (float16: the

@@ -15,9 +15,7 @@ from __future__ import annotations
 
 import hashlib
 import json
-import multiprocessing as mp
 import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -28,6 +26,8 @@ from tqdm import tqdm
 
 from recon import paths
 from recon.body import default_body
+from recon.body.base import BodyModel
+from recon.executor import ExecutorConfig, WorkerSpec, map_strict
 from recon.garment.data import pose_set, posed_bodies
 from recon.garment.deepsd.model import lbs_weights
 from recon.garment.drape import DrapeSolver, DrapeSolverConfig
@@ -75,7 +75,8 @@ def pose_split(split: str) -> str:
     return {"preset": "test"}.get(split, split)
 
 
-def sample_outfit(body, cfg: DeePSDDataConfig, split: str, index: int) -> tuple[str, Outfit, np.random.Generator]:
+def sample_outfit(body: BodyModel, cfg: DeePSDDataConfig, split: str, index: int) -> tuple[str, Outfit,
+                  np.random.Generator]:
     """The outfit ``index`` of ``split`` (deterministic), vertices shuffled within each garment, and
     the generator that goes on to choose its poses."""
     rng = np.random.default_rng([cfg.seed, SPLIT_SEED[split], index])
@@ -102,40 +103,41 @@ def shuffled(outfit: Outfit, rng: np.random.Generator) -> Outfit:
     return Outfit(out)
 
 
-_WORKER: dict = {}
+class OutfitDraper:
+    """A worker (``recon.executor``) draping generated outfits: the body and the pose pools made
+    once per process; ``draper((split, index))`` is ``drape_outfit``."""
 
+    def __init__(self, cfg: DeePSDDataConfig):
+        self.body, self.cfg = default_body(), cfg
+        self.rb = RestBody(self.body)
+        self.pools = {s: pose_set(s, cfg.pose_pool, cfg.min_pose_distance, cfg.seed) for s in ("train", "val", "test")}
 
-def _worker_init(cfg: DeePSDDataConfig) -> None:
-    torch.set_num_threads(1)
-    body = default_body()
-    pools = {s: pose_set(s, cfg.pose_pool, cfg.min_pose_distance, cfg.seed) for s in ("train", "val", "test")}
-    _WORKER.update(body=body, rb=RestBody(body), cfg=cfg, pools=pools)
+    def __call__(self, task: tuple[str, int]) -> dict:
+        return self.drape_outfit(*task)
 
-
-def drape_outfit(split: str, index: int) -> dict:
-    """Build outfit ``index`` of ``split`` and drape it at its poses: the record saved for it."""
-    w = _WORKER
-    body, cfg, rb = w["body"], w["cfg"], w["rb"]
-    t0 = time.time()
-    family, outfit, rng = sample_outfit(body, cfg, split, index)
-    pool = w["pools"][pose_split(split)]
-    n_poses = cfg.train_poses if split == "train" else cfg.eval_poses
-    if split in ("test", "preset"):  # every test outfit at the same held-out poses
-        rng = np.random.default_rng([cfg.seed, SPLIT_SEED["test"], 10 ** 6])
-    pick = rng.choice(len(pool), n_poses, replace=False)
-    rotmats = pool[pick]
-    weights = torch.from_numpy(lbs_weights(rb, outfit))
-    bv, bn, bt = posed_bodies(body, rotmats, body.mean_shape[None])
-    rest = torch.from_numpy(outfit.vertices).float()
-    skinned = BlendShapeGarment.apply_blend(rest, blend_transforms(weights, bt))
-    solver = DrapeSolver(outfit, cfg.drape)
-    drapes = torch.stack([solver(rest, skinned[k], bv[k], bn[k]) for k in range(len(rotmats))])
-    return {"split": split, "index": index, "family": family, "rest": rest, "faces": torch.from_numpy(outfit.faces),
-            "layer": torch.from_numpy(outfit.layer.astype(np.int8)),
-            "garment_id": torch.from_numpy(outfit.garment_id.astype(np.int8)),
-            "pinned": torch.from_numpy(outfit.pinned), "names": json.dumps([g.name for g in outfit.garments]),
-            "rotvec": roma.rotmat_to_rotvec(rotmats).float(), "drapes": drapes.float(),
-            "lbs_weights": weights, "seconds": time.time() - t0}
+    def drape_outfit(self, split: str, index: int) -> dict:
+        """Build outfit ``index`` of ``split`` and drape it at its poses: the record saved for it."""
+        body, cfg, rb = self.body, self.cfg, self.rb
+        t0 = time.time()
+        family, outfit, rng = sample_outfit(body, cfg, split, index)
+        pool = self.pools[pose_split(split)]
+        n_poses = cfg.train_poses if split == "train" else cfg.eval_poses
+        if split in ("test", "preset"):  # every test outfit at the same held-out poses
+            rng = np.random.default_rng([cfg.seed, SPLIT_SEED["test"], 10 ** 6])
+        pick = rng.choice(len(pool), n_poses, replace=False)
+        rotmats = pool[pick]
+        weights = torch.from_numpy(lbs_weights(rb, outfit))
+        bv, bn, bt = posed_bodies(body, rotmats, body.mean_shape[None])
+        rest = torch.from_numpy(outfit.vertices).float()
+        skinned = BlendShapeGarment.apply_blend(rest, blend_transforms(weights, bt))
+        solver = DrapeSolver(outfit, cfg.drape)
+        drapes = torch.stack([solver(rest, skinned[k], bv[k], bn[k]) for k in range(len(rotmats))])
+        return {"split": split, "index": index, "family": family, "rest": rest, "faces": torch.from_numpy(outfit.faces),
+                "layer": torch.from_numpy(outfit.layer.astype(np.int8)),
+                "garment_id": torch.from_numpy(outfit.garment_id.astype(np.int8)),
+                "pinned": torch.from_numpy(outfit.pinned), "names": json.dumps([g.name for g in outfit.garments]),
+                "rotvec": roma.rotmat_to_rotvec(rotmats).float(), "drapes": drapes.float(),
+                "lbs_weights": weights, "seconds": time.time() - t0}
 
 
 def generate(cfg: DeePSDDataConfig, log=print) -> Path:
@@ -147,13 +149,9 @@ def generate(cfg: DeePSDDataConfig, log=print) -> Path:
     t0 = time.time()
     if todo:
         log(f"draping {len(todo)} of {len(items(cfg))} outfits in {cfg.workers} processes -> {out}")
-        ctx = mp.get_context("spawn")
-        with ProcessPoolExecutor(cfg.workers, mp_context=ctx, initializer=_worker_init, initargs=(cfg,)) as pool:
-            futures = {pool.submit(drape_outfit, *it): it for it in todo}
-            for fut in tqdm(as_completed(futures), total=len(futures), desc="outfits", unit="outfit"):
-                rec = fut.result()
-                paths.atomic_write(out / record_name(rec["split"], rec["index"]),
-                                   lambda t, rec=rec: torch.save(rec, t))
+        jobs = map_strict(WorkerSpec(OutfitDraper, (cfg,)), todo, ExecutorConfig(workers=cfg.workers, threads=1))
+        for _, rec in tqdm(jobs, total=len(todo), desc="outfits", unit="outfit"):
+            paths.atomic_write(out / record_name(rec["split"], rec["index"]), lambda t, rec=rec: torch.save(rec, t))
     add_seconds(out / "timing.json", time.time() - t0, cfg.workers)
     return out
 

@@ -27,6 +27,7 @@ from torch.utils import benchmark
 
 from recon import report
 from recon.body import default_body
+from recon.body.base import BodyModel
 from recon.garment import store
 from recon.garment.collide import CollisionResolver
 from recon.garment.deepsd.data import DeePSDDataConfig, folder
@@ -174,7 +175,7 @@ def check(outfit: str) -> dict:
             "displacement_mm": float(d.norm(dim=-1).mean() * 1000)}
 
 
-def speed(body, model: DeePSD, repeats: int = 3) -> dict:
+def speed(body: BodyModel, model: DeePSD, repeats: int = 3) -> dict:
     """Seconds from a garment mesh file (the dress template, one piece) to W and D (loading,
     clean-up, push-out, nearest-body weights, graph, network; median of ``repeats``), and frames a
     second of a 12k-vertex outfit's result (LBS + blend shapes, given the posed body's joint

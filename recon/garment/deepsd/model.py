@@ -31,6 +31,7 @@ from scipy.spatial import cKDTree
 from torch import nn
 
 from recon import paths
+from recon.body.base import BodyModel
 from recon.garment import mesh, store
 from recon.garment.pbns.model import (
     PBNS,
@@ -215,7 +216,7 @@ class DeePSD(nn.Module):
         return m.eval(), ck
 
 
-def animation_model(body, outfit: str | Outfit, path: Path | None = None) -> tuple[PBNS, dict]:
+def animation_model(body: BodyModel, outfit: str | Outfit, path: Path | None = None) -> tuple[PBNS, dict]:
     """An outfit (a preset, a garment mesh's path or an ``Outfit``) made ready to animate by DeePSD,
     no training: (PBNS with its W and D, the checkpoint fields ``Dresser`` reads)."""
     model, _ = DeePSD.load(path or store.deepsd_path())

@@ -21,6 +21,7 @@ import roma
 import torch
 
 from recon.body import default_body
+from recon.body.base import BodyModel
 from recon.garment import losses, mesh, store
 from recon.garment.data import pose_set, posed_bodies
 from recon.garment.deepsd.data import DeePSDDataConfig, folder, generate, load_split
@@ -75,7 +76,7 @@ class Sample:
     """One draped outfit prepared for training: its graph, poses, joint transforms, posed bodies
     (vertices, normals) and drapes."""
 
-    def __init__(self, rec: dict, body, rb: RestBody):
+    def __init__(self, rec: dict, body: BodyModel, rb: RestBody):
         self.graph = OutfitGraph(rec["rest"].numpy(), rec["faces"].numpy(), rec["lbs_weights"].numpy(), rb.v, rb.n)
         self.rotmats = roma.rotvec_to_rotmat(rec["rotvec"])
         self.body_v, self.body_n, self.transforms = posed_bodies(body, self.rotmats, body.mean_shape[None])
@@ -91,7 +92,7 @@ class Sample:
         return self._phys
 
 
-def load_samples(body, split: str, data: DeePSDDataConfig) -> list[Sample]:
+def load_samples(body: BodyModel, split: str, data: DeePSDDataConfig) -> list[Sample]:
     rb = RestBody(body)
     return [Sample(r, body, rb) for r in load_split(folder(data), split)]
 
@@ -163,7 +164,8 @@ def train(cfg: DeePSDTrainConfig, log=print, generate_data: bool = True) -> dict
     return meta
 
 
-def train_physics(model: DeePSD, samples: list[Sample], body, cfg: DeePSDTrainConfig, rng, log) -> list[dict]:
+def train_physics(model: DeePSD, samples: list[Sample], body: BodyModel, cfg: DeePSDTrainConfig, rng,
+                  log) -> list[dict]:
     """Stage 2: chi alone on L_phys."""
     for p in model.parameters():
         p.requires_grad_(False)

@@ -4,16 +4,17 @@ takes) and shown in ``samples.jpg``, each on the rest body and animated by DeePS
 a pose of the test performers, with no training."""
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import cv2
 import numpy as np
 import torch
-import trimesh
 
 from recon import paths
 from recon.body import default_body
+from recon.body.base import BodyModel
+from recon.export.mesh import write_mesh
+from recon.export.records import write_json
 from recon.garment import store
 from recon.garment.data import pose_set, posed_bodies
 from recon.garment.deepsd.model import DeePSD, OutfitGraph
@@ -24,7 +25,7 @@ from recon.viz import render_meshes
 BODY_RGBA, CLOTH_RGBA = (0.85, 0.72, 0.62, 1.0), (0.35, 0.45, 0.8, 1.0)
 
 
-def dressed_sheet(body, rb: RestBody, meshes: list[tuple[np.ndarray, np.ndarray]], pose: torch.Tensor,
+def dressed_sheet(body: BodyModel, rb: RestBody, meshes: list[tuple[np.ndarray, np.ndarray]], pose: torch.Tensor,
                   labels: list[str], size=(180, 240)) -> np.ndarray:
     """Two rows: each garment on the rest body, and animated by DeePSD at ``pose`` (24, 3, 3)."""
     deepsd = DeePSD.load(store.deepsd_path())[0]
@@ -54,7 +55,7 @@ def sample_command(kind: str, n: int, out: str | Path, seed: int = 0, sheet: boo
     written = []
     for i, (v, f) in enumerate(meshes):
         p = out / f"sample_{i:02d}.obj"
-        paths.atomic_write(p, lambda t, v=v, f=f: trimesh.Trimesh(v, f, process=False).export(t, file_type="obj"))
+        write_mesh(p, v, f)
         written.append(p.name)
     info = {"type": kind, "n": n, "seed": seed, "files": written,
             "vertices": [int(len(v)) for v, _ in meshes]}
@@ -63,5 +64,5 @@ def sample_command(kind: str, n: int, out: str | Path, seed: int = 0, sheet: boo
         img = dressed_sheet(body, rb, meshes, pose, [f"{kind} {i}" for i in range(n)])
         paths.atomic_write(out / "samples.jpg", lambda t: cv2.imwrite(t, img[..., ::-1]))
         info["sheet"] = "samples.jpg"
-    paths.write_text(out / "samples.json", json.dumps(info, indent=1))
+    write_json(out / "samples.json", info)
     return info

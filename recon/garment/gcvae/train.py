@@ -12,9 +12,7 @@ from __future__ import annotations
 
 import hashlib
 import json
-import multiprocessing as mp
 import time
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
@@ -25,6 +23,7 @@ from tqdm import tqdm
 
 from recon import paths, report
 from recon.body import default_body
+from recon.executor import ExecutorConfig, WorkerSpec, map_strict
 from recon.garment import mesh, store
 from recon.garment.gcvae.model import GCVAE, BodyGraph, GCVAEConfig, garment_mesh, one_hot, register
 from recon.garment.outfits import OutfitSampler
@@ -69,35 +68,36 @@ def data_folder(cfg: GCVAEDataConfig) -> Path:
     return paths.cache_dir() / "gcvae-data" / hashlib.sha256(key.encode()).hexdigest()[:12]
 
 
-_WORKER: dict = {}
+class ChunkMaker:
+    """A worker (``recon.executor``) registering generated garments on the body graph, made once
+    per process; ``maker((split, chunk, size, seed))`` is ``make_chunk``."""
 
+    def __init__(self):
+        self.body = default_body()
+        self.graph = BodyGraph(RestBody(self.body), GCVAEConfig())
 
-def _worker_init() -> None:
-    torch.set_num_threads(1)
-    body = default_body()
-    rb = RestBody(body)
-    _WORKER.update(body=body, graph=BodyGraph(rb, GCVAEConfig()))
+    def __call__(self, task: tuple[str, int, int, int]) -> dict:
+        return self.make_chunk(*task)
 
-
-def make_chunk(split: str, chunk: int, size: int, seed: int) -> dict:
-    """``size`` garments of ``split``: offsets, masks, types (and, for test, the garment meshes)."""
-    body, graph = _WORKER["body"], _WORKER["graph"]
-    rng = np.random.default_rng([seed, {"train": 0, "test": 2}[split], chunk])
-    sampler = OutfitSampler(held_out=split == "test")
-    out = {"offsets": [], "mask": [], "kind": [], "vertices": [], "faces": []}
-    while len(out["kind"]) < size:
-        _, specs = sampler(rng)
-        spec = specs[int(rng.integers(len(specs)))]
-        g = make_outfit(body, [replace(spec, layer=0)]).garments[0]
-        o, m = register(graph, g.vertices, g.faces)
-        out["offsets"].append(o)
-        out["mask"].append(m)
-        out["kind"].append(spec.kind)
-        if split == "test":
-            out["vertices"].append(g.vertices)
-            out["faces"].append(g.faces)
-    return {"offsets": np.stack(out["offsets"]), "mask": np.stack(out["mask"]), "kind": out["kind"],
-            "vertices": out["vertices"], "faces": out["faces"]}
+    def make_chunk(self, split: str, chunk: int, size: int, seed: int) -> dict:
+        """``size`` garments of ``split``: offsets, masks, types (and, for test, the garment meshes)."""
+        body, graph = self.body, self.graph
+        rng = np.random.default_rng([seed, {"train": 0, "test": 2}[split], chunk])
+        sampler = OutfitSampler(held_out=split == "test")
+        out = {"offsets": [], "mask": [], "kind": [], "vertices": [], "faces": []}
+        while len(out["kind"]) < size:
+            _, specs = sampler(rng)
+            spec = specs[int(rng.integers(len(specs)))]
+            g = make_outfit(body, [replace(spec, layer=0)]).garments[0]
+            o, m = register(graph, g.vertices, g.faces)
+            out["offsets"].append(o)
+            out["mask"].append(m)
+            out["kind"].append(spec.kind)
+            if split == "test":
+                out["vertices"].append(g.vertices)
+                out["faces"].append(g.faces)
+        return {"offsets": np.stack(out["offsets"]), "mask": np.stack(out["mask"]), "kind": out["kind"],
+                "vertices": out["vertices"], "faces": out["faces"]}
 
 
 def generate(cfg: GCVAEDataConfig, log=print) -> Path:
@@ -108,13 +108,11 @@ def generate(cfg: GCVAEDataConfig, log=print) -> Path:
             for c in range(-(-n // cfg.chunk)) if not (folder / f"{s}-{c:03d}.npz").exists()]
     if todo:
         log(f"registering {len(todo)} chunks of {cfg.chunk} garments in {cfg.workers} processes -> {folder}")
-        ctx = mp.get_context("spawn")
-        with ProcessPoolExecutor(cfg.workers, mp_context=ctx, initializer=_worker_init) as pool:
-            futures = {pool.submit(make_chunk, s, c, cfg.chunk, cfg.seed): (s, c) for s, c in todo}
-            for fut in tqdm(futures, desc="garment chunks"):
-                s, c = futures[fut]
-                d = fut.result()
-                paths.atomic_write(folder / f"{s}-{c:03d}.npz", lambda t, d=d: _save(t, d))
+        jobs = map_strict(WorkerSpec(ChunkMaker), [(s, c, cfg.chunk, cfg.seed) for s, c in todo],
+                         ExecutorConfig(workers=cfg.workers, threads=1))
+        for k, d in tqdm(jobs, total=len(todo), desc="garment chunks"):
+            s, c = todo[k]
+            paths.atomic_write(folder / f"{s}-{c:03d}.npz", lambda t, d=d: _save(t, d))
     return folder
 
 

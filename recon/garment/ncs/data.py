@@ -11,9 +11,7 @@ from __future__ import annotations
 
 import hashlib
 import json
-import multiprocessing as mp
 import time
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, replace
 from pathlib import Path
 from typing import NamedTuple
@@ -25,7 +23,9 @@ from scipy.spatial import cKDTree
 
 from recon import paths
 from recon.body import default_body, skeleton
+from recon.body.base import BodyModel
 from recon.body.lbs import mirror_rotmats
+from recon.executor import ExecutorConfig, WorkerSpec, map_strict
 from recon.garment import losses, store
 from recon.garment.data import posed_bodies
 from recon.garment.integrate import Preconditioner, integrate, settle, unpose
@@ -37,14 +37,15 @@ from recon.garment.templates import GarmentSpec, Outfit
 from recon.poses.mocap import MocapPoses
 
 
-def rest_joint_height(body, shape: torch.Tensor, *names: str) -> float:
+def rest_joint_height(body: BodyModel, shape: torch.Tensor, *names: str) -> float:
     """The height (m, +Y) of the highest of the joints ``names`` in the rest body of ``shape``."""
     with torch.no_grad():
         _, joints = body.rest_geometry(shape.reshape(1, -1).to(body.mean_shape))
     return float(joints[0, [skeleton.JOINT_NAMES.index(n) for n in names], 1].max())
 
 
-def moving_part(body, outfit: Outfit, shape: torch.Tensor, cfg: NCSTrainConfig) -> tuple[np.ndarray, np.ndarray]:
+def moving_part(body: BodyModel, outfit: Outfit, shape: torch.Tensor, cfg: NCSTrainConfig) -> tuple[np.ndarray,
+                np.ndarray]:
     """NCS's (hanging, held) vertices of an outfit (``hanging_part``): an unpinned one held above the
     rest body's waist (its pelvis joint + ``GarmentSpec.waist``, where a skirt is pinned) with
     ``cfg.waist_hold``."""
@@ -53,7 +54,7 @@ def moving_part(body, outfit: Outfit, shape: torch.Tensor, cfg: NCSTrainConfig) 
     return hanging_part(outfit, rest_joint_height(body, shape, "pelvis") + GarmentSpec.waist)
 
 
-def ankle_taper(body, shape: torch.Tensor, vertices: np.ndarray, hold: float) -> np.ndarray:
+def ankle_taper(body: BodyModel, shape: torch.Tensor, vertices: np.ndarray, hold: float) -> np.ndarray:
     """Per vertex (n,) the share of the solved displacement that D's new rows take on: 0 below
     the rest body's higher ankle joint + ``hold`` (m), rising linearly to 1 over ``hold`` above
     it; all 1 with ``hold`` 0."""
@@ -94,7 +95,7 @@ class Motions:
     """The smoothed motion of each clip a list of chunks cuts (rotations, translation) and the
     chunks' NCS descriptors, taken of the whole clip (the first frames of a chunk have a past)."""
 
-    def __init__(self, body, shape: torch.Tensor, smooth: float):
+    def __init__(self, body: BodyModel, shape: torch.Tensor, smooth: float):
         self.body, self.shape, self.smooth = body, shape.reshape(1, -1), smooth
         self._clips: dict[tuple[str, int, bool], tuple] = {}
 
@@ -147,7 +148,7 @@ class Teacher:
     transl)`` -> its posed offset from PBNS's drape (T, n, 3) over a motion, after ``cfg.settle``
     frames on the motion's first pose; ``friction`` as ``integrate``'s (none in NCS's teacher)."""
 
-    def __init__(self, body, outfit_name: str, cfg: NCSTrainConfig, friction: float = 0.0):
+    def __init__(self, body: BodyModel, outfit_name: str, cfg: NCSTrainConfig, friction: float = 0.0):
         self.body, self.cfg, self.friction = body, cfg, friction
         self.pbns, ck = PBNS.load(store.pbns_path(outfit_name))
         self.shape = ck["shape"][None]
@@ -190,16 +191,15 @@ class Teacher:
         return unpose(blend, offset, self.cfg.min_singular), strain
 
 
-_WORKER: dict = {}
+class TeacherWorker:
+    """A worker (``recon.executor``) integrating chunks with one outfit's teacher, made once per
+    process; ``worker((rotmats, transl))``: the chunk's posed offsets, float16."""
 
+    def __init__(self, outfit_name: str, cfg: NCSTrainConfig):
+        self.teacher = Teacher(default_body(), outfit_name, cfg)
 
-def _worker_init(outfit_name: str, cfg: NCSTrainConfig) -> None:
-    torch.set_num_threads(1)
-    _WORKER["teacher"] = Teacher(default_body(), outfit_name, cfg)
-
-
-def _worker_run(rot: torch.Tensor, transl: torch.Tensor) -> np.ndarray:
-    return _WORKER["teacher"](rot, transl).numpy().astype(np.float16)
+    def __call__(self, motion: tuple[torch.Tensor, torch.Tensor]) -> np.ndarray:
+        return self.teacher(*motion).numpy().astype(np.float16)
 
 
 def chunk_folder(pbns_path: Path, cfg: NCSTrainConfig) -> Path:
@@ -222,14 +222,13 @@ def integrate_chunks(outfit_name: str, chunks: list[Chunk], motions: Motions, cf
     todo = [i for i, f in enumerate(files) if not f.exists()]
     t0 = time.time()
     if todo:
-        ctx = mp.get_context("spawn")  # fresh interpreters: no forked torch state
-        with ProcessPoolExecutor(cfg.workers, mp_context=ctx, initializer=_worker_init,
-                                 initargs=(outfit_name, cfg)) as pool:
-            futures = {i: pool.submit(_worker_run, *motions.motion(chunks[i])) for i in todo}
-            for k, (i, fut) in enumerate(futures.items()):
-                du = fut.result()
-                paths.atomic_write(files[i], lambda t, du=du: _save_npy(t, du))
-                log(f"integrated {chunks[i].split} chunk {k + 1}/{len(todo)} ({time.time() - t0:.0f} s)")
+        # each chunk's motion made as it is handed out: only the chunks in flight are held
+        jobs = map_strict(WorkerSpec(TeacherWorker, (outfit_name, cfg)), todo,
+                         ExecutorConfig(workers=cfg.workers, threads=1), prepare=lambda i: motions.motion(chunks[i]))
+        for k, (j, du) in enumerate(jobs):
+            i = todo[j]
+            paths.atomic_write(files[i], lambda t, du=du: _save_npy(t, du))
+            log(f"integrated {chunks[i].split} chunk {k + 1}/{len(todo)} ({time.time() - t0:.0f} s)")
     return np.stack([np.load(f) for f in files])
 
 

@@ -32,6 +32,7 @@ import torch
 
 from recon import report
 from recon.body import default_body
+from recon.body.base import BodyModel
 from recon.errors import MissingFile
 from recon.garment import reference, store
 from recon.garment.collide import CollisionResolver
@@ -62,7 +63,7 @@ CHECK_CLIP = ("12_01", 0, 16, 0)  # the slice tests/test_results.py recomputes
 
 
 @torch.no_grad()
-def run_models(pbns: PBNS, ncs: NCS | None, body, shape: torch.Tensor, rot: torch.Tensor,
+def run_models(pbns: PBNS, ncs: NCS | None, body: BodyModel, shape: torch.Tensor, rot: torch.Tensor,
                transl: torch.Tensor, static_part: bool = False) -> dict:
     """The models on one sequence: {model: (T, N, 3)} (NCS only when given; ``static_part``: also
     NCS at motion control 0, under ``STATIC_PART``)."""
@@ -79,8 +80,8 @@ def run_models(pbns: PBNS, ncs: NCS | None, body, shape: torch.Tensor, rot: torc
     return out
 
 
-def clip_rows(body, pbns: PBNS, ncs: NCS | None, shape: torch.Tensor, clips: list[tuple], stride: int = STRIDE,
-              split: str = "test", post: CollisionResolver | None = None) -> dict:
+def clip_rows(body: BodyModel, pbns: PBNS, ncs: NCS | None, shape: torch.Tensor, clips: list[tuple],
+              stride: int = STRIDE, split: str = "test", post: CollisionResolver | None = None) -> dict:
     """Physical metrics of the three models over the scored frames of ``clips`` [(name, start,
     frames, hold)] of the ``split``; ``post``: also PBNS's and NCS's frames through that post-step
     (the Dresser's, recon.garment.collide), as "<model> + post-step"."""
@@ -113,7 +114,7 @@ def split_clips(split: str = "test") -> list[tuple]:
     return [(poses.clips[c]["name"], 0, None, 0) for c in np.unique(poses.clip)]
 
 
-def dynamic_rows(body, outfit_name: str, pbns: PBNS, ncs: NCS, shape: torch.Tensor, clip: DynamicClip,
+def dynamic_rows(body: BodyModel, outfit_name: str, pbns: PBNS, ncs: NCS, shape: torch.Tensor, clip: DynamicClip,
                  log=None) -> dict:
     """Per model, on one simulated clip (its scored frames, after the lead-in): sim_error_mm, the
     hem's swing against the simulation, the hem's twist and, after a dead stop, its overshoot."""
@@ -156,7 +157,7 @@ def dynamic_rows(body, outfit_name: str, pbns: PBNS, ncs: NCS, shape: torch.Tens
 
 
 @torch.no_grad()
-def speed(pbns: PBNS, ncs: NCS, body, shape: torch.Tensor) -> dict:
+def speed(pbns: PBNS, ncs: NCS, body: BodyModel, shape: torch.Tensor) -> dict:
     """Frames per second given the transforms: batch 1 and 64 (see the module's docstring)."""
     rot, tr = clip_motion(MocapPoses.load("test"), CHECK_CLIP[0], 0, 64)
     static, dynamic, pose, transforms = motion_inputs(body, rot, shape, tr)
@@ -205,7 +206,7 @@ def post_step_check(outfit: str) -> dict:
     return {m: {k: r[k] for k in ("collision_pct", "edge_mm")} for m, r in rows.items()}
 
 
-def evaluate(body, outfit: str, dynamic: bool = True, ncs_weights: Path | None = None, log=None,
+def evaluate(body: BodyModel, outfit: str, dynamic: bool = True, ncs_weights: Path | None = None, log=None,
              clips: tuple[DynamicClip, ...] = DYNAMIC_CLIPS) -> dict:
     """Every row of the table for one outfit; ``dynamic``: against the simulations of ``clips``.
     Collisions and strain over every clip of the split ``clips`` come from (val clips: the val split)."""
@@ -237,7 +238,7 @@ def path_label(ncs_weights: Path | None) -> str:
 SIMULATED = ("tshirt-skirt", "dress")
 
 
-def evaluate_and_report(body, outfits: list[str], out_dir: Path = report.RESULTS, dynamic: bool = True,
+def evaluate_and_report(body: BodyModel, outfits: list[str], out_dir: Path = report.RESULTS, dynamic: bool = True,
                         ncs_weights: list[Path] | None = None, log=None, val: bool = False,
                         update: bool = False) -> Path:
     """garment-ncs.{json,md} (``val``: garment-ncs-val, against the val performers' simulations,

@@ -10,6 +10,7 @@ from collections.abc import Callable
 
 import torch
 
+from recon.body.base import BodyModel
 from recon.garment import losses
 from recon.garment.data import posed_bodies
 from recon.garment.losses import candidates as pose_candidates
@@ -179,7 +180,7 @@ class StaticPoses:
     prediction at motion control 0, at poses of the train split, in the units of ``Physics``: what
     PBNS minimised over thousands of poses, kept true of the static encoder fitted to a few chunks."""
 
-    def __init__(self, model: NCS, outfit: Outfit, cfg: NCSTrainConfig, body, shape: torch.Tensor,
+    def __init__(self, model: NCS, outfit: Outfit, cfg: NCSTrainConfig, body: BodyModel, shape: torch.Tensor,
                  rotmats: torch.Tensor, unit: float, candidates: int = 8):
         self.model, self.unit = model, unit
         self.crit = losses.Criterion(outfit, model.rest, cfg)

@@ -29,14 +29,17 @@ from torch import nn
 
 from recon import paths
 from recon.body import skeleton
+from recon.body.base import BodyModel
 from recon.errors import ReconError
 from recon.garment.pbns.model import BlendShapeGarment, pose_features, pose_mlp, remove_yaw
-from recon.poses.mocap import resample
+from recon.poses.mocap import (
+    FPS,  # the pose set's frame rate: NCS learns its dynamics at it
+    resample,
+)
 
 DROPPED = ("left_foot", "right_foot", "left_hand", "right_hand")
 KEPT = tuple(i for i, n in enumerate(skeleton.JOINT_NAMES) if n not in DROPPED)
 GRAVITY = (0.0, -1.0, 0.0)  # unit direction in the body frame
-FPS = 30.0
 SHOULDER_BAND = 0.04  # m: what holds an outfit without pins (a dress) when it swings
 WAIST_BAND = 0.02  # m of cloth above the waist held with it, when NCS holds such an outfit there
 LEAK = 0.1  # negative slope of the dynamic branch's activations
@@ -206,8 +209,8 @@ class NCS(BlendShapeGarment):
             zs, zd, h = self.codes(static[None], dynamic[None], pose[None], h)
             return self.pose_codes((zs + motion * zd)[0], transforms, rest), h
 
-    def motion_codes(self, body, rotmats: torch.Tensor, shape: torch.Tensor, transl: torch.Tensor | None = None,
-                     fps: float = FPS) -> tuple[torch.Tensor, torch.Tensor]:
+    def motion_codes(self, body: BodyModel, rotmats: torch.Tensor, shape: torch.Tensor,
+                     transl: torch.Tensor | None = None, fps: float = FPS) -> tuple[torch.Tensor, torch.Tensor]:
         """The static and dynamic codes (T, E) of a motion (T, 24, 3, 3) at ``fps``, from rest:
         ``pose_codes(z_static + motion * z_dynamic, ...)`` dresses it (motion control). The
         network steps at the rate it was trained at: the motion is resampled to it and the codes
@@ -302,7 +305,7 @@ def _with_pbns_parts(path: Path, ck: dict) -> dict:
     return {k: pck[k] for k in PBNS_EXTRAS} | ck | {"state": state}
 
 
-def motion_inputs(body, rotmats: torch.Tensor, shape: torch.Tensor, transl: torch.Tensor | None = None,
+def motion_inputs(body: BodyModel, rotmats: torch.Tensor, shape: torch.Tensor, transl: torch.Tensor | None = None,
                   fps: float = FPS):
     """A body motion (T, 24, 3, 3) local rotations (+Y up), shape (S,), translation (T, 3) ->
     static (T, K, 9) and dynamic (T, K, 12) descriptors, PBNS's inputs (T, 216) and the joint

@@ -12,6 +12,7 @@ import roma
 import torch
 
 from recon import paths
+from recon.body.base import BodyModel
 from recon.errors import ReconError
 from recon.garment import reference, store
 from recon.garment.mesh import boundary_loops, faces_within
@@ -76,7 +77,8 @@ def lead_in(clip: DynamicClip) -> tuple[torch.Tensor, torch.Tensor]:
                        clip.hold)
 
 
-def dynamic_reference(body, outfit_name: str, pbns: PBNS, shape: torch.Tensor, clip: DynamicClip, log=None) -> dict:
+def dynamic_reference(body: BodyModel, outfit_name: str, pbns: PBNS, shape: torch.Tensor, clip: DynamicClip,
+                      log=None) -> dict:
     """The newton simulation of ``clip`` from its lead-in (cached): {"vertices": (lead + T, n, 3),
     "subset": (N,) bool}; the cloth starts from its drape moving as the skinned outfit moves."""
     path = dynamic_path(outfit_name, clip)

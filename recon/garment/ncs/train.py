@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from recon.body.base import BodyModel
 from recon.garment import store
 from recon.garment.data import MIN_POSE_DISTANCE, pose_set
 from recon.garment.ncs.config import NCSTrainConfig
@@ -77,7 +78,7 @@ class Solved:
 class NCSTraining:
     """One NCS training run: the outfit's PBNS, its teacher and the network, then the stages."""
 
-    def __init__(self, body, cfg: NCSTrainConfig, out: Path | None = None, log=print, progress: bool = True):
+    def __init__(self, body: BodyModel, cfg: NCSTrainConfig, out: Path | None = None, log=print, progress: bool = True):
         torch.manual_seed(cfg.seed)
         self.t0 = time.time()
         self.body, self.cfg, self.log, self.progress = body, cfg, log, progress
@@ -302,7 +303,8 @@ class NCSTraining:
         return meta
 
 
-def train(body, cfg: NCSTrainConfig | None = None, out: Path | None = None, log=print, progress: bool = True) -> dict:
+def train(body: BodyModel, cfg: NCSTrainConfig | None = None, out: Path | None = None, log=print,
+          progress: bool = True) -> dict:
     """Train the NCS of ``cfg.outfit`` from its PBNS; writes ``out`` (default ``store.ncs_path``)
     with the training record inside and returns that record."""
     run = NCSTraining(body, cfg or NCSTrainConfig(), out, log, progress)

@@ -5,12 +5,13 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from recon.body.base import BodyModel
 from recon.garment.mesh import nearest, vertex_normals
 from recon.garment.resize import TIGHTNESS_RANGE, Transfer
 from recon.poses.sampler import ShapeSampler
 
 
-def sample_conditions(body, n: int, seed: int) -> tuple[torch.Tensor, torch.Tensor]:
+def sample_conditions(body: BodyModel, n: int, seed: int) -> tuple[torch.Tensor, torch.Tensor]:
     """n (shape, tightness) conditions: shapes from the body's prior, tightness uniform in
     TIGHTNESS_RANGE."""
     shape = ShapeSampler(body, seed=seed).sample(n).float()
@@ -23,7 +24,7 @@ class Conditions:
     """Per (shape, tightness) condition: the transferred rest outfit E_T and its edge lengths, the
     rest body of that shape with normals, and nearest-body-vertex candidates of E_T."""
 
-    def __init__(self, body, transfer: Transfer, shape, tight, edges: torch.Tensor, k: int):
+    def __init__(self, body: BodyModel, transfer: Transfer, shape, tight, edges: torch.Tensor, k: int):
         with torch.no_grad():
             bv = torch.cat([body.rest_geometry(shape[i:i + 64].to(body.mean_shape))[0]
                             for i in range(0, len(shape), 64)])

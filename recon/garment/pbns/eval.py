@@ -27,6 +27,7 @@ import torch
 
 from recon import paths, report
 from recon.body import default_body
+from recon.body.base import BodyModel
 from recon.errors import MissingFile
 from recon.garment import store
 from recon.garment.collide import CollisionResolver
@@ -58,7 +59,7 @@ THESIS = "Thesis PBNS (Table 5.1/5.2): collision 0.45 %, edge 0.66 mm, CPU 213 F
 
 
 @torch.no_grad()
-def speed(model: PBNS, body, rot: torch.Tensor, shape: torch.Tensor) -> dict:
+def speed(model: PBNS, body: BodyModel, rot: torch.Tensor, shape: torch.Tensor) -> dict:
     out = {}
     for b in (1, 64, 256):
         r = rot[:b] if len(rot) >= b else rot[torch.arange(b) % len(rot)]
@@ -74,7 +75,7 @@ def speed(model: PBNS, body, rot: torch.Tensor, shape: torch.Tensor) -> dict:
 _self_cache: dict = {}
 
 
-def body_self_intersection(body, shape: torch.Tensor, rot: torch.Tensor, bv: torch.Tensor) -> torch.Tensor:
+def body_self_intersection(body: BodyModel, shape: torch.Tensor, rot: torch.Tensor, bv: torch.Tensor) -> torch.Tensor:
     """(P,) % of the covered skin inside the posed body ``bv``. Outfits share a shape and the test
     poses, so ``recon garment eval --outfit all`` computes it once instead of per outfit."""
     key = (id(body), shape.numpy().tobytes(), hashlib.sha1(rot.numpy().tobytes()).hexdigest())
@@ -85,7 +86,7 @@ def body_self_intersection(body, shape: torch.Tensor, rot: torch.Tensor, bv: tor
     return _self_cache[key]
 
 
-def valid_test_poses(body, shape: torch.Tensor) -> tuple[torch.Tensor, tuple]:
+def valid_test_poses(body: BodyModel, shape: torch.Tensor) -> tuple[torch.Tensor, tuple]:
     """Held-out poses on which the body of ``shape`` does not pass through itself (VALID_POOL,
     VALID_MAX_SELF), and their posed_bodies()."""
     rot = pose_set("test", *VALID_POOL, seed=123)
@@ -127,7 +128,7 @@ class _TestPoses:
     body_self: torch.Tensor | None  # per pose, % (None: not scored against)
 
     @classmethod
-    def load(cls, body, outfit: str, n_poses: int, weights: Path | None = None) -> _TestPoses:
+    def load(cls, body: BodyModel, outfit: str, n_poses: int, weights: Path | None = None) -> _TestPoses:
         model, ck = _load(outfit, weights)
         shape = ck["shape"][None]
         rot = pose_set("test", n_poses, TEST_POSE_DISTANCE, seed=123)
@@ -135,7 +136,7 @@ class _TestPoses:
         return cls(model, ck, CollisionResolver(model.faces.numpy(), ck["layer"].numpy()), rot, shape, bv, bn, bt,
                    body_self_intersection(body, shape, rot, bv))
 
-    def rows(self, body) -> dict:
+    def rows(self, body: BodyModel) -> dict:
         """The physical metrics of the three models (PBNS, + collision resolution, LBS)."""
         return {k: physical_metrics(v, self.model.faces.numpy(), self.model.rest, self.body_verts, self.body_normals,
                                     self.body_self)
@@ -143,7 +144,7 @@ class _TestPoses:
                                           body.faces).items()}
 
 
-def pose_rows(body, outfit: str, n_poses: int, weights: Path | None = None) -> dict:
+def pose_rows(body: BodyModel, outfit: str, n_poses: int, weights: Path | None = None) -> dict:
     """The physical metrics of the three models on the first ``n_poses`` balanced test poses."""
     return _TestPoses.load(body, outfit, n_poses, weights).rows(body)
 
@@ -154,7 +155,7 @@ def pbns_check(outfits: list[str] | None = None, n_poses: int = CHECK_POSES) -> 
     return {o: pose_rows(body, o, n_poses) for o in outfits or PRESETS}
 
 
-def evaluate(body, outfit: str, n_poses: int = 500, weights: Path | None = None) -> dict:
+def evaluate(body: BodyModel, outfit: str, n_poses: int = 500, weights: Path | None = None) -> dict:
     """One outfit's rows on the held-out poses, speed, and the valid-pose rows."""
     t = _TestPoses.load(body, outfit, n_poses, weights)
     model, res = t.model, t.resolver
@@ -174,7 +175,8 @@ def evaluate(body, outfit: str, n_poses: int = 500, weights: Path | None = None)
             "body_self_intersection_pct": {"median": float(t.body_self.median()), "mean": float(t.body_self.mean())}}
 
 
-def evaluate_and_report(body, outfits: list[str], n_poses: int = 500, out_dir: Path = report.RESULTS) -> Path:
+def evaluate_and_report(body: BodyModel, outfits: list[str], n_poses: int = 500,
+                        out_dir: Path = report.RESULTS) -> Path:
     """``recon garment eval``: garment-pbns.{json,md} (your own garments: a file of their own)."""
     results = [evaluate(body, o, n_poses) for o in outfits]
     names = [r["outfit"] for r in results]
@@ -226,7 +228,7 @@ def render_pbns(data: dict) -> str:
 
 # --- resizers (thesis 5.5.6) ----------------------------------------------------------------------
 
-def resize_rows(body, outfit: str, n: int, seed: int = 1234) -> tuple[dict, float, str]:
+def resize_rows(body: BodyModel, outfit: str, n: int, seed: int = 1234) -> tuple[dict, float, str]:
     """Held-out (shape, tightness) conditions: E_T alone vs E_T + resizer, rest pose on the
     body of that shape, per subset (all, loose, tight); the resizer's ms per outfit; the
     outfit's name."""
@@ -252,7 +254,8 @@ def resize_check(outfit: str, n: int = CHECK_CONDITIONS) -> dict:
     return resize_rows(default_body(), outfit, n)[0]
 
 
-def evaluate_resizer(body, outfit: str, n: int = 200, seed: int = 1234, out_dir: Path = report.RESULTS) -> Path:
+def evaluate_resizer(body: BodyModel, outfit: str, n: int = 200, seed: int = 1234,
+                     out_dir: Path = report.RESULTS) -> Path:
     """garment-resize-<outfit>.{json,md}."""
     rows, ms, name = resize_rows(body, outfit, n, seed)
     meta = json.loads(paths.load_checkpoint(store.resizer_path(name), "recon garment resize")["meta_json"])

@@ -19,6 +19,7 @@ from scipy.spatial import cKDTree
 from torch import nn
 
 from recon import paths
+from recon.body.base import BodyModel
 from recon.errors import ReconError
 from recon.garment.mesh import smooth_vertex_values
 from recon.garment.templates import Outfit, RestBody, make_outfit
@@ -256,7 +257,7 @@ def initial_weights(rb: RestBody, outfit: Outfit, diffusion: int = 0) -> np.ndar
     return (w / w.sum(1, keepdims=True)).astype(np.float32)
 
 
-def trained_outfit(body, pbns_path: Path) -> tuple[Outfit, torch.Tensor, str]:
+def trained_outfit(body: BodyModel, pbns_path: Path) -> tuple[Outfit, torch.Tensor, str]:
     """The template a PBNS file was trained on (rebuilt, and checked against the file), its
     body shape and the outfit's name."""
     model, ck = PBNS.load(pbns_path)

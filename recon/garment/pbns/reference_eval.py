@@ -5,8 +5,6 @@ the cache so that retrained networks are re-scored without simulating again.
 from __future__ import annotations
 
 import time
-from concurrent.futures import ProcessPoolExecutor
-from multiprocessing import get_context
 from pathlib import Path
 
 import numpy as np
@@ -14,7 +12,9 @@ import torch
 
 from recon import paths, report
 from recon.body import default_body
+from recon.body.base import BodyModel
 from recon.errors import MissingFile, ReconError
+from recon.executor import Call, ExecutorConfig, WorkerSpec, in_order
 from recon.garment import reference, store
 from recon.garment.collide import CollisionResolver
 from recon.garment.data import pose_set, posed_bodies
@@ -82,7 +82,8 @@ def drapes_path(outfit: str) -> Path:
 
 
 @torch.no_grad()
-def error_to_drapes(model: PBNS, outfit: str, shape: torch.Tensor, body=None, layer=None) -> dict | None:
+def error_to_drapes(model: PBNS, outfit: str, shape: torch.Tensor, body: BodyModel | None = None,
+                    layer=None) -> dict | None:
     """Mean Euclidean error (mm) of PBNS and of its skinned template to the cached newton drapes
     of `recon garment reference` (None when there are none); with the outfit's ``layer`` also
     of PBNS + collision resolution."""
@@ -114,13 +115,9 @@ def reference_and_report(outfit: str, poses: int = 4, out_dir: Path = report.RES
         raise ReconError('the reference simulation needs newton: pip install "recon[sim]" (docs/garments.md)')
     min_dist = TEST_POSE_DISTANCE  # the drapes are picks of the held-out test pool
     jobs = [(outfit, i, pool_size, min_dist, frames) for i in range(poses)]
-    if workers > 1:
-        # one torch thread per worker process (one process per core)
-        with ProcessPoolExecutor(workers, mp_context=get_context("spawn"), initializer=torch.set_num_threads,
-                                 initargs=(1,)) as ex:
-            per_pose = list(ex.map(_drape_one, jobs))
-    else:
-        per_pose = [_drape_one(j) for j in jobs]
+    # several workers: one torch thread each (one process per core)
+    per_pose = in_order(WorkerSpec(Call, (_drape_one,)), jobs,
+                        ExecutorConfig(workers=workers, threads=1 if workers > 1 else None))
     # drapes (and the skinned starts they came from) kept in the cache, so other PBNS variants
     # can be scored without re-simulating
     drapes = np.stack([p.pop("vertices") for p in per_pose])

@@ -20,6 +20,7 @@ from pathlib import Path
 import torch
 
 from recon import paths
+from recon.body.base import BodyModel
 from recon.errors import ReconError
 from recon.garment import losses, store
 from recon.garment.data import MIN_POSE_DISTANCE, pose_set, posed_bodies
@@ -77,7 +78,7 @@ def _adam(net: torch.nn.Module, lr: float, lr_psd: float) -> torch.optim.Adam:
                              {"params": [p for n, p in net.named_parameters() if n != "D"], "lr": lr}])
 
 
-def build(body, cfg: GarmentTrainConfig, shape: torch.Tensor | None = None):
+def build(body: BodyModel, cfg: GarmentTrainConfig, shape: torch.Tensor | None = None):
     """Outfit template + untrained PBNS for a body shape (default: the body's mean shape)."""
     shape = body.mean_shape[None] if shape is None else shape.reshape(1, -1)
     outfit = make_outfit(body, cfg.outfit, shape)
@@ -105,7 +106,7 @@ def validate(model, crit, rot, bt, bv, bn, chunk: int = 64) -> dict:
     return {k: float(torch.cat(x).mean()) for k, x in agg.items()}
 
 
-def train(body, cfg: GarmentTrainConfig | None = None, out: Path | None = None, log=print,
+def train(body: BodyModel, cfg: GarmentTrainConfig | None = None, out: Path | None = None, log=print,
           progress: bool = True) -> dict:
     """Train the PBNS of ``cfg.outfit``; writes ``out`` (default ``store.pbns_path``) with the
     training record inside and returns that record."""
@@ -161,7 +162,7 @@ def train(body, cfg: GarmentTrainConfig | None = None, out: Path | None = None, 
     return meta
 
 
-def train_resizer(body, pbns_path: Path, out: Path | None = None, cfg: ResizeConfig | None = None, log=print,
+def train_resizer(body: BodyModel, pbns_path: Path, out: Path | None = None, cfg: ResizeConfig | None = None, log=print,
                   progress: bool = True) -> dict:
     """Train the resizer of a trained PBNS outfit; writes ``out`` (default beside the PBNS
     weights, ``store.resizer_path``) with the training record inside and returns that record."""

@@ -11,6 +11,7 @@ import numpy as np
 import roma
 import torch
 
+from recon.body.base import BodyModel
 from recon.garment import store
 from recon.garment.collide import CollisionResolver
 from recon.garment.data import posed_bodies
@@ -46,8 +47,8 @@ def example_subset(model: TaylorGarment, joint_weights: torch.Tensor, n: int) ->
                          pose_examples=examples)
 
 
-def separability(cfg: TaylorBuildConfig, taylor: TaylorGarment, body, anchors: list[int], radii: tuple[float, ...],
-                 samples: int, seed: int = 0) -> list[dict]:
+def separability(cfg: TaylorBuildConfig, taylor: TaylorGarment, body: BodyModel, anchors: list[int],
+                 radii: tuple[float, ...], samples: int, seed: int = 0) -> list[dict]:
     """The paper's 4.2: bodies and poses at distance r from an anchor (a random direction over the
     72 joint-rotation components, rad, and the 6 phenotypes); error of eq. 3 to the drape there,
     practical (the model's pose model with its example corrections and the anchor's shape model)
@@ -83,7 +84,7 @@ def separability(cfg: TaylorBuildConfig, taylor: TaylorGarment, body, anchors: l
 
 
 @torch.no_grad()
-def speed(body, outfit: str, taylor: TaylorGarment | None, poses: torch.Tensor) -> dict:
+def speed(body: BodyModel, outfit: str, taylor: TaylorGarment | None, poses: torch.Tensor) -> dict:
     """Frames a second at batch 1 (1 thread, given the posed body) of PBNS, of the Taylor model
     (with penetration handling) with and without its pose examples' corrections and of it as built
     with the post-step, timed in interleaved rounds (the median over rounds), and the time of a new

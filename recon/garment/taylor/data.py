@@ -6,9 +6,7 @@ from __future__ import annotations
 
 import hashlib
 import json
-import multiprocessing as mp
 import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, replace
 from pathlib import Path
 
@@ -19,6 +17,7 @@ from tqdm import tqdm
 
 from recon import paths
 from recon.body import default_body
+from recon.executor import ExecutorConfig, WorkerSpec, map_strict
 from recon.garment import store
 from recon.garment.data import posed_bodies
 from recon.garment.drape import DrapeSolver
@@ -61,43 +60,44 @@ def unposed(pbns: PBNS, x: torch.Tensor, transforms: torch.Tensor, min_singular:
     return unpose(t[..., :3], x - t[..., 3], min_singular)
 
 
-_W: dict = {}
+class Draper:
+    """A build's draping worker (``recon.executor``): the body, PBNS, the two drape solvers and the
+    shape transfer, made once per process; ``draper((pose, shapes))`` is ``drape_bodies``."""
 
+    def __init__(self, cfg: TaylorBuildConfig):
+        self.body = default_body()
+        self.pbns, _ = PBNS.load(store.pbns_path(cfg.outfit))
+        outfit, self.shape0, _ = trained_outfit(self.body, store.pbns_path(cfg.outfit))
+        self.first = DrapeSolver(outfit, cfg.drape)
+        self.other = DrapeSolver(outfit, replace(cfg.drape, rounds=cfg.shape_rounds))
+        self.transfer = Transfer(self.body, self.pbns.rest.numpy(), self.pbns.faces.numpy(), self.shape0)
 
-def _worker_init(cfg: TaylorBuildConfig) -> None:
-    torch.set_num_threads(1)
-    body = default_body()
-    pbns, _ = PBNS.load(store.pbns_path(cfg.outfit))
-    outfit, shape0, _ = trained_outfit(body, store.pbns_path(cfg.outfit))
-    _W.update(body=body, pbns=pbns, shape0=shape0, first=DrapeSolver(outfit, cfg.drape),
-              other=DrapeSolver(outfit, replace(cfg.drape, rounds=cfg.shape_rounds)),
-              transfer=Transfer(body, pbns.rest.numpy(), pbns.faces.numpy(), shape0))
+    def __call__(self, task: tuple[torch.Tensor, torch.Tensor]) -> dict:
+        return self.drape_bodies(*task)
 
-
-@torch.no_grad()
-def drape_bodies(pose: torch.Tensor, shapes: torch.Tensor) -> dict:
-    """At one pose (24, 3, 3): the drapes on the pose model's body, then on ``shapes`` (K, S),
-    each started from the first moved by the change of the graded, skinned outfit. Returns
-    {"posed", "unposed": (K + 1, N, 3), "strain": (K + 1,) largest edge strain (m)}."""
-    w = _W
-    pbns, posed, out, strains = w["pbns"], [], [], []
-    rests = torch.cat([pbns.rest[None], torch.from_numpy(w["transfer"].resize(shapes))]) if len(shapes) \
-        else pbns.rest[None]
-    first = None
-    e = w["first"].crit.edge.edges
-    for shape, rest in zip(torch.cat([w["shape0"][None], shapes]), rests):
-        bv, bn, bt = posed_bodies(w["body"], pose[None], shape[None])
-        skinned = pbns.skin(rest, bt)[0]
-        if first is None:
-            x = w["first"](rest, skinned, bv[0], bn[0])
-            first = (x, skinned)
-        else:
-            x = w["other"](rest, first[0] + skinned - first[1], bv[0], bn[0], carried=skinned)
-        length = lambda v: (v[e[:, 0]] - v[e[:, 1]]).norm(dim=-1)  # noqa: E731
-        strains.append(float((length(x) - length(rest)).abs().max()))
-        posed.append(x)
-        out.append(unposed(pbns, x[None], bt)[0])
-    return {"posed": torch.stack(posed).numpy(), "unposed": torch.stack(out).numpy(), "strain": np.array(strains)}
+    @torch.no_grad()
+    def drape_bodies(self, pose: torch.Tensor, shapes: torch.Tensor) -> dict:
+        """At one pose (24, 3, 3): the drapes on the pose model's body, then on ``shapes`` (K, S),
+        each started from the first moved by the change of the graded, skinned outfit. Returns
+        {"posed", "unposed": (K + 1, N, 3), "strain": (K + 1,) largest edge strain (m)}."""
+        pbns, posed, out, strains = self.pbns, [], [], []
+        rests = torch.cat([pbns.rest[None], torch.from_numpy(self.transfer.resize(shapes))]) if len(shapes) \
+            else pbns.rest[None]
+        first = None
+        e = self.first.crit.edge.edges
+        for shape, rest in zip(torch.cat([self.shape0[None], shapes]), rests):
+            bv, bn, bt = posed_bodies(self.body, pose[None], shape[None])
+            skinned = pbns.skin(rest, bt)[0]
+            if first is None:
+                x = self.first(rest, skinned, bv[0], bn[0])
+                first = (x, skinned)
+            else:
+                x = self.other(rest, first[0] + skinned - first[1], bv[0], bn[0], carried=skinned)
+            length = lambda v: (v[e[:, 0]] - v[e[:, 1]]).norm(dim=-1)  # noqa: E731
+            strains.append(float((length(x) - length(rest)).abs().max()))
+            posed.append(x)
+            out.append(unposed(pbns, x[None], bt)[0])
+        return {"posed": torch.stack(posed).numpy(), "unposed": torch.stack(out).numpy(), "strain": np.array(strains)}
 
 
 def drape_folder(cfg: TaylorBuildConfig, shapes: torch.Tensor) -> Path:
@@ -110,9 +110,9 @@ def drape_folder(cfg: TaylorBuildConfig, shapes: torch.Tensor) -> Path:
 
 def drape_poses(cfg: TaylorBuildConfig, poses: torch.Tensor, shapes: torch.Tensor | list[torch.Tensor],
                 progress: bool = True, desc: str = "draping") -> list[dict]:
-    """``drape_bodies`` at each of ``poses`` (P, 24, 3, 3) on ``shapes`` (K, S; or one (K, S) per
+    """``Draper.drape_bodies`` at each of ``poses`` (P, 24, 3, 3) on ``shapes`` (K, S; or one (K, S) per
     pose), kept in ``drape_folder`` as each pose is done (a rerun drapes only what is missing),
-    in ``cfg.workers`` processes."""
+    in ``cfg.workers`` worker processes (recon.executor)."""
     per_pose = list(shapes) if isinstance(shapes, list) else [shapes] * len(poses)
     folder = drape_folder(cfg, shapes if torch.is_tensor(shapes) else torch.cat(per_pose))
     folder.mkdir(parents=True, exist_ok=True)
@@ -125,13 +125,11 @@ def drape_poses(cfg: TaylorBuildConfig, poses: torch.Tensor, shapes: torch.Tenso
     if todo:
         bar = tqdm(total=len(poses), initial=len(poses) - len(todo), desc=f"{desc} {cfg.outfit}", unit="pose",
                    disable=not progress)
-        ctx = mp.get_context("spawn")  # fresh interpreters: no forked torch state
-        with ProcessPoolExecutor(cfg.workers, mp_context=ctx, initializer=_worker_init, initargs=(cfg,)) as pool:
-            futures = {pool.submit(drape_bodies, poses[i], per_pose[i]): i for i in todo}
-            for fut in as_completed(futures):
-                i, r = futures[fut], fut.result()
-                paths.atomic_write(files[i], lambda t, r=r: np.savez(t, **r))
-                bar.update()
+        jobs = map_strict(WorkerSpec(Draper, (cfg,)), [(poses[i], per_pose[i]) for i in todo],
+                         ExecutorConfig(workers=cfg.workers, threads=1))
+        for k, r in jobs:
+            paths.atomic_write(files[todo[k]], lambda t, r=r: np.savez(t, **r))
+            bar.update()
         bar.close()
         timing = folder / "timing.json"  # wall seconds spent draping into this folder, over all runs
         spent = json.loads(timing.read_text())["seconds"] if timing.exists() else 0.0

@@ -16,17 +16,18 @@ import torch
 
 from recon import report
 from recon.body import default_body
+from recon.body.base import BodyModel
 from recon.garment import reference, store
 from recon.garment.collide import CollisionResolver
 from recon.garment.data import pose_set, posed_bodies
 from recon.garment.drape import DrapeSolver
-from recon.garment.dress import DRAPE_ITERATIONS
 from recon.garment.metrics import physical_metrics
 from recon.garment.pbns.model import PBNS, remove_yaw, trained_outfit
 from recon.garment.resize import OutfitResizer, Transfer
 from recon.garment.taylor.config import SHAPE_BOX, TaylorBuildConfig
 from recon.garment.taylor.curves import example_subset, separability, speed, subset
 from recon.garment.taylor.data import drape_poses
+from recon.garment.taylor.garment_model import DRAPE_ITERATIONS
 from recon.garment.taylor.model import TaylorGarment
 from recon.garment.taylor.reference_eval import newton_comparison
 from recon.poses.sampler import ShapeSampler
@@ -42,7 +43,7 @@ CORRECTED = "Taylor, fitted pose model with example corrections"
 UNCORRECTED = "Taylor, fitted pose model without example corrections"
 
 
-def test_shapes(body, n_far: int = 6, n_near: int = 2, seed: int = 2024) -> tuple[torch.Tensor, np.ndarray]:
+def test_shapes(body: BodyModel, n_far: int = 6, n_near: int = 2, seed: int = 2024) -> tuple[torch.Tensor, np.ndarray]:
     """Held-out bodies from anny's prior: ``n_far`` with weight or height in its top or bottom
     quintile, ``n_near`` with both in the middle fifth; (K, S) and a bool (K,) far mask."""
     s = ShapeSampler(body, seed=seed).sample(4000).float()
@@ -72,7 +73,7 @@ def test_poses(n: int, seed: int = 7) -> torch.Tensor:
 class Methods:
     """Every model of the table on one outfit, dressing one (pose, body) pair."""
 
-    def __init__(self, body, outfit: str, taylor_path: Path):
+    def __init__(self, body: BodyModel, outfit: str, taylor_path: Path):
         self.body = body
         self.pbns, ck = PBNS.load(store.pbns_path(outfit))
         self.shape0 = ck["shape"]
@@ -142,7 +143,7 @@ def score(v: torch.Tensor, gt: torch.Tensor, faces: np.ndarray, graded, bv, bn) 
 
 
 @torch.no_grad()
-def val_check(cfg: TaylorBuildConfig, m: Methods, body, poses: int, faces: np.ndarray) -> dict:
+def val_check(cfg: TaylorBuildConfig, m: Methods, body: BodyModel, poses: int, faces: np.ndarray) -> dict:
     """Taylor alone, with the Dresser's post-step and with drape-solver iterations before it, on
     val poses (val performers) x other bodies than the test's: where the Taylor path's choices
     are made."""

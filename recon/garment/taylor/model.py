@@ -48,6 +48,7 @@ from scipy.spatial import cKDTree
 
 from recon import paths
 from recon.body import skeleton
+from recon.body.base import BodyModel
 from recon.garment.collide import CollisionResolver
 from recon.garment.pbns.model import PBNS, mlp_of, pose_features, remove_yaw, rotate
 from recon.garment.resize import Transfer
@@ -196,7 +197,7 @@ class TaylorGarment:
         return torch.einsum("ac,acnk->ank", coeff, self.basis.float())
 
     @torch.no_grad()
-    def set_shape(self, body, shape: torch.Tensor) -> TaylorGarment:
+    def set_shape(self, body: BodyModel, shape: torch.Tensor) -> TaylorGarment:
         """Precompute the shape terms and the penetration binding for a body shape (S,) (nothing to do
         for the body it is set to already)."""
         shape = shape.detach().reshape(-1).float().cpu()

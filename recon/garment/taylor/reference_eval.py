@@ -4,13 +4,12 @@ garment-taylor.md (``recon garment eval --model taylor``; needs the ``sim`` extr
 """
 from __future__ import annotations
 
-import multiprocessing as mp
 import time
-from concurrent.futures import ProcessPoolExecutor
 
 import torch
 
 from recon.body import default_body
+from recon.executor import Call, ExecutorConfig, WorkerSpec, in_order
 from recon.garment import reference, store
 from recon.garment.data import posed_bodies
 from recon.garment.drape import DrapeSolver
@@ -23,7 +22,6 @@ def _newton_one(args) -> dict:
     """One held-out pose on PBNS's body: newton's drape (reference.drape, its protocol) and ours, from
     the same skinned start; the distance of ours, PBNS's and the skinned start to newton's."""
     outfit, pose, rot = args
-    torch.set_num_threads(1)
     body = default_body()
     pbns, ck = PBNS.load(store.pbns_path(outfit))
     o, shape0, _ = trained_outfit(body, store.pbns_path(outfit))
@@ -44,5 +42,5 @@ def _newton_one(args) -> dict:
 def newton_comparison(outfit: str, poses: dict[int, torch.Tensor], workers: int = 2) -> list[dict]:
     """Our drape solver against newton's VBD drape at ``poses`` ({index in the test poses: (24, 3,
     3)}) on PBNS's body, in ``workers`` processes (needs the ``sim`` extra)."""
-    with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn")) as pool:
-        return list(pool.map(_newton_one, [(outfit, i, r) for i, r in poses.items()]))
+    return in_order(WorkerSpec(Call, (_newton_one,)), [(outfit, i, r) for i, r in poses.items()],
+                    ExecutorConfig(workers=workers, threads=1))

@@ -46,6 +46,7 @@ from scipy.stats import qmc
 
 from recon import paths
 from recon.body import default_body, skeleton
+from recon.body.base import BodyModel
 from recon.garment import store
 from recon.garment.data import posed_bodies
 from recon.garment.pbns.model import PBNS, pose_features, trained_outfit, widened
@@ -127,7 +128,7 @@ def perturbed(rotmats: torch.Tensor, step: float) -> torch.Tensor:
 
 
 @torch.no_grad()
-def sensitivity(pbns: PBNS, body, rotmats: torch.Tensor, shape: torch.Tensor, rest: torch.Tensor,
+def sensitivity(pbns: PBNS, body: BodyModel, rotmats: torch.Tensor, shape: torch.Tensor, rest: torch.Tensor,
                 step: float = 0.05) -> torch.Tensor:
     """(N, 72) |d x_y / d theta_m|: how far each cloth vertex of the pose model (its rest ``rest``
     on body ``shape``) moves per radian of each joint rotation component at pose (24, 3, 3)."""

@@ -11,15 +11,19 @@ import os
 import sys
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 
 from recon.errors import ReconError
 
 NUM_MP = 33  # MediaPipe Pose landmarks
+# Left/right flip map of MediaPipe Pose's 33 landmarks.
+MP_MIRROR = (0, 4, 5, 6, 1, 2, 3, 8, 7, 10, 9) + tuple(i + 1 if i % 2 else i - 1 for i in range(11, 33))
 # The landmark models by name, as MediaPipe's model_complexity; the wheel ships only "full".
+LandmarkModel = Literal["lite", "full", "heavy"]
 MODELS = {"lite": 0, "full": 1, "heavy": 2}
-DEFAULT_MODEL = "heavy"  # recon run's: the most accurate (scripts/setup.sh installs it)
+DEFAULT_MODEL: LandmarkModel = "heavy"  # recon run's: the most accurate (scripts/setup.sh installs it)
 log = logging.getLogger(__name__)
 _WARNED: set[str] = set()  # models already reported missing: one line per process
 

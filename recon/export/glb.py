@@ -1,9 +1,9 @@
 """Rigged glTF 2.0 (.glb) of a body, dressed or not, in one pose or animated, written without
-extra dependencies: one skeleton (the 24 named joints, SMPL order), the body and the outfit as
+extra dependencies: one skeleton (the 24 named joints, SMPL order), the body and an outfit as
 skinned meshes (the 4 strongest joint influences per vertex, renormalised: what three.js, Unity and
 most engines read; ``influences=None`` keeps every one: anny's skinning exactly), the outfit's
-PBNS deformations as morph targets (the rows of D) whose weights are the embedding X(theta) -
-PBNS is skinning + PSD, which glTF runs natively. Vertex order is the body model's.
+deformations as morph targets with per-frame weights (``BlendAnimation``: what
+``recon.garment.morph`` makes of a Dresser's outfit). Vertex order is the body model's.
 
 The joints' node rotations hold the first frame's pose, so a client that reads no animation
 (Blender's armature in edit mode excepted) shows the posed body; with more than one frame an
@@ -28,7 +28,7 @@ import trimesh
 
 from recon import paths
 from recon.body import skeleton
-from recon.garment.pbns.model import blend_transforms, pose_features
+from recon.body.base import BodyModel
 
 FLOAT, UBYTE, USHORT, UINT = 5126, 5121, 5123, 5125
 ARRAY_BUFFER, ELEMENT_ARRAY_BUFFER = 34962, 34963
@@ -40,12 +40,12 @@ INFLUENCES = 4  # joints per vertex by default: one JOINTS_0 / WEIGHTS_0 set, wh
 
 class BlendAnimation(NamedTuple):
     """An outfit animated in glTF's terms: rest vertices (N, 3), faces (F, 3), skin weights (N, 24),
-    morph targets (K, N * 3) and their weights per frame (T, K)."""
-    rest: torch.Tensor
-    faces: np.ndarray
-    weights: torch.Tensor
-    targets: torch.Tensor
-    codes: torch.Tensor
+    morph targets (K, N * 3) or (K, N, 3) and their weights per frame (T, K); arrays or tensors."""
+    rest: np.ndarray | torch.Tensor
+    faces: np.ndarray | torch.Tensor
+    weights: np.ndarray | torch.Tensor
+    targets: np.ndarray | torch.Tensor
+    codes: np.ndarray | torch.Tensor
 
 
 class _Buffer:
@@ -95,32 +95,17 @@ def written_weights(weights: np.ndarray | torch.Tensor, most: int | None = INFLU
     return torch.from_numpy(out)
 
 
+def _array(a) -> np.ndarray:
+    return a.detach().cpu().numpy() if torch.is_tensor(a) else np.asarray(a)
+
+
 def _quat_xyzw(r: torch.Tensor) -> np.ndarray:
     return roma.rotmat_to_unitquat(r).numpy().astype(np.float32)  # roma: (x, y, z, w) like glTF
 
 
-def post_step_target(body, shape: torch.Tensor, rotmats: torch.Tensor, transl: torch.Tensor, dresser,
-                     rest: np.ndarray, targets: np.ndarray, weights: np.ndarray,
-                     influences: int | None = INFLUENCES) -> np.ndarray:
-    """The Dresser's post-step (recon.garment.collide) on one posed frame as a rest-pose morph
-    target (N, 3): its result taken back through each vertex's blended skinning matrix as the
-    file skins (``influences``), so that skinning the outfit with it at weight 1 gives what the
-    Dresser returns."""
-    model = dresser.model
-    with torch.no_grad():
-        out = body(rotmats[:1], shape.reshape(1, -1).to(body.mean_shape), transl=transl[:1])
-        x = torch.from_numpy(rest + np.einsum("k,knc->nc", weights[0], targets)).float()
-        net = model.apply_blend(x, model.blend(out.transforms))
-        post = dresser.resolver(net, out.vertices, body.faces, rest=torch.from_numpy(rest).float())
-        blend = blend_transforms(written_weights(model.weights, influences), out.transforms)
-        move = torch.linalg.solve(blend[0, :, :, :3].double(),
-                                  (post - model.apply_blend(x, blend))[0].double()[..., None])[..., 0]
-    return move.float().numpy()
-
-
-def write_glb(path: str | Path, body, shape: torch.Tensor, rotmats: torch.Tensor, transl: torch.Tensor,
-              fps: float = 30.0, dresser=None, tightness=None, camera: tuple[np.ndarray, tuple[int, int]] | None = None,
-              animation_name: str = "motion", garment: BlendAnimation | None = None,
+def write_glb(path: str | Path, body: BodyModel, shape: torch.Tensor, rotmats: torch.Tensor, transl: torch.Tensor,
+              fps: float = 30.0, outfit: BlendAnimation | None = None,
+              camera: tuple[np.ndarray, tuple[int, int]] | None = None, animation_name: str = "motion",
               influences: int | None = INFLUENCES) -> Path:
     """Write a rigged .glb atomically.
 
@@ -128,17 +113,12 @@ def write_glb(path: str | Path, body, shape: torch.Tensor, rotmats: torch.Tensor
         shape: (S,) or (1, S) the body's shape parameters.
         rotmats: (T, 24, 3, 3) local joint rotations; the root's is into the file's frame.
         transl: (T, 3) pelvis positions in the file's frame, metres.
-        dresser: a ``recon.garment.Dresser`` to add its outfit (resized to ``shape``, ``tightness``
-            where the outfit has a resizer); its network must see the gravity-aligned pose, i.e.
-            +Y up in the file's frame. A motion is dressed by its NCS when it has one
-            (``Dresser.dynamic``), frame by frame by PBNS otherwise.
+        outfit: a skinned outfit with its morph targets and their weights per frame
+            (``recon.garment.morph.outfit_animation`` makes it from a Dresser).
         camera: (K, (height, width)): a perspective camera at the origin looking down -Z with the
             vertical field of view of K (glTF has no principal point: it is taken as centred).
-        garment: an outfit already animated as skinning plus morph targets (instead of ``dresser``).
         influences: joints per vertex kept (the strongest, renormalised); None: every one.
-    With T = 1 the file holds the pose and no animation, and the Dresser's post-step (when it has
-    one) is one more morph target at weight 1: the file's cloth is the Dresser's. A motion's cloth
-    is the network's (the post-step differs from frame to frame: no blend shape)."""
+    With T = 1 the file holds the pose and no animation."""
     shape = shape.reshape(1, -1)
     rotmats, transl = rotmats.detach().float().cpu(), transl.detach().float().cpu().reshape(-1, 3)
     if rotmats.ndim != 4 or rotmats.shape[1:] != (24, 3, 3) or len(transl) != len(rotmats):
@@ -188,28 +168,11 @@ def write_glb(path: str | Path, body, shape: torch.Tensor, rotmats: torch.Tensor
 
     mesh_nodes = [skinned_mesh("body", rest_v, body.faces.numpy(), body.weights.numpy(), BODY_RGBA)]
     morph = None
-    if garment is not None:
-        morph = garment.codes.numpy().astype(np.float32)
-        mesh_nodes.append(skinned_mesh("outfit", garment.rest.numpy(), garment.faces, garment.weights.numpy(),
-                                       OUTFIT_RGBA, targets=garment.targets.numpy().reshape(len(morph[0]), -1, 3),
+    if outfit is not None:
+        morph = _array(outfit.codes).astype(np.float32)  # (T, K)
+        mesh_nodes.append(skinned_mesh("outfit", _array(outfit.rest), _array(outfit.faces), _array(outfit.weights),
+                                       OUTFIT_RGBA, targets=_array(outfit.targets).reshape(len(morph[0]), -1, 3),
                                        morph0=morph[0]))
-    elif dresser is not None:
-        rest_c = dresser.rest_for(body, shape[0], tightness=tightness).numpy()
-        if t > 1 or dresser.taylor is not None:  # a motion (NCS's codes where it has it), or Taylor's blend
-            model = dresser.ncs or dresser.model
-            d, morph = dresser.sequence_codes(body, rotmats, shape[0], transl, fps)
-        else:
-            model = dresser.model
-            with torch.no_grad():
-                d, morph = model.D.detach(), model.mlp(pose_features(rotmats))
-        d = d.numpy().reshape(len(d), -1, 3)
-        morph = morph.numpy().astype(np.float32)  # (T, |X|)
-        if t == 1 and dresser.resolver is not None:  # a photo: the post-step as one more target, weight 1
-            d = np.concatenate([d, post_step_target(body, shape, rotmats, transl, dresser, rest_c, d, morph,
-                                                    influences)[None]])
-            morph = np.concatenate([morph, np.ones((1, 1), np.float32)], 1)
-        mesh_nodes.append(skinned_mesh("outfit", rest_c, model.faces.numpy(), model.weights.detach().numpy(),
-                                       OUTFIT_RGBA, targets=d, morph0=morph[0]))
     scene_nodes = [0] + mesh_nodes
     doc = {"asset": {"version": "2.0", "generator": "recon"}, "scene": 0}
     if camera is not None:

@@ -5,7 +5,7 @@ small in the frame are where it misses. The search needs no face. Proposals: the
 probability of the selfie-segmentation model in the MediaPipe wheel, over the whole frame and over
 four zoomed quarters (small people), its blobs, then the squares of a coarse grid holding the most
 of it. On each region (centre x, centre y, side, rotation) MediaPipe's landmark model looks for a
-person (``recon.keypoints.mediapipe.MediaPipeLandmarks``; its own presence score gates), coarsely
+person (``recon.people.mediapipe.MediaPipeLandmarks``; its own presence score gates), coarsely
 (the full model) then twice more with the fine model, each time on the region its last answer
 implies (MediaPipe's tracking rule). A person's landmarks settle; a phantom's jump: an answer is
 kept only when the three passes agree, the guard's score is high enough, and the fine model finds
@@ -17,9 +17,8 @@ import cv2
 import numpy as np
 
 from recon.errors import ReconError
-from recon.keypoints import guard as person_guard
-from recon.keypoints.adapter import MP_MIRROR
-from recon.keypoints.mediapipe import DEFAULT_MODEL, MediaPipeLandmarks, MPPose, available, quiet_native_logs
+from recon.people import guard as person_guard
+from recon.people.mediapipe import DEFAULT_MODEL, MP_MIRROR, MediaPipeLandmarks, MPPose, available, quiet_native_logs
 
 ROI_SCALES = (1.0, 0.7, 0.45)  # grid squares' sides, as a share of the frame's shorter side
 MIN_BLOB = 0.002  # a mask blob smaller than this share of the frame is no proposal

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from recon.keypoints.mediapipe import MPPose
+from recon.people.mediapipe import MPPose
 
 # MediaPipe Pose landmark indices
 L_SHOULDER, R_SHOULDER, L_ELBOW, R_ELBOW, L_WRIST, R_WRIST = 11, 12, 13, 14, 15, 16
