@@ -39,7 +39,8 @@ from recon.body import default_body
 from recon.demo import example_photos
 from recon.fit import FitConfig
 from recon.keypoints import BackboneSource, MediaPipeSource
-from recon.pipeline import NoPersonFound, Reconstructor, ReconstructorConfig
+from recon.pipeline import Reconstructor
+from recon.reconstruction import NoPersonFound, ReconstructorConfig
 
 OUT = Path(__file__).resolve().parent.parent / "eval" / "results" / "bench-pipeline"
 

@@ -26,7 +26,7 @@ from tqdm import tqdm
 from recon import report
 from recon.keypoints import make_source
 from recon.people.boxes import box_iou
-from recon.pipeline import ReconstructorConfig
+from recon.reconstruction import ReconstructorConfig
 from recon.synth.dataset import open_bench
 
 BANDS = ((60, 100), (100, 200), (200, 400), (400, 10000))

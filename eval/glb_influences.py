@@ -58,7 +58,7 @@ def main() -> None:
         rest = dresser.rest_for(body, body.mean_shape)
         rows[f"{outfit}, PBNS"] = errors(rest, dresser.model.weights.detach().numpy(), transforms)
         if store.ncs_path(outfit).exists():  # NCS's weights, where they are not PBNS's
-            ncs = Dresser(outfit, dynamics=True).ncs.weights.detach()
+            ncs = Dresser(outfit, dynamics=True).garment.ncs.weights.detach()
             if not torch.equal(ncs, dresser.model.weights.detach()):
                 rows[f"{outfit}, NCS"] = errors(rest, ncs.numpy(), transforms)
     head = ["mesh", "vertices", "over 4 influences", "most influences", "mean (mm)", "99th pct (mm)", "max (mm)"]

@@ -22,7 +22,7 @@ from tqdm import tqdm
 from recon import report
 from recon.body import skeleton
 from recon.keypoints import make_source
-from recon.pipeline import ReconstructorConfig
+from recon.reconstruction import ReconstructorConfig
 from recon.smplr.lifter_train import box_height
 from recon.synth.dataset import open_bench
 

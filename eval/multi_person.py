@@ -24,7 +24,7 @@ from recon import camera, paths, report
 from recon.io import load_image, scan_inputs
 from recon.keypoints.sources import MediaPipeSource
 from recon.people.boxes import box_iou
-from recon.pipeline import ReconstructorConfig
+from recon.reconstruction import ReconstructorConfig
 from recon.synth.dataset import SynthDataset, bench_dir
 
 

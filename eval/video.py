@@ -51,7 +51,8 @@ from tqdm import tqdm
 
 from recon import camera, metrics, paths, report
 from recon.body import default_body, skeleton
-from recon.pipeline import Reconstructor, ReconstructorConfig
+from recon.pipeline import Reconstructor
+from recon.reconstruction import ReconstructorConfig
 from recon.synth.video import SIZE, VIDEO_BENCHMARKS, VIDEO_GENERATOR, ClipRenderer, ClipTruth, write_clip
 from recon.video import smooth
 from recon.video.camera_motion import turned_degrees

@@ -15,8 +15,8 @@ import importlib
 from recon.version import __version__ as __version__
 
 _EXPORTS = {
-    "Reconstructor": "recon.pipeline", "ReconstructorConfig": "recon.pipeline", "Reconstruction": "recon.pipeline",
-    "NoPersonFound": "recon.pipeline", "RunOptions": "recon.run",
+    "Reconstructor": "recon.pipeline", "ReconstructorConfig": "recon.reconstruction",
+    "Reconstruction": "recon.reconstruction", "NoPersonFound": "recon.reconstruction", "RunOptions": "recon.run",
     "FitConfig": "recon.fit", "SMPLR": "recon.smplr", "Lifter": "recon.smplr", "load_image": "recon.io",
     "ReconError": "recon.errors",
 }

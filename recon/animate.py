@@ -32,12 +32,12 @@ from recon.garment.dress import DressedOutfit, Dresser
 from recon.garment.morph import outfit_animation
 from recon.io import load_image
 from recon.page import try_write_page
-from recon.pipeline import NoPersonFound
 from recon.poses.asfamc import read_asf_amc
 from recon.poses.bvh import read_bvh
 from recon.poses.mocap import FPS, MocapPoses, poses_path, resample
 from recon.poses.motion import SourceMotion, local_rotations
 from recon.poses.retarget import Retargeter
+from recon.reconstruction import NoPersonFound
 from recon.run import RunOptions, run
 from recon.viz import SequenceRenderer
 

@@ -16,8 +16,8 @@ import trimesh
 from recon import camera
 from recon.errors import ReconError
 from recon.render import look
+from recon.render.normals import vertex_normals
 from recon.render.raster import Rasterizer
-from recon.synth.clothes import vertex_normals
 
 
 def _pyrender():
@@ -32,8 +32,9 @@ def _pyrender():
     return pyrender
 
 
-def look_at(eye: np.ndarray, target: np.ndarray, up=(0.0, 1.0, 0.0)) -> np.ndarray:
-    """Camera-to-world pose for an OpenGL camera (looks down its -Z)."""
+def gl_camera_pose(eye: np.ndarray, target: np.ndarray, up=(0.0, 1.0, 0.0)) -> np.ndarray:
+    """Camera-to-world pose (4, 4) of an OpenGL camera (looks down its -Z) at ``eye`` looking at
+    ``target``, as pyrender takes it; ``recon.render.raster.look_at`` is the OpenCV world-to-camera (R, t)."""
     z = eye - target
     z = z / np.linalg.norm(z)
     x = np.cross(up, z)
@@ -95,10 +96,10 @@ def _front_scene(pyrender, meshes: list[tuple[np.ndarray, np.ndarray, tuple]], c
         scene.add(pyrender.Mesh.from_trimesh(tm, material=mat, smooth=True))
     yaw = np.radians(yaw_deg)
     eye = center + distance * np.array([np.sin(yaw), 0.15, np.cos(yaw)])
-    cam_pose = look_at(eye, center)
+    cam_pose = gl_camera_pose(eye, center)
     scene.add(pyrender.PerspectiveCamera(yfov=np.radians(40.0)), pose=cam_pose)
     scene.add(pyrender.DirectionalLight(intensity=3.0), pose=cam_pose)
-    scene.add(pyrender.DirectionalLight(intensity=1.5), pose=look_at(center + np.array([1.0, 2.0, 1.0]), center))
+    scene.add(pyrender.DirectionalLight(intensity=1.5), pose=gl_camera_pose(center + np.array([1.0, 2.0, 1.0]), center))
     return scene
 
 

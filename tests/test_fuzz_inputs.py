@@ -18,7 +18,7 @@ from recon import io
 from recon.demo import EXAMPLES
 from recon.errors import ReconError
 from recon.keypoints import available as mediapipe_available
-from recon.pipeline import NoPersonFound, ReconstructorConfig
+from recon.reconstruction import NoPersonFound, ReconstructorConfig
 from recon.run import STAGING, run
 
 ASTRONAUT = EXAMPLES / "astronaut.jpg"

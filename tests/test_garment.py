@@ -11,13 +11,14 @@ from scipy.spatial import cKDTree
 import recon.garment.pbns.model as P
 from recon.errors import ReconError
 from recon.export.glb import influence_sets, write_glb
-from recon.garment import losses, mesh, store
+from recon.garment import family, losses, mesh, store
 from recon.garment.data import pose_set, posed_bodies
 from recon.garment.dress import Dresser
 from recon.garment.metrics import collision_pct, penetration, physical_metrics
 from recon.garment.morph import outfit_animation
 from recon.garment.pbns import reference_eval as R
 from recon.garment.pbns import train as T
+from recon.garment.pbns.garment_model import PBNSGarment
 from recon.garment.pbns.model import (
     PBNS,
     PBNSConfig,
@@ -290,6 +291,36 @@ def test_animated_glb_reproduces_body_and_cloth(body, tmp_path):
     off = np.linalg.norm(pose_meshes(four, frame)["body"] - ref, axis=1)
     assert off.mean() < 1e-3 and off.max() < 0.03  # eval/results/glb-influences.md: 16 mm at most over 300 poses
     assert (off < 1e-4).mean() > 0.9  # a vertex with 4 influences or fewer lands exactly
+
+
+def test_a_family_registered_at_run_time_dresses_through_the_dresser(body, monkeypatch):
+    class Halved(PBNSGarment):  # a family of one's own: PBNS with its pose deformations halved
+        name = "halved"
+
+        def dress(self, body, out, rotmats, shape, tightness, post):
+            rest = torch.stack([self.rest_for(body, s, tightness=tightness) for s in shape])
+            full = self.model.pose(rotmats, out.transforms, rest)
+            skinned = self.model.skin(rest, out.transforms)
+            return skinned + 0.5 * (full - skinned)
+
+    monkeypatch.setitem(family._RUNTIME, "halved", Halved)
+    assert family.family_names()[-1] == "halved" and family.family("halved") is Halved
+    torch.manual_seed(3)
+    rot = roma.rotvec_to_rotmat(0.3 * torch.randn(1, 24, 3))
+    args = (body, rot, body.mean_shape, torch.zeros(1, 3))
+    pbns = Dresser("tshirt-trousers", resolve_collisions=False)(*args).vertices
+    mine = Dresser("tshirt-trousers", resolve_collisions=False, dynamics=False, garment_model="halved")
+    assert mine.garment_model == "halved" and mine.garment.label == "PBNS"
+    half = mine(*args).vertices
+    with torch.no_grad():
+        skinned = mine.model.skin(mine.rest_for(body, body.mean_shape)[None],
+                                  body(rot, body.mean_shape[None]).transforms)[0].numpy()
+    assert np.allclose(half[0], skinned + 0.5 * (pbns[0] - skinned), atol=1e-5)
+    assert np.abs(half[0] - pbns[0]).max() > 1e-3  # the deformations do matter
+    with pytest.raises(ReconError, match="unknown garment model 'nope'.*pbns"):
+        Dresser("tshirt-trousers", garment_model="nope")
+    with pytest.raises(ReconError, match="quasi-static"):
+        Dresser("tshirt-trousers", garment_model="taylor", dynamics=True)
 
 
 def test_influence_sets_keep_the_strongest_and_sum_to_one():

@@ -12,7 +12,7 @@ from recon.keypoints.base import Keypoints
 from recon.keypoints.sources import TRUSTED_CONFIDENCE, MediaPipeSource
 from recon.people import guard
 from recon.people.mediapipe import MODELS, MPPose
-from recon.pipeline import ReconstructorConfig
+from recon.reconstruction import ReconstructorConfig
 from recon.synth.dataset import BENCHMARKS
 from recon.synth.scene import SceneSampler
 

@@ -22,8 +22,9 @@ from recon.keypoints.adapter import WEIGHTS as ADAPTER_WEIGHTS
 from recon.keypoints.views import pad_image, unview, windows
 from recon.people.boxes import box_overlap
 from recon.people.mediapipe import MP_MIRROR, MPPose
-from recon.pipeline import Reconstructor, ReconstructorConfig
+from recon.pipeline import Reconstructor
 from recon.poses.bvh import read_bvh
+from recon.reconstruction import ReconstructorConfig
 from recon.run import RunOptions, run
 
 needs_pipeline = pytest.mark.skipif(not (mediapipe_available() and ADAPTER_WEIGHTS.exists()),

@@ -33,6 +33,7 @@ STAGES = [
     ("recon.keypoints",),
     ("recon.shape",),
     ("recon.fit",),
+    ("recon.reconstruction",),  # what the pipeline takes and gives
     ("recon.pipeline",),
     ("recon.viz",),
     ("recon.bench",),
@@ -193,6 +194,52 @@ def test_the_image_pipeline_imports_no_data_training_or_evaluation_code():
                    or m.rsplit(".", 1)[-1] in offline)
     assert "recon.keypoints.sources" in closure and "recon.backbone.search" in closure
     assert not found, f"recon.pipeline imports {found}"
+
+
+# outside recon.garment (whose rooms say it), a module is offline by its name or its package
+OFFLINE_NAMES = ("train", "data", "dataset", "crops", "calibrate", "recipe", "eval", "evaluate", "reference",
+                 "reference_eval", "curves")
+OFFLINE_PACKAGES = ("recon.synth", "recon.training", "recon.bench")
+# commands: they run training and evaluation on request
+COMMANDS = ("recon.cli", "recon.demo", "recon.garment.author.command", "recon.garment.gcvae.command")
+
+
+def offline(module: str) -> bool:
+    """Training, its data, calibration or evaluation code."""
+    if module.startswith("recon.garment."):
+        w = garment_modules().get(module, "core.")
+        family, room = w.split(".")
+        return room in GARMENT_CORE_TRAINING if family == "core" else room not in INFERENCE_ROOMS + ("__init__",)
+    last = module.rsplit(".", 1)[-1]
+    return module.startswith(OFFLINE_PACKAGES) or last in OFFLINE_NAMES or last.endswith("_train")
+
+
+def test_inference_imports_no_training_data_or_evaluation_code_in_any_package():
+    """Every module that is not offline (``offline``) nor a command imports no offline module:
+    what a photo, a clip or an animation runs is what a user installs recon for."""
+    for module, path in MODULES.items():
+        if offline(module) or module.startswith(COMMANDS) or module == "recon":
+            continue
+        for imported, line, _ in imports(path):
+            assert not offline(imported), f"{module}:{line} imports {imported}, training/data/evaluation code"
+
+
+def test_the_garment_core_imports_no_family():
+    """Families register themselves (recon.garment.family); the core knows none of them."""
+    where = garment_modules()
+    for module, w in where.items():
+        if w.startswith("core."):
+            for imported, line, _ in imports(MODULES[module]):
+                assert where.get(imported, "core.").startswith("core."), f"{module}:{line} imports {imported}"
+
+
+def test_every_installed_garment_family_loads_under_its_name():
+    from recon.garment.family import GarmentModel, family, family_names
+    names = family_names()
+    assert {"pbns", "taylor", "deepsd"} <= set(names)
+    for name in names:
+        cls = family(name)
+        assert issubclass(cls, GarmentModel) and cls.name == name
 
 
 def test_a_family_uses_another_family_only_through_its_inference_rooms():

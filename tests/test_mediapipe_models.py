@@ -17,7 +17,8 @@ from recon.keypoints import train
 from recon.keypoints.adapter import KeypointAdapter, weights_for
 from recon.keypoints.sources import MediaPipeSource
 from recon.people import guard, mediapipe
-from recon.pipeline import Reconstructor, ReconstructorConfig
+from recon.pipeline import Reconstructor
+from recon.reconstruction import ReconstructorConfig
 
 needs_mediapipe = pytest.mark.skipif(not mediapipe.available(), reason="needs mediapipe (scripts/setup.sh)")
 

@@ -18,6 +18,7 @@ from recon import page as rpage
 from recon.cli import main
 from recon.export.glb import write_glb
 from recon.export.media import write_mp4
+from recon.garment.dress import Dresser
 from recon.garment.morph import outfit_animation
 from recon.page import build, models
 from recon.page.chromium import Chromium, find_chromium
@@ -88,7 +89,6 @@ def test_static_model_is_the_obj_in_gltf_axes(tmp_path):
 
 
 def test_slim_model_keeps_skeleton_and_motion_drops_blend_shapes(body, tmp_path):
-    from recon.garment.dress import Dresser
     dresser = Dresser("tshirt-trousers")
     torch.manual_seed(0)
     rot = roma.rotvec_to_rotmat(0.2 * torch.randn(4, 24, 3))
@@ -236,8 +236,9 @@ def test_browser_shows_a_run_and_plays_an_animation(body, tmp_path):
     rotvec = torch.zeros(30, 24, 3)
     rotvec[:, 0, 1] = 3.0 * t[:, 0]  # a turn about the vertical axis: every frame looks different
     rotvec[:, 16, 2], rotvec[:, 17, 2] = -1.2 * t[:, 0], 1.2 * t[:, 0]
-    write_glb(anim / "animated.glb", body, body.mean_shape, roma.rotvec_to_rotmat(rotvec),
-              torch.tensor([[0.0, 0.9, 0.0]] * 30), 15.0)
+    rot, transl = roma.rotvec_to_rotmat(rotvec), torch.tensor([[0.0, 0.9, 0.0]] * 30)
+    outfit = outfit_animation(body, body.mean_shape, rot, transl, Dresser("tshirt-trousers", dynamics=False), 15.0)
+    write_glb(anim / "animated.glb", body, body.mean_shape, rot, transl, 15.0, outfit)  # 4 influences a vertex
     (anim / "animation.json").write_text(json.dumps({"source": "x", "motion": "turn", "frames": 30, "fps": 15.0,
                                                      "files": {"glb": "animated.glb"}}))
     rpage.write_page(anim)

@@ -21,8 +21,9 @@ from recon.body.base import BodyModel
 from recon.errors import ReconError
 from recon.fit import FitConfig, fit_body
 from recon.keypoints import BackboneSource, Keypoints, MediaPipePose
-from recon.pipeline import Reconstructor, ReconstructorConfig
+from recon.pipeline import Reconstructor
 from recon.poses.mocap import MocapPoses
+from recon.reconstruction import ReconstructorConfig
 from recon.smplr import SMPLR
 from recon.smplr.lifter import Lifter
 

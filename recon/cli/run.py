@@ -34,7 +34,7 @@ PAGE_HELP = "no results page (index.html: the folder's results in a browser, off
 def add_run(p: Parser) -> None:
     models = tuple(known("recon.people.mediapipe:MODELS"))
     opts = "recon.run:RunOptions"
-    cfg = "recon.pipeline:ReconstructorConfig"
+    cfg = "recon.reconstruction:ReconstructorConfig"
     p.set_defaults(func=run_by("run:run_images"))
     p.add_argument("inputs", nargs="*", help="image files or folders (none: the bundled example photos)")
     p.add_argument("--out", required=True, help="output folder (one subfolder per image; an interrupted run resumes)")
@@ -84,13 +84,13 @@ def add_run(p: Parser) -> None:
     p.add_argument("--search", action=argparse.BooleanOptionalAction, default=known(cfg, "search"),
                    help="MediaPipe: where its face-anchored detector finds nobody, look for a person without a face "
                         "(back views, people cut by a border, small people)")
-    p.add_argument("--gender", choices=("auto", *known("recon.pipeline:GENDERS")), default=known(cfg, "gender"),
+    p.add_argument("--gender", choices=("auto", *known("recon.reconstruction:GENDERS")), default=known(cfg, "gender"),
                    help="the body's gender when you know it (auto: read from the person's outline; result.json's "
                         "shape_confidence says how sure)")
     p.add_argument("--height-cm", type=number(float, 50.0, 250.0), default=None,
                    help="the person's standing height when you know it: sets the body's height, and with the focal "
                         "length its distance (a single photo cannot tell scale: docs/pipeline.md)")
-    p.add_argument("--lift", choices=known("recon.pipeline:LIFTS"), default=known(cfg, "lift"),
+    p.add_argument("--lift", choices=known("recon.reconstruction:LIFTS"), default=known(cfg, "lift"),
                    help="SMPLR's 3D J+: the camera-aware lifter on the 2D keypoints, or the source's own 3D")
     p.add_argument("--flip", action=argparse.BooleanOptionalAction, default=None,
                    help="test-time mirror averaging of the keypoints (unset: on for MediaPipe, off for the backbone)")

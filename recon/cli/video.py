@@ -8,7 +8,7 @@ from recon.cli.run import FOCAL, INFLUENCES_HELP, PAGE_HELP, TIGHTNESS
 def add_video(p: Parser) -> None:
     models = tuple(known("recon.people.mediapipe:MODELS"))
     opts = "recon.video:VideoOptions"
-    cfg = "recon.pipeline:ReconstructorConfig"
+    cfg = "recon.reconstruction:ReconstructorConfig"
     p.set_defaults(func=run_by("video:run_video"))
     p.add_argument("inputs", nargs="+", metavar="input",
                    help="a video file OpenCV reads (mp4, avi, mov, webm, mkv) or a folder of frames; several: each "

@@ -9,8 +9,8 @@ import numpy as np
 import torch
 
 from recon.body.base import BodyModel
+from recon.body.lbs import blend_transforms
 from recon.export.glb import INFLUENCES, BlendAnimation, written_weights
-from recon.garment.pbns.model import blend_transforms
 
 
 def post_step_target(body: BodyModel, shape: torch.Tensor, rotmats: torch.Tensor, transl: torch.Tensor, dresser,

@@ -32,7 +32,8 @@ from recon.executor import ExecutorConfig, WorkerLost, WorkerSpec, run_job
 from recon.export.records import write_json
 from recon.io import file_digest, scan_inputs
 from recon.page import try_write_page
-from recon.pipeline import Reconstructor, ReconstructorConfig
+from recon.pipeline import Reconstructor
+from recon.reconstruction import ReconstructorConfig
 from recon.run.worker import Job, Outcome, RunOptions, RunWorker, dresser_for
 from recon.version import __version__
 

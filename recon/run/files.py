@@ -17,7 +17,7 @@ from recon.export.media import write_image
 from recon.export.mesh import write_mesh
 from recon.export.records import write_json
 from recon.garment.morph import outfit_animation
-from recon.pipeline import Reconstruction
+from recon.reconstruction import Reconstruction
 from recon.viz import draw_meshes, draw_overlay
 
 BODY_RGBA = (0.45, 0.62, 0.92, 1.0)

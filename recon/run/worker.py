@@ -14,7 +14,8 @@ from recon import camera
 from recon.errors import ReconError
 from recon.garment.dress import Dresser
 from recon.io import ImageError, exif_focal_factor, load_image
-from recon.pipeline import NoPersonFound, Reconstructor, ReconstructorConfig
+from recon.pipeline import Reconstructor
+from recon.reconstruction import NoPersonFound, ReconstructorConfig
 from recon.run.files import write_one, write_people
 
 MAX_SIDE = 1920  # longer side used for detection/rendering; results are in original pixels

@@ -24,6 +24,7 @@ from recon.garment.deepsd.model import DeePSD, OutfitGraph
 from recon.garment.outfits import OutfitSampler
 from recon.garment.pbns.model import PBNS, PBNSConfig
 from recon.garment.templates import PRESETS, RestBody, make_outfit
+from recon.render.normals import vertex_normals
 
 PUSH_MARGIN = 0.004  # cloth kept this far (m) in front of the body surface
 PUSH_REACH = 0.06  # only cloth whose nearest body vertex is this close is pushed
@@ -107,15 +108,6 @@ class Wardrobe:
         with torch.no_grad():
             posed = o.model.pose(rotmats, body_out.transforms, torch.from_numpy(rest))[0].numpy()
         return push_out(posed, body_out.vertices[0].numpy(), self.body.faces.numpy())
-
-
-def vertex_normals(v: np.ndarray, f: np.ndarray) -> np.ndarray:
-    """Area-weighted vertex normals (V, 3) in float64."""
-    fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
-    n = np.zeros_like(v)
-    for c in range(3):
-        np.add.at(n, f[:, c], fn)
-    return n / np.maximum(np.sqrt((n * n).sum(1, keepdims=True)), 1e-30)
 
 
 def push_out(cloth: np.ndarray, body_v: np.ndarray, body_f: np.ndarray) -> np.ndarray:

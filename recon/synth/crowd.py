@@ -17,8 +17,8 @@ from scipy.spatial.transform import Rotation
 from recon import camera
 from recon.body.base import BodyModel
 from recon.render import look
+from recon.render.normals import vertex_normals
 from recon.synth import photos
-from recon.synth.clothes import vertex_normals
 from recon.synth.other import OtherConfig, OtherSceneSampler, double_k
 
 MAX_PEOPLE = 10

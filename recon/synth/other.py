@@ -42,9 +42,10 @@ from recon import camera
 from recon.body.base import BodyModel
 from recon.poses.sampler import PoseSampler
 from recon.render import look
+from recon.render.normals import vertex_normals
 from recon.render.raster import Rasterizer
 from recon.synth import photos
-from recon.synth.clothes import Wardrobe, vertex_normals
+from recon.synth.clothes import Wardrobe
 
 GARMENT_LABEL = 24  # the parts image's label of clothes (body parts are 0-23)
 

@@ -17,7 +17,8 @@ from pathlib import Path
 from recon.errors import ReconError
 from recon.executor import ExecutorConfig, WorkerLost, WorkerSpec, run_job
 from recon.export.records import write_json
-from recon.pipeline import Reconstructor, ReconstructorConfig
+from recon.pipeline import Reconstructor
+from recon.reconstruction import ReconstructorConfig
 from recon.run import check_writable
 from recon.version import __version__
 from recon.video.run import VideoOptions, video, video_config, video_reconstructor, video_source

@@ -23,7 +23,8 @@ from pathlib import Path
 import numpy as np
 
 from recon import paths
-from recon.pipeline import FoundPeople, Reconstructor
+from recon.pipeline import Reconstructor
+from recon.reconstruction import FoundPeople
 from recon.video.frames import Frame
 from recon.video.track import HIST_BINS, appearance
 

@@ -45,7 +45,8 @@ from recon.garment.dress import Dresser
 from recon.io import file_digest
 from recon.keypoints.video import MediaPipeVideoSource, PeopleVideoSource
 from recon.page import try_write_page
-from recon.pipeline import Reconstructor, ReconstructorConfig
+from recon.pipeline import Reconstructor
+from recon.reconstruction import ReconstructorConfig
 from recon.run import check_writable
 from recon.version import __version__
 from recon.video.camera_motion import MOVING_DEGREES, CameraRotations, TurnEstimate

@@ -12,7 +12,7 @@ from recon.executor import ExecutorConfig
 from recon.fit import FitConfig
 from recon.garment import store
 from recon.page import open_in_browser, try_write_page, write_page
-from recon.pipeline import ReconstructorConfig
+from recon.reconstruction import ReconstructorConfig
 from recon.run import RunOptions, run
 
 

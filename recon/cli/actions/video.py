@@ -6,7 +6,7 @@ from pathlib import Path
 
 from recon.cli.parsing import executor_args
 from recon.executor import ExecutorConfig
-from recon.pipeline import ReconstructorConfig
+from recon.reconstruction import ReconstructorConfig
 from recon.video import FrameRange, SmoothConfig, VideoOptions, video
 from recon.video.many import videos
 

@@ -21,6 +21,7 @@ import trimesh
 from recon.animate import Motion, load_motion, on_the_ground, render_motion
 from recon.body import default_body
 from recon.body.base import BodyModel
+from recon.body.lbs import blend_transforms
 from recon.errors import MissingFile, ReconError
 from recon.export.glb import BlendAnimation, write_glb, written_weights
 from recon.export.media import write_video
@@ -32,7 +33,6 @@ from recon.garment.author.model import AuthorModel, Session, clip_inputs
 from recon.garment.dress import DressedOutfit, Dresser
 from recon.garment.integrate import unpose
 from recon.garment.ncs.model import smooth_time
-from recon.garment.pbns.model import blend_transforms
 
 MORPH_TARGETS = 64  # principal components of the animation's rest-pose displacements in the .glb
 
@@ -90,7 +90,7 @@ class Authoring:
         return on_the_ground(Motion(rot, smooth_time(m.transl[None], sigma)[0], m.fps, m.name), self.body, self.shape)
 
     def _inputs(self):
-        ncs = self.dresser.ncs if self.model.cfg.base == "ncs" else None
+        ncs = self.dresser.garment.ncs if self.model.cfg.base == "ncs" else None  # the pbns family's dynamics
         return clip_inputs(self.body, self.pbns, self.shape, self.motion.rotmats, self.motion.transl, ncs)
 
     def __len__(self) -> int:

@@ -27,12 +27,13 @@ from tqdm import tqdm
 from recon import paths
 from recon.body import default_body
 from recon.body.base import BodyModel
+from recon.body.lbs import blend_transforms
 from recon.executor import ExecutorConfig, WorkerSpec, map_strict
 from recon.garment.data import pose_set, posed_bodies
 from recon.garment.deepsd.model import lbs_weights
 from recon.garment.drape import DrapeSolver, DrapeSolverConfig
 from recon.garment.outfits import OutfitSampler
-from recon.garment.pbns.model import BlendShapeGarment, blend_transforms
+from recon.garment.pbns.model import BlendShapeGarment
 from recon.garment.templates import PRESETS, Garment, Outfit, RestBody, make_outfit
 from recon.timing import add_seconds
 

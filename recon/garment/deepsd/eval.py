@@ -28,6 +28,7 @@ from torch.utils import benchmark
 from recon import report
 from recon.body import default_body
 from recon.body.base import BodyModel
+from recon.body.lbs import blend_transforms
 from recon.garment import store
 from recon.garment.collide import CollisionResolver
 from recon.garment.deepsd.data import DeePSDDataConfig, folder
@@ -35,7 +36,7 @@ from recon.garment.deepsd.model import DeePSD, OutfitGraph
 from recon.garment.deepsd.train import VARIANTS, Sample, load_samples, variant_config
 from recon.garment.metrics import physical_metrics
 from recon.garment.outfits import HELD_OUT_FAMILIES
-from recon.garment.pbns.model import PBNS, BlendShapeGarment, blend_transforms, pose_features
+from recon.garment.pbns.model import PBNS, BlendShapeGarment, pose_features
 from recon.garment.templates import PRESETS, RestBody, make_outfit
 
 METRICS = ("error_mm", "edge_mm", "bend", "collision_pct")

@@ -22,12 +22,13 @@ import torch
 
 from recon.body import default_body
 from recon.body.base import BodyModel
+from recon.body.lbs import blend_transforms
 from recon.garment import losses, mesh, store
 from recon.garment.data import pose_set, posed_bodies
 from recon.garment.deepsd.data import DeePSDDataConfig, folder, generate, load_split
 from recon.garment.deepsd.model import DeePSD, DeePSDConfig, OutfitGraph
 from recon.garment.metrics import penetration
-from recon.garment.pbns.model import BlendShapeGarment, blend_transforms
+from recon.garment.pbns.model import BlendShapeGarment
 from recon.garment.templates import RestBody
 
 

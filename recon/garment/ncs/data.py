@@ -24,7 +24,7 @@ from scipy.spatial import cKDTree
 from recon import paths
 from recon.body import default_body, skeleton
 from recon.body.base import BodyModel
-from recon.body.lbs import mirror_rotmats
+from recon.body.lbs import blend_transforms, mirror_rotmats
 from recon.executor import ExecutorConfig, WorkerSpec, map_strict
 from recon.garment import losses, store
 from recon.garment.data import posed_bodies
@@ -32,7 +32,7 @@ from recon.garment.integrate import Preconditioner, integrate, settle, unpose
 from recon.garment.mesh import faces_within
 from recon.garment.ncs.config import NCSTrainConfig
 from recon.garment.ncs.model import FPS, descriptors, hanging_part, smooth_time, vertex_masses
-from recon.garment.pbns.model import PBNS, blend_transforms, pose_features, trained_outfit
+from recon.garment.pbns.model import PBNS, pose_features, trained_outfit
 from recon.garment.templates import GarmentSpec, Outfit
 from recon.poses.mocap import MocapPoses
 

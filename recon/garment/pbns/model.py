@@ -20,6 +20,7 @@ from torch import nn
 
 from recon import paths
 from recon.body.base import BodyModel
+from recon.body.lbs import blend_transforms
 from recon.errors import ReconError
 from recon.garment.mesh import smooth_vertex_values
 from recon.garment.templates import Outfit, RestBody, make_outfit
@@ -94,13 +95,6 @@ def remove_yaw(r: torch.Tensor) -> torch.Tensor:
 # GPU the batch-major form is the faster one at every batch (eval/results/bench-garment-gpu-h200.md)
 VERTEX_MAJOR_MIN_BATCH = 12
 VERTEX_MAJOR_CHUNK_FLOATS = 1 << 18
-
-
-def blend_transforms(weights: torch.Tensor, transforms: torch.Tensor) -> torch.Tensor:
-    """Each vertex's blended transform (B, N, 3, 4) from blend weights (N, 24) and the joint
-    transforms (B, 24, 3, 4). One matmul: faster than an einsum over joints for batches."""
-    b = transforms.shape[0]
-    return (weights @ transforms.reshape(b, -1, 12)).view(b, -1, 3, 4)
 
 
 def vertex_major(x: torch.Tensor) -> bool:
