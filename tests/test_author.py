@@ -17,10 +17,12 @@ from recon.garment import store
 from recon.garment.author import data as author_data
 from recon.garment.author import eval as author_eval
 from recon.garment.author.command import author, parse_key, read_keyframe
+from recon.garment.author.curves import probe, render_probe
 from recon.garment.author.data import (
     RANGES,
     AuthorDataConfig,
     Intrinsics,
+    Sim,
     cycled_chunks,
     fabric,
     plan,
@@ -56,7 +58,7 @@ from recon.garment.author.train import (
     within_variance,
 )
 from recon.garment.integrate import contact_friction
-from recon.garment.ncs.data import chunks_of
+from recon.garment.ncs.data import Chunk, chunks_of
 from recon.garment.ncs.model import NCS, motion_inputs
 from recon.garment.pbns.model import PBNS
 
@@ -444,3 +446,59 @@ def test_principal_basis_of_many_frames_from_a_subset_and_in_half_precision():
     assert abs(scale - s2) < 1e-3 * scale and torch.allclose(mean, m2, atol=3e-5)
     c = in_chunks(lambda a: a.reshape(len(a), -1) @ basis, x.half(), size=7)  # rows in chunks, as float32
     assert c.dtype == torch.float32 and torch.allclose(c, x.float().reshape(60, -1) @ basis, atol=1e-4)
+
+
+class _ProbeModel:
+    """A stand-in for an authoring model: its latent is a linear image of the parameters that the
+    first two cloth vertices carry (``knows``), or noise; its decoder ignores the latent."""
+
+    def __init__(self, knows: bool):
+        self.knows, self.mix = knows, torch.randn(6, 10, generator=torch.Generator().manual_seed(1))
+        self.descriptor = self
+
+    def latent(self, offsets, sig):
+        theta = offsets[:, :2].reshape(len(offsets), 6)
+        noise = 0.05 * sig[:, :10]
+        return theta @ self.mix + noise if self.knows else sig[:, :10]
+
+    def encode(self, offsets):
+        return offsets.reshape(len(offsets), -1)
+
+    def offsets(self, z, sig):
+        return torch.zeros(len(z), 4, 3)
+
+
+def _probe_frames(sets: int, windows: int, seed: int, first_set: int = 0):
+    """Frames of ``sets`` parameter sets x ``windows`` motions (20 frames each): the cloth's first two
+    vertices hold the set's parameters, the rest moves with the window's motion."""
+    g = torch.Generator().manual_seed(seed)
+    theta = torch.rand(sets, 6, generator=g)
+    motion = torch.randn(windows, 20, 16, generator=g)
+    parts, sims = [], []
+    for s in range(sets):
+        for w in range(windows):
+            off = torch.zeros(20, 4, 3)
+            off[:, :2] = theta[s].view(2, 3)
+            off[:, 2:] = motion[w, :, :6].view(20, 2, 3)
+            parts.append((off, motion[w], torch.full((20,), first_set + s), theta[s].expand(20, -1),
+                          torch.full((20,), len(sims)), torch.arange(20)))
+            sims.append(Sim("test", first_set + s, Chunk("test", w, 0, 20), None))
+    return Frames(*[torch.cat(c) for c in zip(*parts)]), sims
+
+
+def test_the_probe_tells_a_latent_that_knows_the_parameters_from_one_that_does_not():
+    torch.manual_seed(0)
+    train_f, _ = _probe_frames(24, 2, seed=2)
+    test_f, sims = _probe_frames(6, 3, seed=3, first_set=2000)
+    knows = probe(_ProbeModel(True), train_f, test_f, sims)
+    blind = probe(_ProbeModel(False), train_f, test_f, sims)
+    for r in (knows, blind):  # the cloth itself carries the parameters: the descriptor's probe finds them
+        assert np.mean(r["features"]["descriptor S"]["test_sims_r2"]) > 0.95
+    assert np.mean(knows["features"]["latent z"]["test_sims_r2"]) > 0.95
+    assert np.mean(knows["features"]["latent z"]["train_sets_held_out_r2"]) > 0.95
+    assert np.mean(blind["features"]["latent z"]["test_sims_r2"]) < 0.2
+    assert knows["spread"]["test"]["ratio"] < 0.05 < blind["spread"]["test"]["ratio"]
+    g = knows["signal"]
+    assert g["pairs"] == 3 * 15 and g["between_sets_mm"] > 100 and g["decoded_between_sets_mm"] == 0.0
+    text = "\n".join(render_probe(knows))
+    assert "### What the latent knows" in text and "| latent z" in text

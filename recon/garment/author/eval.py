@@ -33,6 +33,7 @@ from recon import report
 from recon.body import default_body
 from recon.body.base import BodyModel
 from recon.garment import store
+from recon.garment.author.curves import invariance, probe, render_probe, vertex_error
 from recon.garment.author.data import AuthorDataConfig, sim_folder, teacher_config, train_frames
 from recon.garment.author.model import (
     PELVIS,
@@ -67,11 +68,6 @@ VARIANTS = ("ours", "concat", "embedding")
 BASES = {"pbns": "PBNS's drape", "ncs": "NCS's cloth"}  # what a model's offsets are taken from
 
 
-def vertex_error(a: torch.Tensor, b: torch.Tensor) -> float:
-    """Mean per-vertex distance (mm)."""
-    return float((a - b).norm(dim=-1).mean()) * 1000
-
-
 def descriptor_table(train_f: Frames, test_f: Frames, faces: np.ndarray, model: AuthorModel,
                      tcfg: AuthorTrainConfig, log=print) -> list[dict]:
     lap = laplacian(faces, test_f.offsets.shape[1])
@@ -102,29 +98,6 @@ def descriptor_table(train_f: Frames, test_f: Frames, faces: np.ndarray, model: 
         rows.append(row)
         log(f"descriptor {row}")
     return rows
-
-
-def invariance(model: AuthorModel, f: Frames, lead: int) -> dict:
-    """Same-motion reconstruction error and cross-motion error (z of the middle frame of each window
-    decoded on the other windows of its parameter set), mm."""
-    with torch.no_grad():
-        floor = model.descriptor.decode(model.descriptor.encode(f.offsets))
-        z = model.latent(f.offsets, f.sig)
-        same = model.offsets(z, f.sig)
-    cross = []
-    for s in torch.unique(f.set_id):
-        sims = torch.unique(f.sim[f.set_id == s])
-        for a in sims:
-            mine = torch.nonzero(f.sim == a)[:, 0]
-            ref = mine[len(mine) // 2]
-            for b in sims:
-                if b == a:
-                    continue
-                other = torch.nonzero(f.sim == b)[:, 0]
-                dec = model.offsets(z[ref].expand(len(other), -1), f.sig[other])
-                cross.append(vertex_error(dec, f.offsets[other]))
-    return {"descriptor_mm": vertex_error(floor, f.offsets), "same_motion_mm": vertex_error(same, f.offsets),
-            "cross_motion_mm": float(np.mean(cross))}
 
 
 def keyframes(t: int, lead: int, ratio: float) -> list[int]:
@@ -311,6 +284,7 @@ def evaluate(outfit: str = "tshirt-skirt", split: str = "test", ablations: bool 
     out["speed"] = speed(model, body, pbns, hanging.shape)
     if ablations:
         out["descriptor"] = descriptor_table(train_f, test_f, hanging.faces, model, tcfg, log)
+    out["probe"] = probe(model, train_f, test_f, test_sims)
     out["invariance"] = {v: invariance(model if v == "ours" else ensure_variant(outfit, v, log), test_f, lead)
                          for v in (VARIANTS if ablations else VARIANTS[:1])}
     return out
@@ -356,6 +330,8 @@ def render(results: list[dict]) -> str:
         lines += [f"Speed ({s['frames']}-frame clip, {s['threads']} thread): {s['key_edit_fps']:.0f} frames/s "
                   f"after a keyframe edit, {s['motion_edit_fps']:.0f} after a motion edit.", ""]
         lines += _ablation_tables(r["invariance"], r.get("descriptor"))
+        if "probe" in r:
+            lines += render_probe(r["probe"], r["invariance"].get("ours"))
         old = r.get("previous_ablations")
         if old:
             lines += [f"### Ablations not re-run in this report: {old['data']}", ""]
