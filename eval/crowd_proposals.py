@@ -15,7 +15,6 @@ alone (the 0.27 people stage). Writes eval/results/crowd-proposals.{md,json}.
 from __future__ import annotations
 
 import argparse
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +22,7 @@ import torch
 from tqdm import tqdm
 
 from recon import report
+from recon.executor import Call, ExecutorConfig, WorkerSpec, in_order
 from recon.keypoints.adapter import KeypointAdapter
 from recon.keypoints.on_boxes import DETECTOR_REF, MIN_SCORE, MULTIPOSE_REF, LandmarksOnBoxes, Reading, is_person, logit
 from recon.keypoints.views import same_answer
@@ -98,12 +98,16 @@ def kept(rows: list[dict], size: int, overlap: float, ref: float) -> list[dict]:
     return out
 
 
+def answers_of(task: tuple[str, int | None]) -> list[dict]:
+    return answers(*task)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--n", type=int, default=None, help="the first n images of each benchmark")
     a = ap.parse_args()
-    with ProcessPoolExecutor(2) as pool:  # one benchmark a core
-        crowd, empty = pool.map(answers, ("other-crowd-val", "other-empty-val"), (a.n, a.n))
+    jobs = [("other-crowd-val", a.n), ("other-empty-val", a.n)]  # one benchmark a core
+    crowd, empty = in_order(WorkerSpec(Call, (answers_of,)), jobs, ExecutorConfig(workers=2, threads=1))
     n_crowd = len({r["image"] for r in crowd})
     base = kept(crowd, 0, 0.0, 1.0)
     base_r = sum(r["right"] for r in base)

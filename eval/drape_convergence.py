@@ -13,8 +13,6 @@ every vertex: what another CPU's last bits could do), against the default solve 
 from __future__ import annotations
 
 import argparse
-import multiprocessing as mp
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
 from pathlib import Path
 
@@ -23,6 +21,7 @@ import torch
 
 from recon import report
 from recon.body import default_body
+from recon.executor import Call, ExecutorConfig, WorkerSpec, in_order
 from recon.garment import store
 from recon.garment.data import posed_bodies
 from recon.garment.drape import DrapeSolver, DrapeSolverConfig
@@ -64,8 +63,8 @@ def main() -> None:
     args = ap.parse_args()
     torch.set_num_threads(1)  # as each worker (the machine record says so)
     rot = test_poses(20)[:args.poses]
-    with ProcessPoolExecutor(args.workers, mp_context=mp.get_context("spawn")) as pool:
-        per_pose = list(pool.map(_one, [(args.outfit, r) for r in rot]))
+    per_pose = in_order(WorkerSpec(Call, (_one,)), [(args.outfit, r) for r in rot],
+                        ExecutorConfig(workers=args.workers, threads=1))
     ref = "reference (8 x 300, tolerance 1 um)"
 
     def dist(a: str, b: str) -> np.ndarray:
