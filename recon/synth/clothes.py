@@ -65,7 +65,7 @@ def _deepsd_outfit(net: DeePSD, rb: RestBody, outfit, name: str, shape0) -> Outf
 
 
 class Wardrobe:
-    """The presets (``presets``) and ``n_random`` CLOTH3D outfits of stream ``seed`` (made once, ~2 s
+    """The presets (``presets``) and ``n_random`` CLOTH3D outfits of stream ``seed`` (made once
     each), of the held-out distribution (``held_out``: the other domain's) or the training one (the
     training generator's). ``body``: the float64 body model."""
 

@@ -71,7 +71,8 @@ class Authoring:
         path = store.author_path(outfit)
         if not path.exists():
             raise MissingFile(f"no authoring model for {outfit} ({path}): run `recon garment train --model author "
-                              f"--outfit {outfit}` (simulations, then training: about 1.5 h on 2 cores)")
+                              f"--outfit {outfit}` (simulations, then training; its time: "
+                              "recon/garment/weights/MODEL_CARD.md)")
         self.model, self.meta = AuthorModel.load(path)
         self.body = body or default_body()
         self.outfit = outfit

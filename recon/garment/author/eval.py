@@ -16,7 +16,7 @@ model on held-out parameter sets and held-out clips (the test performers' window
    100k frames; ``recon garment train --model author --train-sets N``), those that exist.
 5. Speed: re-propagating a 300-frame clip after a keyframe edit, and after a motion edit.
 
-Tables 1 and 2 train 7 more networks (~1.5 h on 2 cores); ``ablations=False`` skips them and keeps
+Tables 1 and 2 train 7 more networks (their time: the model card); ``ablations=False`` skips them and keeps
 the previous report's, marked with the data they were made on.
 """
 from __future__ import annotations
