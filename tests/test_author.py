@@ -11,12 +11,13 @@ import roma
 import torch
 import trimesh
 from gltf_check import assert_valid, pose_meshes
+from PIL import Image
 
 from recon.errors import ReconError
 from recon.garment import store
 from recon.garment.author import data as author_data
 from recon.garment.author import eval as author_eval
-from recon.garment.author.command import author, parse_key, read_keyframe
+from recon.garment.author.command import Authoring, author, parse_key, read_keyframe
 from recon.garment.author.curves import probe, render_probe
 from recon.garment.author.data import (
     RANGES,
@@ -61,6 +62,7 @@ from recon.garment.integrate import contact_friction
 from recon.garment.ncs.data import Chunk, chunks_of
 from recon.garment.ncs.model import NCS, motion_inputs
 from recon.garment.pbns.model import PBNS
+from recon.page.build import folder_kind
 
 TINY = AuthorConfig(window=3, stride=1, joints=(), shape_dims=6, pca_dims=8, shape_hidden=(16,), motion_hidden=(16,),
                     subnets=3, latent=5, blocks=2)
@@ -315,6 +317,21 @@ def test_author_command_matches_its_keys_and_writes_a_valid_glb(body, tmp_path, 
     assert_valid(out["glb"])
     posed = pose_meshes(out["glb"], frame=4)["outfit"]
     assert np.abs(posed - v).max() < info["glb_max_error_mm"] / 1000 + 1e-3
+    # the preview: ours beside the interpolation with the same keys, and the folder's page card
+    video, preview = Image.open(out["video"]), Image.open(out["preview"])
+    assert preview.size == (2 * video.size[0], video.size[1]) and preview.n_frames == video.n_frames
+    assert folder_kind(tmp_path / "b") == "author" and out["page"].is_file()
+    assert "authored-preview.gif" in (tmp_path / "b" / ".recon-page" / "data.js").read_text()
+    a = Authoring("tshirt-skirt", "walk", body=body, max_seconds=0.4)
+    a.set_key(2, torch.from_numpy(v).float())
+    a.set_key(9, torch.from_numpy(np.asarray(key.vertices)).float())
+    between = a.interpolated()
+    assert torch.allclose(between[2], a.session.keys[2], atol=1e-5)
+    assert torch.allclose(between[9], a.session.keys[9], atol=1e-5)
+    char = lambda f, x: (x - a.pelvis[f]) @ a.session.yaw[f]  # noqa: E731 - the character's space at frame f
+    want = (4 / 7) * char(2, a.session.keys[2]) + (3 / 7) * char(9, a.session.keys[9])  # frame 5 of 2..9
+    assert torch.allclose(char(5, between[5]), want, atol=1e-5)
+    assert torch.allclose(char(0, between[0]), char(2, a.session.keys[2]), atol=1e-5)  # held before the first
 
 
 def test_the_train_data_only_grows_with_its_set_count():

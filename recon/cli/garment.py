@@ -103,7 +103,9 @@ def add_garment(p: Parser) -> None:
     a.add_argument("--loop", action="store_true", help="the motion loops: the garment loops with it")
     a.add_argument("--render", choices=("mp4", "gif", "none"), default="mp4")
     a.add_argument("--max-seconds", type=POSITIVE, default=None, help="only the clip's first seconds")
-    a.add_argument("--out", required=True, help="output folder: authored.glb, authored.mp4, authoring.json")
+    a.add_argument("--no-page", action="store_true", help="no results page (index.html)")
+    a.add_argument("--out", required=True, help="output folder: authored.glb, authored.mp4, authored-preview.mp4 "
+                   "(ours beside the keyframes interpolated), authoring.json, index.html")
     a = action("sample", "garment:sample", "garments drawn from the GCVAE's latent space, dressed by DeePSD")
     a.add_argument("--type", choices=known("recon.garment.gcvae.model:TYPES"), required=True)
     a.add_argument("-n", type=COUNT, default=8, help="how many")

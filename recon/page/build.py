@@ -198,6 +198,29 @@ def animate_page(out: Path) -> Page:
     return page
 
 
+def author_page(out: Path) -> Page:
+    """``recon garment author``'s folder: the authored animation's card, its preview and renders."""
+    a = _json(out / "authoring.json") or {}
+    page = Page("author", f"recon garment author: {a.get('outfit', '')} - {a.get('motion', '')}", out)
+    keys = a.get("keys") or {}
+    page.summary = [[k, a.get(k)] for k in ("outfit", "motion", "frames", "fps") if a.get(k)] + [
+        ["keyframes", ", ".join(keys) if keys else "none (the default material)"]]
+    files = a.get("files", {})
+    images, views = [], []
+    for kind, label in (("preview", "ours | interpolation with the same keys"), ("video", "render")):
+        name = files.get(kind, "")
+        if name.endswith(".gif") and (out / name).is_file():
+            images.append(_image(page, out / name, label))
+        elif name:
+            page.links.append({"href": name, "label": f"{name}: {label}"})
+    if files.get("glb") and (out / files["glb"]).is_file():
+        glb = out / files["glb"]
+        views.append(page.view(View("animated", "animated", {"glb": glb}, glb)))
+    page.items.append({"key": out.resolve().name, "images": images, "people": [
+        {"label": "outfit", "numbers": [], "views": views, "files": page.files(out, files.values())}]})
+    return page
+
+
 def demo_page(out: Path) -> Page:
     page = Page("demo", "recon demo", out)
     if (out / "photos").is_dir():
@@ -217,6 +240,8 @@ def folder_kind(out: Path) -> str | None:
         return "video"
     if (out / "animation.json").is_file():
         return "animate"
+    if (out / "authoring.json").is_file():
+        return "author"
     if (out / "photos" / "summary.json").is_file():
         return "demo"
     if (out / "summary.json").is_file() or any(out.rglob("result.json")):
@@ -224,7 +249,7 @@ def folder_kind(out: Path) -> str | None:
     return None
 
 
-BUILDERS = {"run": run_page, "video": video_page, "animate": animate_page, "demo": demo_page}
+BUILDERS = {"run": run_page, "video": video_page, "animate": animate_page, "author": author_page, "demo": demo_page}
 
 
 def write_page(out: str | Path, kind: str | None = None) -> Path:
@@ -232,7 +257,7 @@ def write_page(out: str | Path, kind: str | None = None) -> Path:
     out = Path(out)
     kind = kind or folder_kind(out)
     if kind is None:
-        raise FileNotFoundError(f"{out} holds no output of recon run, video, animate or demo")
+        raise FileNotFoundError(f"{out} holds no output of recon run, video, animate, garment author or demo")
     page = BUILDERS[kind](out)
     pdir = out / PAGE_DIR
     models = pdir / "models"

@@ -182,7 +182,7 @@ def sample(args) -> None:
 def author_clip(args) -> None:
     store.check_outfit(args.outfit)
     author(args.outfit, args.motion, args.out, keys=args.key or [], export=args.export or [], loop=args.loop,
-           render=args.render, max_seconds=args.max_seconds)
+           render=args.render, max_seconds=args.max_seconds, page=not args.no_page)
 
 
 def reference(args) -> None:

@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import cv2
 import numpy as np
 import roma
 import torch
@@ -29,11 +30,13 @@ from recon.export.mesh import write_mesh
 from recon.export.records import write_json
 from recon.garment import store
 from recon.garment.author.data import teacher_config
-from recon.garment.author.model import AuthorModel, Session, clip_inputs
+from recon.garment.author.model import PELVIS, AuthorModel, Session, clip_inputs, interpolate_latents
 from recon.garment.dress import DressedOutfit, Dresser
 from recon.garment.integrate import unpose
 from recon.garment.ncs.model import smooth_time
+from recon.page import try_write_page
 
+KEY_RGB = (230, 120, 20)  # a keyframe's frame in the preview
 MORPH_TARGETS = 64  # principal components of the animation's rest-pose displacements in the .glb
 
 
@@ -92,7 +95,22 @@ class Authoring:
 
     def _inputs(self):
         ncs = self.dresser.garment.ncs if self.model.cfg.base == "ncs" else None  # the pbns family's dynamics
-        return clip_inputs(self.body, self.pbns, self.shape, self.motion.rotmats, self.motion.transl, ncs)
+        static, yaw, joints = clip_inputs(self.body, self.pbns, self.shape, self.motion.rotmats, self.motion.transl,
+                                          ncs)
+        self.pelvis = joints[:, PELVIS:PELVIS + 1]
+        return static, yaw, joints
+
+    def interpolated(self) -> torch.Tensor:
+        """The keyframes' outfits linearly interpolated between them in the character's space (its
+        heading, about the pelvis), held beyond the first and last: the keyframe workflow's
+        in-betweens with the same keys, (T, N, 3)."""
+        frames = sorted(self.session.keys)
+        if not frames:
+            raise ValueError("no keyframe to interpolate")
+        yaw, keys = self.session.yaw, torch.stack([self.session.keys[f] for f in frames])
+        char = torch.einsum("kji,knj->kni", yaw[frames], keys - self.pelvis[frames])
+        flat = interpolate_latents(char.reshape(len(frames), -1), frames, len(self), self.session.loop)
+        return torch.einsum("tij,tnj->tni", yaw, flat.view(len(self), -1, 3)) + self.pelvis
 
     def __len__(self) -> int:
         return len(self.motion)
@@ -164,10 +182,29 @@ class Authoring:
         return BlendAnimation(rest, self.dresser.model.faces.numpy(), self.pbns.weights.detach(), basis, codes), worst
 
 
+def side_by_side(ours: list[np.ndarray], interpolated: list[np.ndarray], keys: list[int]) -> list[np.ndarray]:
+    """Each frame: ours | the interpolation, labelled, a keyframe's in a coloured frame."""
+    out = []
+    for f, (a, b) in enumerate(zip(ours, interpolated, strict=True)):
+        tiles = []
+        for img, label in ((a, "ours"), (b, "interpolation, same keys")):
+            img = np.ascontiguousarray(img)
+            cv2.putText(img, label, (10, 24), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (40, 40, 40), 1, cv2.LINE_AA)
+            if f in keys:
+                cv2.rectangle(img, (1, 1), (img.shape[1] - 2, img.shape[0] - 2), KEY_RGB, 4)
+                cv2.putText(img, f"keyframe {f}", (10, img.shape[0] - 14), cv2.FONT_HERSHEY_SIMPLEX, 0.6, KEY_RGB, 2,
+                            cv2.LINE_AA)
+            tiles.append(img)
+        out.append(np.concatenate(tiles, 1))
+    return out
+
+
 def author(outfit: str, motion: str | Path, out: str | Path, keys: list[str] = (), export: list[int] = (),
            loop: bool = False, render: str = "mp4", size: tuple[int, int] = (480, 640),
-           max_seconds: float | None = None, progress: bool = True, log=print) -> dict:
-    """The command: keyframes ("FRAME:MESH") propagated over the clip ``motion``; returns {kind: path}."""
+           max_seconds: float | None = None, progress: bool = True, log=print, page: bool = True) -> dict:
+    """The command: keyframes ("FRAME:MESH") propagated over the clip ``motion``; returns {kind: path}.
+    With keyframes and a render, also ``authored-preview``: ours beside the keyframes interpolated;
+    ``page``: the folder's results page (recon.page)."""
     parsed = [parse_key(k) for k in keys]
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -192,6 +229,10 @@ def author(outfit: str, motion: str | Path, out: str | Path, keys: list[str] = (
     if render != "none":
         frames = render_motion(body, a.shape, m, size=size, progress=progress, dressed=a.dressed(vertices))
         written["video"] = write_video(out / f"authored.{render}", frames, m.fps)
+        if parsed:  # ours beside the keyframe workflow's in-betweens with the same keys
+            plain = render_motion(body, a.shape, m, size=size, progress=progress, dressed=a.dressed(a.interpolated()))
+            written["preview"] = write_video(out / f"authored-preview.{render}",
+                                             side_by_side(frames, plain, sorted(a.session.keys)), m.fps)
     key_error = {str(f): float((vertices[f] - a.session.keys[f]).norm(dim=-1).max()) * 1000 for f, _ in parsed}
     info = {"outfit": outfit, "motion": m.name, "frames": len(a), "fps": m.fps, "loop": loop,
             "keys": {str(f): str(p) for f, p in parsed}, "keyframe_max_error_mm": key_error,
@@ -200,4 +241,6 @@ def author(outfit: str, motion: str | Path, out: str | Path, keys: list[str] = (
             "glb_max_error_mm": round(worst * 1000, 2), "files": {k: v.name for k, v in written.items()}}
     written["json"] = write_json(out / "authoring.json", info)
     log(json.dumps(info, indent=1))
+    if page and (index := try_write_page(out, log, kind="author")):
+        written["page"] = index
     return written
