@@ -350,6 +350,20 @@ def test_the_train_data_only_grows_with_its_set_count():
     assert u.min() >= 0 and u.max() <= 1 and (u.max(0) - u.min(0) > 0.9).all()
 
 
+def test_train_sets_can_share_their_motions_in_one_simulation_folder():
+    own, shared = AuthorDataConfig(train_sets=6), AuthorDataConfig(train_sets=6, motion_share=3)
+    assert sim_folder(own) == sim_folder(shared)  # which simulations, not what a simulation is
+    chunks = {}
+    for s in plan(shared):
+        if s.split == "train":
+            chunks.setdefault(s.set, []).append(s.chunk)
+    assert chunks[0] == chunks[1] == chunks[2] != chunks[3] == chunks[4] == chunks[5]
+    assert len(chunks[0]) == shared.train_chunks and train_frames(shared) == train_frames(own)
+    mine = {s.set: s.chunk for s in plan(own) if s.split == "train"}
+    assert len(set(mine.values())) == 6  # the default: every set its own chunks
+    assert [s for s in plan(shared) if s.split != "train"] == [s for s in plan(own) if s.split != "train"]
+
+
 def test_train_chunks_start_again_when_the_clips_run_out():
     everything = chunks_of("val", 200, 10 ** 6, 0)
     n = len(everything)

@@ -110,7 +110,9 @@ def fabric(cfg: NCSTrainConfig, p: Intrinsics) -> NCSTrainConfig:
 class AuthorDataConfig:
     outfit: str = "tshirt-skirt"
     train_sets: int = 32  # parameter sets simulated on the train performers' motion
-    train_chunks: int = 2  # chunks per train set (each set its own)
+    train_chunks: int = 2  # chunks per train set
+    # train sets simulated on the same chunks (1: each set its own; k: k materials on each motion)
+    motion_share: int = 1
     chunk: int = 90  # frames a train chunk
     val_sets: int = 2  # held-out parameter sets on windows of the val performers (tuning)
     val_windows: int = 2
@@ -145,10 +147,11 @@ def plan(cfg: AuthorDataConfig) -> list[Sim]:
         for c in chunks_of(split, cfg.window, n_win, cfg.seed + off):
             sims += [Sim(split, s, c, p) for s, p in enumerate(ps)]
     train_p = sample_intrinsics(cfg.train_sets, cfg.seed, extendable=True)
-    chunks = cycled_chunks("train", cfg.chunk, cfg.train_sets * cfg.train_chunks, cfg.seed)
-    for k, c in enumerate(chunks):
-        s = k // cfg.train_chunks
-        sims.append(Sim("train", s, c, train_p[s]))
+    groups = -(-cfg.train_sets // cfg.motion_share)  # each group of sets shares its chunks
+    chunks = cycled_chunks("train", cfg.chunk, groups * cfg.train_chunks, cfg.seed)
+    for s in range(cfg.train_sets):
+        g = s // cfg.motion_share
+        sims += [Sim("train", s, c, train_p[s]) for c in chunks[g * cfg.train_chunks:(g + 1) * cfg.train_chunks]]
     return sims
 
 
@@ -164,10 +167,12 @@ def teacher_config(outfit: str) -> NCSTrainConfig:
 
 def sim_folder(cfg: AuthorDataConfig) -> Path:
     """``<cache>/author-sims/<outfit>-<hash of everything the simulations depend on>``: all but the
-    number of train sets, which only adds simulations."""
+    number of train sets and how they share motions, which only choose the simulations (a
+    simulation's name says its set and chunk)."""
     base = teacher_config(cfg.outfit)
+    chosen = ("workers", "train_sets", "motion_share")  # which simulations, not what they are
     key = json.dumps({"pbns": hashlib.sha256(store.trained_pbns(cfg.outfit).read_bytes()).hexdigest(),
-                      "data": {k: v for k, v in asdict(cfg).items() if k not in ("workers", "train_sets")},
+                      "data": {k: v for k, v in asdict(cfg).items() if k not in chosen},
                       "ranges": RANGES,
                       **{k: asdict(base)[k] for k in ("edge", "bend", "collision", "gravity", "pin", "inertia",
                                                       "integrate", "smooth_motion", "waist_hold")}},
