@@ -1,2 +1,2 @@
 """recon's version: ``recon.__version__``, and pyproject.toml reads it from here."""
-__version__ = "0.33.0"
+__version__ = "0.34.0"

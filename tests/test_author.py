@@ -532,4 +532,6 @@ def test_the_probe_tells_a_latent_that_knows_the_parameters_from_one_that_does_n
     g = knows["signal"]
     assert g["pairs"] == 3 * 15 and g["between_sets_mm"] > 100 and g["decoded_between_sets_mm"] == 0.0
     text = "\n".join(render_probe(knows))
-    assert "### What the latent knows" in text and "| latent z" in text
+    assert "### What the latent knows" in text and "| latent z" in text and "learning curve" not in text
+    curve = "\n".join(render_probe(knows, None, {"32": blind, "8": knows}))
+    assert curve.index("| 8 ") < curve.index("| 32 ")  # by train sets

@@ -169,9 +169,10 @@ def probe(model, train_f: Frames, test_f: Frames, test_plan: list[Sim]) -> dict:
     return out
 
 
-def render_probe(p: dict, table: dict | None = None) -> list[str]:
+def render_probe(p: dict, table: dict | None = None, curve: dict | None = None) -> list[str]:
     """The probe's Markdown section; ``table``: the report's own invariance row of the model, to
-    compare with the probed model's (``p["model_check"]``, where the probe ran on its own)."""
+    compare with the probed model's (``p["model_check"]``, where the probe ran on its own);
+    ``curve``: {train sets: probe} of the learning curve's models."""
     names = p["parameters"]
     rows = []
     for feat, r in p["features"].items():
@@ -194,6 +195,16 @@ def render_probe(p: dict, table: dict | None = None) -> list[str]:
              f"The signal: on the same window, two parameter sets' simulations lie {g['between_sets_mm']:.1f} mm "
              f"apart ({g['pairs']} pairs), a simulation {g['from_base_mm']:.1f} mm from the base cloth; the "
              f"decoder's cloth from the two sets' latents lies {g['decoded_between_sets_mm']:.1f} mm apart.", ""]
+    if curve:
+        rows = []
+        for n, q in sorted(curve.items(), key=lambda kv: int(kv[0])):
+            z, s_, sp = q["features"]["latent z"], q["features"]["descriptor S"], q["spread"]
+            rows.append([int(n), float(np.mean(z["train_sets_held_out_r2"])), float(np.mean(z["test_sims_r2"])),
+                         float(np.mean(s_["test_sims_r2"])), sp["train"]["ratio"], sp["test"]["ratio"]])
+        lines += ["The probe of the learning curve's models (mean R^2 over the parameters; spread: within a set "
+                  "against between sets):", "",
+                  report.table(rows, ["train sets", "z: train sets held out", "z: test sets", "S: test sets",
+                                      "spread, train", "spread, test"], ["d", ".2f", ".2f", ".2f", ".2g", ".2f"]), ""]
     c = p.get("model_check")
     if c and table:
         lines += [f"The probed model (same recipe and simulations, trained again): same motion "

@@ -331,7 +331,7 @@ def render(results: list[dict]) -> str:
                   f"after a keyframe edit, {s['motion_edit_fps']:.0f} after a motion edit.", ""]
         lines += _ablation_tables(r["invariance"], r.get("descriptor"))
         if "probe" in r:
-            lines += render_probe(r["probe"], r["invariance"].get("ours"))
+            lines += render_probe(r["probe"], r["invariance"].get("ours"), r.get("probe_curve"))
         old = r.get("previous_ablations")
         if old:
             lines += [f"### Ablations not re-run in this report: {old['data']}", ""]
