@@ -57,14 +57,31 @@ class Dresser:
             cls = family(other)
         self.garment: GarmentModel = cls(outfit, path, resizer=resizer, dynamics=dynamics, **options)
         self.garment_model = cls.name
-        g = self.garment
-        self.outfit, self.shape, self.garment_id, self.names = g.outfit, g.shape, g.garment_id, g.names
-        self.resolver = CollisionResolver(g.model.faces.numpy(), g.layer) if resolve_collisions else None
+        self.resolver = CollisionResolver(self.garment.model.faces.numpy(), self.garment.layer) \
+            if resolve_collisions else None
 
     @property
     def model(self) -> torch.nn.Module:
         """The outfit's skinned blend-shape model (its rest, faces and skinning weights)."""
         return self.garment.model
+
+    @property
+    def outfit(self) -> str:
+        """What ``Dresser(outfit)`` takes to load it again."""
+        return self.garment.outfit
+
+    @property
+    def shape(self) -> torch.Tensor:
+        """The body shape the outfit was made on."""
+        return self.garment.shape
+
+    @property
+    def garment_id(self) -> np.ndarray:
+        return self.garment.garment_id
+
+    @property
+    def names(self) -> list[str]:
+        return self.garment.names
 
     @property
     def has_resizer(self) -> bool:

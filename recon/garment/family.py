@@ -8,6 +8,7 @@ run time. The core imports no family: ``family(name)`` loads one on first use.
 """
 from __future__ import annotations
 
+import json
 from abc import ABC, abstractmethod
 from collections.abc import Callable
 from importlib.metadata import entry_points
@@ -40,6 +41,13 @@ class GarmentModel(ABC):
     garment_id: np.ndarray  # (N,) which garment each cloth vertex belongs to
     names: list[str]  # the garments
     layer: np.ndarray  # (N,) collision layer of each cloth vertex (the post-step's)
+
+    def take(self, model: torch.nn.Module, ck: dict) -> None:
+        """``model`` and the outfit fields of its checkpoint ``ck`` (shape, garment ids, names, layers)."""
+        self.model = model
+        self.shape, self.garment_id = ck["shape"], ck["garment_id"].numpy()
+        self.names = json.loads(ck["meta_json"])["garments"]
+        self.layer = ck["layer"].numpy()
 
     @classmethod
     def instead(cls, outfit: str, path: str | Path | None) -> str | None:

@@ -185,17 +185,28 @@ def animate_page(out: Path) -> Page:
     page = Page("animate", f"recon animate: {Path(a.get('source', out)).name} - {a.get('motion', '')}", out)
     page.summary = [[k, a.get(k)] for k in ("motion", "frames", "fps", "outfit", "garment_model") if a.get(k)]
     files = a.get("files", {})
-    images, views = [], []
-    if files.get("video", "").endswith(".gif") and (out / files["video"]).is_file():
-        images.append(_image(page, out / files["video"], "render"))
-    elif files.get("video"):
-        page.links.append({"href": files["video"], "label": files["video"]})
+    images = []
+    _render_shown(page, out, files.get("video", ""), "render", images, files.get("video", ""))
+    _animation_card(page, out, files, images, "person")
+    return page
+
+
+def _render_shown(page: Page, out: Path, name: str, label: str, images: list, link_label: str) -> None:
+    """A render of the folder: a GIF shown on the page, another video linked (``link_label``)."""
+    if name.endswith(".gif") and (out / name).is_file():
+        images.append(_image(page, out / name, label))
+    elif name:
+        page.links.append({"href": name, "label": link_label})
+
+
+def _animation_card(page: Page, out: Path, files: dict, images: list, label: str) -> None:
+    """The folder's one card: its images, its animated .glb in the 3D viewer and its files."""
+    views = []
     if files.get("glb") and (out / files["glb"]).is_file():
         glb = out / files["glb"]
         views.append(page.view(View("animated", "animated", {"glb": glb}, glb)))
     page.items.append({"key": out.resolve().name, "images": images, "people": [
-        {"label": "person", "numbers": [], "views": views, "files": page.files(out, files.values())}]})
-    return page
+        {"label": label, "numbers": [], "views": views, "files": page.files(out, files.values())}]})
 
 
 def author_page(out: Path) -> Page:
@@ -206,18 +217,11 @@ def author_page(out: Path) -> Page:
     page.summary = [[k, a.get(k)] for k in ("outfit", "motion", "frames", "fps") if a.get(k)] + [
         ["keyframes", ", ".join(keys) if keys else "none (the default material)"]]
     files = a.get("files", {})
-    images, views = [], []
+    images = []
     for kind, label in (("preview", "ours | interpolation with the same keys"), ("video", "render")):
         name = files.get(kind, "")
-        if name.endswith(".gif") and (out / name).is_file():
-            images.append(_image(page, out / name, label))
-        elif name:
-            page.links.append({"href": name, "label": f"{name}: {label}"})
-    if files.get("glb") and (out / files["glb"]).is_file():
-        glb = out / files["glb"]
-        views.append(page.view(View("animated", "animated", {"glb": glb}, glb)))
-    page.items.append({"key": out.resolve().name, "images": images, "people": [
-        {"label": "outfit", "numbers": [], "views": views, "files": page.files(out, files.values())}]})
+        _render_shown(page, out, name, label, images, f"{name}: {label}")
+    _animation_card(page, out, files, images, "outfit")
     return page
 
 

@@ -25,6 +25,16 @@ def untrained_mesh(outfit: str) -> bool:
     return Path(outfit).suffix.lower() in MESH_SUFFIXES and not store.pbns_path(outfit).exists()
 
 
+def load_pbns(outfit: str, path: str | Path | None = None) -> tuple[Path, PBNS, dict, str | None]:
+    """The outfit's PBNS: ``path`` (default its trained weights: a preset's, your own garment's, a
+    .pt file), the model, its checkpoint and the outfit's name in it (None: a weights file alone)."""
+    path = Path(path) if path else store.trained_pbns(outfit)
+    if not path.exists():
+        raise MissingFile(f"no trained outfit {path}: run `recon garment train --outfit {outfit}`")
+    model, ck = PBNS.load(path)
+    return path, model, ck, json.loads(ck["meta_json"]).get("outfit")
+
+
 class BlendGarment(GarmentModel):
     """A garment model that is one skinned blend-shape model (PBNS's form): the cloth of a pose is
     its skinning of the resized rest plus its pose-space deformations."""
@@ -32,11 +42,8 @@ class BlendGarment(GarmentModel):
     ncs: NCS | None = None
 
     def _take(self, model, ck: dict, resizer_path: Path | None) -> None:
-        """The model and its checkpoint's outfit fields."""
-        self.model = model
-        self.shape, self.garment_id = ck["shape"], ck["garment_id"].numpy()
-        self.names = json.loads(ck["meta_json"])["garments"]
-        self.layer = ck["layer"].numpy()
+        """The model, its checkpoint's outfit fields and the rest's resizing."""
+        self.take(model, ck)
         self.resize = RestResizer(model.rest, model.faces, self.shape, resizer_path)
 
     @property
@@ -67,13 +74,18 @@ class BlendGarment(GarmentModel):
         _, codes = self.sequence_codes(body, rotmats, shape, transl, fps, motion)
         return self.ncs.pose_codes(codes, out.transforms, rest)
 
+    @torch.no_grad()
+    def pose_codes(self, rotmats: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """PBNS's morph targets D and its embedding of each pose: (D (E, N*3), (T, E))."""
+        return self.model.D.detach(), self.model.mlp(pose_features(rotmats))
+
     def sequence_codes(self, body: BodyModel, rotmats: torch.Tensor, shape: torch.Tensor, transl: torch.Tensor | None,
                        fps: float, motion: float = 1.0) -> tuple[torch.Tensor, torch.Tensor]:
         """NCS's codes when dynamic (``motion`` scales its dynamic code: ``NCS.motion_codes``), else
         PBNS's embedding of each pose."""
+        if self.ncs is None:
+            return self.pose_codes(rotmats)
         with torch.no_grad():
-            if self.ncs is None:
-                return self.model.D.detach(), self.model.mlp(pose_features(rotmats))
             zs, zd = self.ncs.motion_codes(body, rotmats, shape, transl, fps)
             return self.ncs.D.detach(), zs + motion * zd
 
@@ -82,8 +94,7 @@ class BlendGarment(GarmentModel):
         """A motion as ``sequence_codes``; a single pose as PBNS's (NCS needs a motion)."""
         if len(rotmats) > 1:
             return super().blend_codes(body, rotmats, shape, transl, fps)
-        with torch.no_grad():
-            return self.model, self.model.D.detach(), self.model.mlp(pose_features(rotmats))
+        return (self.model, *self.pose_codes(rotmats))
 
 
 class PBNSGarment(BlendGarment):
@@ -95,12 +106,8 @@ class PBNSGarment(BlendGarment):
 
     def __init__(self, outfit: str, path: str | Path | None = None, resizer: bool = True,
                  dynamics: bool | None = None):
-        path = Path(path) if path else store.trained_pbns(outfit)  # a preset, your own garment, a .pt file
-        if not path.exists():
-            raise MissingFile(f"no trained outfit {path}: run `recon garment train --outfit {outfit}`")
-        model, ck = PBNS.load(path)
-        name = json.loads(ck["meta_json"]).get("outfit")
-        self.outfit, self.path = name or str(path), path
+        self.path, model, ck, name = load_pbns(outfit, path)
+        self.outfit = name or str(self.path)
         resizer_path = store.resizer_path(name, path) if resizer and name else None
         self._take(model, ck, resizer_path if resizer_path is not None and resizer_path.exists() else None)
         ncs_path = store.ncs_path(name) if name else None

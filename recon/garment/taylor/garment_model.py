@@ -8,7 +8,6 @@ its warm start, and the cloth nears the drape at a fraction of a drape's cost. M
 (frames refined apart would flicker)."""
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import torch
@@ -19,7 +18,8 @@ from recon.garment import store
 from recon.garment.drape import DrapeSolver
 from recon.garment.family import GarmentModel, PostStep
 from recon.garment.mesh import vertex_normals
-from recon.garment.pbns.model import PBNS, trained_outfit
+from recon.garment.pbns.garment_model import load_pbns
+from recon.garment.pbns.model import trained_outfit
 from recon.garment.taylor.model import TaylorGarment
 
 # drape-solver iterations after the Taylor model on a single pose (chosen on val: garment-taylor.md)
@@ -37,14 +37,9 @@ class TaylorGarmentModel(GarmentModel):
 
     def __init__(self, outfit: str, path: str | Path | None = None, resizer: bool = True,
                  dynamics: bool | None = None, drape_iterations: int = DRAPE_ITERATIONS):
-        path = Path(path) if path else store.trained_pbns(outfit)
-        if not path.exists():
-            raise MissingFile(f"no trained outfit {path}: run `recon garment train --outfit {outfit}`")
-        self.model, ck = PBNS.load(path)
-        meta = json.loads(ck["meta_json"])
-        self.outfit, self.path = meta.get("outfit") or str(path), path
-        self.shape, self.garment_id, self.names = ck["shape"], ck["garment_id"].numpy(), meta["garments"]
-        self.layer = ck["layer"].numpy()
+        self.path, model, ck, name = load_pbns(outfit, path)
+        self.outfit = name or str(self.path)
+        self.take(model, ck)
         tp = store.taylor_path(self.outfit)
         if not tp.exists():
             raise MissingFile(f"{self.outfit} has no Taylor database {tp}: run "
